@@ -1,0 +1,88 @@
+#include "estimator/eval/evaluation.h"
+
+#include <cmath>
+
+namespace raillomer::eval {
+
+bool EvalOptions::IsValid(std::string* error) const {
+  AssociationOptions association;
+  association.max_gap_s = max_gap_s;
+  RpeOptions rpe;
+  rpe.segment_length_m = segment_length_m;
+  rpe.start_step_m = rpe_start_step_m;
+  return association.IsValid(error) && rpe.IsValid(error);
+}
+
+EvalResult Evaluate(const api::Trajectory& estimate,
+                    const api::Trajectory& truth,
+                    const EvalOptions& options) {
+  EvalResult result;
+  result.options = options;
+  if (!options.IsValid(&result.error)) return result;
+
+  // Frames: two different UTM zones can never be compared; one georeferenced and one local
+  // trajectory only make sense once aligned.
+  if (!estimate.utm_zone.empty() && !truth.utm_zone.empty() &&
+      estimate.utm_zone != truth.utm_zone) {
+    result.error = "estimate is in UTM zone " + estimate.utm_zone + " but truth in " +
+                   truth.utm_zone + "; convert one of them first";
+    return result;
+  }
+  result.utm_zone = !truth.utm_zone.empty() ? truth.utm_zone : estimate.utm_zone;
+  if (estimate.utm_zone.empty() != truth.utm_zone.empty() &&
+      options.align == AlignmentMode::kNone) {
+    result.warnings.push_back(std::string("only the ") +
+                              (truth.utm_zone.empty() ? "estimate" : "truth") +
+                              " has a utm_zone line (" + result.utm_zone +
+                              ") and --align is none; the two may be in different frames");
+  }
+
+  AssociationOptions association_options;
+  association_options.max_gap_s = options.max_gap_s;
+  result.association = AssociatePoses(estimate, truth, association_options);
+  if (!result.association.ok) {
+    result.error = result.association.error;
+    return result;
+  }
+  const std::vector<PosePair>& pairs = result.association.pairs;
+  if (pairs.size() < kMinMatchedPoses) {
+    result.error =
+        "only " + std::to_string(pairs.size()) + " of " + std::to_string(estimate.poses.size()) +
+        " estimate poses match the truth in time (" +
+        std::to_string(result.association.num_skipped_outside) + " outside the truth's span, " +
+        std::to_string(result.association.num_skipped_gap) + " across truth gaps above " +
+        std::to_string(options.max_gap_s) + " s); need at least " +
+        std::to_string(kMinMatchedPoses);
+    return result;
+  }
+
+  std::vector<Eigen::Vector3d> p_est, p_truth;
+  p_est.reserve(pairs.size());
+  p_truth.reserve(pairs.size());
+  for (const PosePair& pair : pairs) {
+    p_est.push_back(pair.T_world_est.translation());
+    p_truth.push_back(pair.T_world_truth.translation());
+  }
+  result.alignment = AlignPoints(p_est, p_truth, options.align);
+  if (result.alignment.degenerate) {
+    result.warnings.push_back(std::string("the ") + ToString(options.align) +
+                              " alignment is not unique (the matched truth is too straight or "
+                              "too short to fix the rotation)");
+  }
+  result.ate = ComputeAte(pairs, result.alignment.T_truth_est);
+
+  RpeOptions rpe_options;
+  rpe_options.segment_length_m = options.segment_length_m;
+  rpe_options.start_step_m = options.rpe_start_step_m;
+  result.rpe = ComputeRpe(pairs, rpe_options);
+  result.drift = ComputeEndDrift(pairs, options.align);
+
+  result.first_stamp_ns = pairs.front().stamp_ns;
+  result.last_stamp_ns = pairs.back().stamp_ns;
+  result.duration_s = static_cast<double>(result.last_stamp_ns - result.first_stamp_ns) * 1e-9;
+  result.distance_m = pairs.back().distance_m;
+  result.ok = true;
+  return result;
+}
+
+}  // namespace raillomer::eval

@@ -1,0 +1,89 @@
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "api/trajectory.h"
+#include "estimator/geo/utm.h"
+#include "estimator/io/sensor_messages.h"
+#include "estimator/sim/alignment.h"
+#include "estimator/sim/livox_model.h"
+#include "estimator/sim/motion.h"
+#include "estimator/sim/raycaster.h"
+#include "estimator/sim/scenario.h"
+#include "estimator/sim/sensor_models.h"
+#include "estimator/sim/world.h"
+
+namespace raillomer::sim {
+
+/// Run options that are not part of the scenario.
+struct SimOptions {
+  double duration_s = -1.0;        ///< < 0: the whole motion profile
+  std::optional<uint32_t> seed;    ///< overrides the scenario's noise seed
+  bool lidar = true;               ///< false: IMU, odometer and GNSS only (fast)
+};
+
+/// The in-process sensor source: a simulated run of one scenario, message by message in
+/// receive-time order, with its exact ground truth. The same messages go into run.bag.
+class Simulator : public io::SensorSource {
+ public:
+  /// Builds the corridor and the sensor models; false with a message if options are invalid.
+  static std::unique_ptr<Simulator> Create(const Scenario& scenario, const SimOptions& options,
+                                           std::string* error);
+
+  bool Next(io::SensorMessage* message) override;
+
+  const Scenario& scenario() const { return scenario_; }
+  const Alignment& alignment() const { return *alignment_; }
+  const World& world() const { return *world_; }
+  const TruthMotion& truth() const { return *truth_; }
+  const RayCaster& caster() const { return *caster_; }
+  const std::vector<LivoxHorizonModel>& lidars() const { return lidars_; }
+  double duration_s() const { return duration_s_; }
+  /// Run time of the last message handed out, for progress output.
+  double last_time_s() const { return last_time_s_; }
+  const geo::UtmZone& utm_zone() const { return zone_; }
+  /// UTM position (easting, northing, ellipsoidal height) of the world frame's origin.
+  const Eigen::Vector3d& origin_utm() const { return origin_utm_; }
+  /// Absolute stamp of run time t.
+  int64_t StampNs(double t) const;
+
+  /// The body frame's true pose at run time t, in UTM.
+  api::StampedPose TruthPose(double t) const;
+  /// Ground truth at `rate_hz` over the run, in UTM with the zone set.
+  api::Trajectory TruthTrajectory(double rate_hz) const;
+  /// The estimator's configuration for this rig (rig.yaml).
+  std::string RigYaml() const;
+  /// The corridor edits of a changed run, in UTM and WGS84 (changes.json).
+  std::string ChangesJson() const;
+
+ private:
+  explicit Simulator(const Scenario& scenario);
+
+  Scenario scenario_;
+  SimOptions options_;
+  std::unique_ptr<Alignment> alignment_;
+  std::unique_ptr<World> world_;
+  std::unique_ptr<TruthMotion> truth_;
+  std::unique_ptr<RayCaster> caster_;
+  std::vector<LivoxHorizonModel> lidars_;
+  std::unique_ptr<ImuModel> imu_;
+  std::unique_ptr<OdometerModel> odometer_;
+  std::unique_ptr<GnssModel> gnss_;
+  geo::UtmZone zone_;
+  Eigen::Vector3d origin_utm_ = Eigen::Vector3d::Zero();
+  int64_t start_ns_ = 0;
+  double duration_s_ = 0.0;
+  double last_time_s_ = 0.0;
+
+  // Scheduling: the next sample index of each stream.
+  uint64_t imu_index_ = 0, odometer_index_ = 0, gnss_index_ = 0, frame_index_ = 0;
+  size_t next_unit_ = 0;  ///< which LiDAR of the current frame goes next
+};
+
+}  // namespace raillomer::sim
