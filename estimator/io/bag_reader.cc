@@ -7,19 +7,16 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <exception>
-#include <limits>
 #include <initializer_list>
+#include <limits>
+#include <list>
 #include <set>
-#include <tuple>
 #include <sstream>
+#include <tuple>
 #include <utility>
 
 #include <bzlib.h>
 #include <roslz4/lz4s.h>
-#include <rosbag/bag.h>
-#include <rosbag/query.h>
-#include <rosbag/view.h>
 #include <sensor_msgs/Imu.h>
 #include <sensor_msgs/JointState.h>
 #include <sensor_msgs/NavSatFix.h>
@@ -27,14 +24,23 @@
 
 #include "estimator/io/livox_custom_msg.h"
 
+// The reader parses the bag format itself (http://wiki.ros.org/Bags/Format/2.0) instead of using
+// rosbag::View: rosbag's parser overruns buffers on corrupt records, and ROS deserialisers resize
+// vectors to any length a corrupt message claims. Here every length is checked against the bytes
+// present, so a damaged bag gives a message, never a crash or a huge allocation. The message
+// types' names and md5 sums still come from the ROS headers (and livox_custom_msg.h).
+
 namespace raillomer::io {
 namespace {
 
 constexpr int64_t kNsPerS = 1000000000;
 constexpr char kBagMagic[] = "#ROSBAG V2.0\n";
 constexpr size_t kBagMagicSize = sizeof(kBagMagic) - 1;
-// A single message or chunk larger than this is taken as a corrupt length field.
-constexpr uint64_t kMaxRecordBytes = uint64_t{1} << 31;
+// A chunk larger than this (uncompressed) is taken as a corrupt size field.
+constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 31;
+// Decompressed chunks kept while reading in time order (messages of neighbouring chunks interleave
+// in time when receive times lag).
+constexpr size_t kChunkCacheSize = 4;
 
 template <typename T>
 const char* RosType() {
@@ -44,8 +50,6 @@ template <typename T>
 const char* RosMd5() {
   return ros::message_traits::MD5Sum<T>::value();
 }
-
-int64_t ToNs(const ros::Time& t) { return int64_t{t.sec} * kNsPerS + t.nsec; }
 
 // Seconds with all nine decimals (a double would round nanoseconds away at epoch times).
 std::string FormatSeconds(int64_t ns) {
@@ -60,9 +64,11 @@ std::string FormatSeconds(int64_t ns) {
   return buffer;
 }
 
-// --- Scanning a bag record by record (format 2.0), for bags without a usable index. -------------
-// See http://wiki.ros.org/Bags/Format/2.0: every record is
-//   uint32 header_len, header (fields: uint32 len, "name=value"), uint32 data_len, data.
+std::string At(uint64_t pos) { return "byte " + std::to_string(pos); }
+
+// --- Records -------------------------------------------------------------------------------------
+// Every record is: uint32 header_len, header (fields: uint32 len, "name=value"), uint32 data_len,
+// data. All integers little-endian.
 
 enum Op : uint8_t {
   kOpMessageData = 0x02,
@@ -75,21 +81,13 @@ enum Op : uint8_t {
 
 using Fields = std::map<std::string, std::string>;
 
-struct Connection {
-  std::string topic;
-  std::string type;
-  std::string md5sum;
-};
-
-struct RawMessage {
-  uint32_t connection = 0;
-  int64_t time_ns = 0;
-  std::vector<uint8_t> data;
-};
-
 uint32_t ReadU32(const uint8_t* p) {
   return uint32_t{p[0]} | uint32_t{p[1]} << 8 | uint32_t{p[2]} << 16 | uint32_t{p[3]} << 24;
 }
+
+uint64_t ReadU64(const uint8_t* p) { return ReadU32(p) | uint64_t{ReadU32(p + 4)} << 32; }
+
+int64_t ReadTime(const uint8_t* p) { return int64_t{ReadU32(p)} * kNsPerS + ReadU32(p + 4); }
 
 bool ParseFields(const uint8_t* p, size_t size, Fields* fields) {
   fields->clear();
@@ -99,11 +97,11 @@ bool ParseFields(const uint8_t* p, size_t size, Fields* fields) {
     const uint32_t len = ReadU32(p + i);
     i += 4;
     if (len > size - i) return false;
-    const std::string field(reinterpret_cast<const char*>(p + i), len);
+    const char* field = reinterpret_cast<const char*>(p + i);
+    const char* eq = static_cast<const char*>(std::memchr(field, '=', len));
+    if (!eq) return false;
+    (*fields)[std::string(field, eq)] = std::string(eq + 1, field + len);
     i += len;
-    const size_t eq = field.find('=');
-    if (eq == std::string::npos) return false;
-    (*fields)[field.substr(0, eq)] = field.substr(eq + 1);
   }
   return true;
 }
@@ -115,6 +113,20 @@ bool FieldU32(const Fields& fields, const char* name, uint32_t* value) {
   return true;
 }
 
+bool FieldU64(const Fields& fields, const char* name, uint64_t* value) {
+  auto it = fields.find(name);
+  if (it == fields.end() || it->second.size() != 8) return false;
+  *value = ReadU64(reinterpret_cast<const uint8_t*>(it->second.data()));
+  return true;
+}
+
+bool FieldTime(const Fields& fields, const char* name, int64_t* time_ns) {
+  auto it = fields.find(name);
+  if (it == fields.end() || it->second.size() != 8) return false;
+  *time_ns = ReadTime(reinterpret_cast<const uint8_t*>(it->second.data()));
+  return true;
+}
+
 bool FieldOp(const Fields& fields, uint8_t* op) {
   auto it = fields.find("op");
   if (it == fields.end() || it->second.size() != 1) return false;
@@ -122,15 +134,45 @@ bool FieldOp(const Fields& fields, uint8_t* op) {
   return true;
 }
 
-// Reads a bag sequentially. Messages inside one chunk come out sorted by time (stable); chunks
-// come out in file order, which is recording order.
-class BagScanner {
+struct Connection {
+  std::string topic;
+  std::string type;
+  std::string md5sum;
+};
+
+// Parses a connection record (header: conn, topic; data: the connection header fields).
+bool ParseConnection(
+    const Fields& header, const uint8_t* data, size_t size, uint32_t* id, Connection* connection) {
+  Fields fields;
+  auto topic_it = header.find("topic");
+  if (!FieldU32(header, "conn", id) || topic_it == header.end() ||
+      !ParseFields(data, size, &fields)) {
+    return false;
+  }
+  connection->topic = topic_it->second;
+  connection->type = fields["type"];
+  connection->md5sum = fields["md5sum"];
+  return !connection->type.empty();
+}
+
+// The header of a record in the file, its data not yet read.
+struct RecordHeader {
+  uint64_t pos = 0;  // of the record
+  Fields fields;
+  uint8_t op = 0;
+  uint64_t data_pos = 0;
+  uint32_t data_len = 0;
+  uint64_t data_present = 0;  // < data_len when the file ends inside the data
+};
+
+// A bag file opened for random access.
+class BagFile {
  public:
-  ~BagScanner() {
+  ~BagFile() {
     if (file_) std::fclose(file_);
   }
 
-  // Checks the magic and reads the bag header record.
+  // Opens the file, checks the magic and reads the bag header record.
   bool Open(const std::string& path, std::string* error) {
     file_ = std::fopen(path.c_str(), "rb");
     if (!file_) {
@@ -142,7 +184,7 @@ class BagScanner {
       *error = "cannot stat " + path + ": " + std::strerror(errno);
       return false;
     }
-    file_size_ = static_cast<uint64_t>(st.st_size);
+    size_ = static_cast<uint64_t>(st.st_size);
     char magic[kBagMagicSize] = {};
     const size_t got = std::fread(magic, 1, kBagMagicSize, file_);
     if (got != kBagMagicSize || std::memcmp(magic, kBagMagic, kBagMagicSize) != 0) {
@@ -154,277 +196,556 @@ class BagScanner {
       }
       return false;
     }
-    pos_ = kBagMagicSize;
-    Fields header;
-    std::vector<uint8_t> data;
-    uint64_t record_pos = 0;
-    if (!ReadRecord(&header, &data, &record_pos, /*allow_partial=*/false)) {
-      *error = path + " is not a ROS1 bag: " + (damage_.empty() ? "it is empty" : damage_);
+    RecordHeader header;
+    std::string why;
+    if (!ReadHeader(kBagMagicSize, &header, &why) || header.data_present < header.data_len ||
+        header.op != kOpBagHeader || !FieldU64(header.fields, "index_pos", &index_pos_)) {
+      *error = path + " is not a ROS1 bag: no valid bag header record after the magic" +
+               (why.empty() ? "" : " (" + why + ")");
       return false;
     }
-    uint8_t op = 0;
-    auto index_it = header.find("index_pos");
-    if (!FieldOp(header, &op) || op != kOpBagHeader || index_it == header.end() ||
-        index_it->second.size() != 8) {
-      *error = path + " is not a ROS1 bag: its first record is not a bag header";
-      return false;
-    }
-    std::memcpy(&index_pos_, index_it->second.data(), 8);
+    FieldU32(header.fields, "conn_count", &conn_count_);
+    FieldU32(header.fields, "chunk_count", &chunk_count_);
+    first_record_pos_ = header.data_pos + header.data_len;
     return true;
   }
 
-  uint64_t file_size() const { return file_size_; }
+  uint64_t size() const { return size_; }
   uint64_t index_pos() const { return index_pos_; }
+  uint32_t conn_count() const { return conn_count_; }
+  uint32_t chunk_count() const { return chunk_count_; }
+  uint64_t first_record_pos() const { return first_record_pos_; }
+
+  bool ReadAt(uint64_t pos, void* out, uint64_t size) {
+    if (pos > size_ || size > size_ - pos) return false;
+    if (::fseeko(file_, static_cast<off_t>(pos), SEEK_SET) != 0) return false;
+    return std::fread(out, 1, size, file_) == size;
+  }
+
+  // Reads the header of the record at `pos`. False with `why` when the header itself is cut off
+  // or corrupt; a record whose data is cut off is returned with data_present < data_len.
+  bool ReadHeader(uint64_t pos, RecordHeader* header, std::string* why) {
+    header->pos = pos;
+    uint8_t len_bytes[4];
+    if (!ReadAt(pos, len_bytes, 4)) {
+      *why = "file ends at " + At(size_) + " inside the record at " + At(pos);
+      return false;
+    }
+    const uint32_t header_len = ReadU32(len_bytes);
+    if (header_len > size_ - pos - 4) {
+      *why = "file ends at " + At(size_) + " inside the header of the record at " + At(pos) +
+             " (or its length field is corrupt)";
+      return false;
+    }
+    std::vector<uint8_t> bytes(header_len);
+    if (!ReadAt(pos + 4, bytes.data(), header_len) ||
+        !ParseFields(bytes.data(), header_len, &header->fields) ||
+        !FieldOp(header->fields, &header->op)) {
+      *why = "corrupt record header at " + At(pos);
+      return false;
+    }
+    const uint64_t data_len_pos = pos + 4 + header_len;
+    if (!ReadAt(data_len_pos, len_bytes, 4)) {
+      *why = "file ends at " + At(size_) + " inside the record at " + At(pos);
+      return false;
+    }
+    header->data_len = ReadU32(len_bytes);
+    header->data_pos = data_len_pos + 4;
+    header->data_present = std::min<uint64_t>(header->data_len, size_ - header->data_pos);
+    return true;
+  }
+
+  bool ReadData(const RecordHeader& header, std::vector<uint8_t>* data) {
+    data->resize(header.data_present);
+    return header.data_present == 0 || ReadAt(header.data_pos, data->data(), header.data_present);
+  }
+
+ private:
+  FILE* file_ = nullptr;
+  uint64_t size_ = 0;
+  uint64_t index_pos_ = 0;
+  uint32_t conn_count_ = 0;
+  uint32_t chunk_count_ = 0;
+  uint64_t first_record_pos_ = 0;
+};
+
+// Decompresses a chunk's data into `out` (`size` bytes uncompressed).
+bool Decompress(const std::string& compression,
+                std::vector<uint8_t>& in,
+                uint32_t size,
+                std::vector<uint8_t>* out,
+                std::string* why) {
+  if (size > kMaxChunkBytes) {
+    *why = "implausible uncompressed size " + std::to_string(size);
+    return false;
+  }
+  if (compression == "none") {
+    if (in.size() != size) {
+      *why = "uncompressed chunk of " + std::to_string(in.size()) + " bytes claims size " +
+             std::to_string(size);
+      return false;
+    }
+    *out = in;
+    return true;
+  }
+  out->resize(size);
+  unsigned int out_size = size;
+  bool ok = false;
+  if (compression == "lz4") {
+    ok = roslz4_buffToBuffDecompress(reinterpret_cast<char*>(in.data()),
+                                     static_cast<unsigned int>(in.size()),
+                                     reinterpret_cast<char*>(out->data()),
+                                     &out_size) == ROSLZ4_OK;
+  } else if (compression == "bz2") {
+    ok = BZ2_bzBuffToBuffDecompress(reinterpret_cast<char*>(out->data()),
+                                    &out_size,
+                                    reinterpret_cast<char*>(in.data()),
+                                    static_cast<unsigned int>(in.size()),
+                                    /*small=*/0,
+                                    /*verbosity=*/0) == BZ_OK;
+  } else {
+    *why = "unknown compression '" + compression + "'";
+    return false;
+  }
+  if (!ok || out_size != size) {
+    *why = "cannot decompress its " + compression + " data (corrupt)";
+    return false;
+  }
+  return true;
+}
+
+// One record inside a (decompressed) chunk.
+struct InnerRecord {
+  Fields fields;
+  uint8_t op = 0;
+  const uint8_t* data = nullptr;
+  uint32_t data_len = 0;
+  size_t end = 0;  // offset after the record
+};
+
+enum class InnerResult { kOk, kIncomplete, kCorrupt };
+
+InnerResult ParseInnerRecord(const uint8_t* p, size_t size, size_t offset, InnerRecord* record) {
+  if (offset > size || size - offset < 4) return InnerResult::kIncomplete;
+  const uint32_t header_len = ReadU32(p + offset);
+  if (header_len > size - offset - 4) return InnerResult::kIncomplete;
+  if (!ParseFields(p + offset + 4, header_len, &record->fields) ||
+      !FieldOp(record->fields, &record->op)) {
+    return InnerResult::kCorrupt;
+  }
+  const size_t data_len_pos = offset + 4 + header_len;
+  if (size - data_len_pos < 4) return InnerResult::kIncomplete;
+  record->data_len = ReadU32(p + data_len_pos);
+  if (record->data_len > size - data_len_pos - 4) return InnerResult::kIncomplete;
+  record->data = p + data_len_pos + 4;
+  record->end = data_len_pos + 4 + record->data_len;
+  return InnerResult::kOk;
+}
+
+// --- The bag's index -----------------------------------------------------------------------------
+
+struct Chunk {
+  RecordHeader record;
+  std::string compression;
+  uint32_t size = 0;  // uncompressed
+};
+
+struct IndexEntry {
+  int64_t time_ns = 0;
+  uint32_t chunk = 0;
+  uint32_t offset = 0;  // of the message record in the uncompressed chunk
+  uint32_t connection = 0;
+};
+
+// The index of a finished bag: chunks, their index data records, and the connection records at
+// the end. Loaded by walking the top-level records (skipping chunk data), and checked for
+// consistency, so that reading by it cannot go astray.
+struct BagIndex {
+  std::map<uint32_t, Connection> connections;
+  std::vector<Chunk> chunks;
+  std::vector<IndexEntry> entries;  // sorted by time, then file order
+
+  bool Load(BagFile& file, std::string* why) {
+    if (file.index_pos() == 0) {
+      *why = "the bag has no index (its recording was not closed)";
+      return false;
+    }
+    if (file.index_pos() >= file.size()) {
+      *why = "the index position " + std::to_string(file.index_pos()) +
+             " lies beyond the end of the file (" + std::to_string(file.size()) +
+             " bytes): the file is truncated";
+      return false;
+    }
+    uint64_t pos = file.first_record_pos();
+    std::vector<uint8_t> data;
+    while (pos < file.size()) {
+      RecordHeader header;
+      if (!file.ReadHeader(pos, &header, why)) return false;
+      if (header.data_present < header.data_len) {
+        *why = "file ends at " + At(file.size()) + " inside the record at " + At(pos);
+        return false;
+      }
+      if (header.op == kOpChunk) {
+        Chunk chunk;
+        chunk.record = header;
+        auto compression = header.fields.find("compression");
+        if (compression == header.fields.end() || !FieldU32(header.fields, "size", &chunk.size)) {
+          *why = "chunk at " + At(pos) + " lacks its compression or size";
+          return false;
+        }
+        chunk.compression = compression->second;
+        chunks.push_back(std::move(chunk));
+      } else if (header.op == kOpIndexData) {
+        uint32_t version = 0, connection = 0, count = 0;
+        if (chunks.empty() || !FieldU32(header.fields, "ver", &version) || version != 1 ||
+            !FieldU32(header.fields, "conn", &connection) ||
+            !FieldU32(header.fields, "count", &count) || uint64_t{count} * 12 != header.data_len ||
+            !file.ReadData(header, &data)) {
+          *why = "corrupt index data record at " + At(pos);
+          return false;
+        }
+        for (uint32_t i = 0; i < count; ++i) {
+          IndexEntry entry;
+          entry.time_ns = ReadTime(data.data() + 12 * i);
+          entry.offset = ReadU32(data.data() + 12 * i + 8);
+          entry.chunk = static_cast<uint32_t>(chunks.size() - 1);
+          entry.connection = connection;
+          entries.push_back(entry);
+        }
+      } else if (header.op == kOpConnection) {
+        uint32_t id = 0;
+        Connection connection;
+        if (!file.ReadData(header, &data) ||
+            !ParseConnection(header.fields, data.data(), data.size(), &id, &connection)) {
+          *why = "corrupt connection record at " + At(pos);
+          return false;
+        }
+        connections[id] = connection;
+      } else if (header.op != kOpChunkInfo) {
+        *why = "unexpected record (op " + std::to_string(header.op) + ") at " + At(pos);
+        return false;
+      }
+      pos = header.data_pos + header.data_len;
+    }
+    if (chunks.size() != file.chunk_count() || connections.size() != file.conn_count()) {
+      *why = "the index lists " + std::to_string(chunks.size()) + " chunks and " +
+             std::to_string(connections.size()) + " connections, the bag header " +
+             std::to_string(file.chunk_count()) + " and " + std::to_string(file.conn_count());
+      return false;
+    }
+    for (const IndexEntry& entry : entries) {
+      if (connections.count(entry.connection) == 0 || entry.offset >= chunks[entry.chunk].size) {
+        *why = "the index of the chunk at " + At(chunks[entry.chunk].record.pos) + " is corrupt";
+        return false;
+      }
+    }
+    std::stable_sort(entries.begin(), entries.end(), [](const IndexEntry& a, const IndexEntry& b) {
+      return a.time_ns < b.time_ns;
+    });
+    return true;
+  }
+};
+
+// --- Scanning a bag without a usable index
+// --------------------------------------------------------
+
+struct RawMessage {
+  uint32_t connection = 0;
+  int64_t time_ns = 0;
+  std::vector<uint8_t> data;
+};
+
+// Reads a bag record by record. Messages inside one chunk come out sorted by time (stable); chunks
+// come out in file order, which is recording order.
+class BagScanner {
+ public:
+  bool Open(const std::string& path, std::string* error) {
+    if (!file_.Open(path, error)) return false;
+    pos_ = file_.first_record_pos();
+    return true;
+  }
+
   const std::string& damage() const { return damage_; }
   const std::map<uint32_t, Connection>& connections() const { return connections_; }
 
-  // Next message in file order; false at the end of the file or at damage (damage() says which).
+  // Next message; false at the end of the file or at damage (damage() says what and where).
   // Messages recovered from before the damage are delivered first.
   bool Next(RawMessage* message) {
     while (pending_next_ >= pending_.size()) {
       pending_.clear();
       pending_next_ = 0;
-      if (!damage_.empty() || pos_ >= file_size_) return false;
-      Fields header;
-      uint64_t record_pos = 0;
-      if (!ReadRecord(&header, &record_data_, &record_pos, /*allow_partial=*/true)) return false;
-      uint8_t op = 0;
-      if (!FieldOp(header, &op)) {
-        damage_ = "record at byte " + std::to_string(record_pos) + " has no op field";
+      if (!damage_.empty() || pos_ >= file_.size()) return false;
+      RecordHeader header;
+      if (!file_.ReadHeader(pos_, &header, &damage_)) return false;
+      const bool cut = header.data_present < header.data_len;
+      if (cut) {
+        damage_ = "file ends at " + At(file_.size()) + " inside the record at " + At(pos_) +
+                  " (its data needs " + std::to_string(header.data_len) + " bytes, only " +
+                  std::to_string(header.data_present) + " are present)";
+      }
+      pos_ = header.data_pos + header.data_present;
+      if (header.op != kOpChunk && header.op != kOpConnection && header.op != kOpMessageData) {
+        continue;  // bag header, index data and chunk info records carry no messages
+      }
+      if (!file_.ReadData(header, &data_)) {
+        damage_ = "read error in the record at " + At(header.pos);
         return false;
       }
-      // Bag header, index data and chunk info records carry no messages.
-      if (op == kOpChunk) {
-        ReadChunk(header, record_pos);
-      } else if (op == kOpConnection) {
-        AddConnection(header, record_data_.data(), record_data_.size(), record_pos);
-      } else if (op == kOpMessageData) {
-        AddMessage(header, record_data_.data(), record_data_.size(), record_pos);
+      if (header.op == kOpChunk) {
+        ReadChunk(header, cut);
+      } else if (!cut && header.op == kOpConnection) {
+        AddConnection(header.fields, data_.data(), data_.size(), header.pos);
+      } else if (!cut) {
+        AddMessage(header.fields, data_.data(), data_.size(), header.pos);
       }
-      std::stable_sort(pending_.begin(), pending_.end(), ByTime);
+      std::stable_sort(pending_.begin(), pending_.end(), [](const auto& a, const auto& b) {
+        return a.time_ns < b.time_ns;
+      });
     }
     *message = std::move(pending_[pending_next_++]);
     return true;
   }
 
  private:
-  static bool ByTime(const RawMessage& a, const RawMessage& b) { return a.time_ns < b.time_ns; }
-
-  // Reads the record at pos_. With allow_partial a record whose data is cut off by the end of the
-  // file is returned with the bytes present and partial_ set (damage_ names the cut).
-  bool ReadRecord(Fields* header, std::vector<uint8_t>* data, uint64_t* record_pos,
-                  bool allow_partial) {
-    *record_pos = pos_;
-    const uint64_t remaining = file_size_ - pos_;
-    uint8_t len_bytes[4];
-    if (remaining < 4 || !ReadAt(pos_, len_bytes, 4)) {
-      damage_ = "file ends at byte " + std::to_string(file_size_) + " inside the record at byte " +
-                std::to_string(pos_) + " (no room for its header length)";
-      return false;
-    }
-    const uint32_t header_len = ReadU32(len_bytes);
-    if (header_len > remaining - 4) {
-      damage_ = "file ends at byte " + std::to_string(file_size_) +
-                " inside the header of the record at byte " + std::to_string(pos_) + " (needs " +
-                std::to_string(header_len) + " bytes)";
-      return false;
-    }
-    std::vector<uint8_t> header_bytes(header_len);
-    if (!ReadAt(pos_ + 4, header_bytes.data(), header_len) ||
-        !ParseFields(header_bytes.data(), header_len, header)) {
-      damage_ = "corrupt record header at byte " + std::to_string(pos_);
-      return false;
-    }
-    const uint64_t data_len_pos = pos_ + 4 + header_len;
-    if (file_size_ - data_len_pos < 4 || !ReadAt(data_len_pos, len_bytes, 4)) {
-      damage_ = "file ends at byte " + std::to_string(file_size_) +
-                " inside the record at byte " + std::to_string(pos_) + " (no data length)";
-      return false;
-    }
-    const uint32_t data_len = ReadU32(len_bytes);
-    const uint64_t data_pos = data_len_pos + 4;
-    const uint64_t present = std::min<uint64_t>(data_len, file_size_ - data_pos);
-    partial_ = present < data_len;
-    if (partial_) {
-      damage_ = "file ends at byte " + std::to_string(file_size_) + " inside the record at byte " +
-                std::to_string(pos_) + " (its data needs " + std::to_string(data_len) +
-                " bytes, only " + std::to_string(present) + " are present)";
-      if (!allow_partial) return false;
-    }
-    data->resize(present);
-    if (present > 0 && !ReadAt(data_pos, data->data(), present)) {
-      damage_ = "read error in the record at byte " + std::to_string(pos_);
-      return false;
-    }
-    pos_ = data_pos + present;
-    return true;
-  }
-
-  bool ReadAt(uint64_t pos, uint8_t* out, uint64_t size) {
-    if (::fseeko(file_, static_cast<off_t>(pos), SEEK_SET) != 0) return false;
-    return std::fread(out, 1, size, file_) == size;
-  }
-
-  // Decompresses a chunk and queues its messages; sets damage_ on failure.
-  void ReadChunk(const Fields& header, uint64_t record_pos) {
-    const std::string where = "chunk at byte " + std::to_string(record_pos);
-    auto compression_it = header.find("compression");
-    uint32_t size = 0;
-    if (compression_it == header.end() || !FieldU32(header, "size", &size)) {
-      if (damage_.empty()) damage_ = where + " lacks its compression or size field";
-      return;
-    }
-    const std::string& compression = compression_it->second;
-    if (compression == "none") {
-      // A cut-off uncompressed chunk still yields its complete records.
-      ParseChunkRecords(record_data_.data(), record_data_.size(), record_pos);
-      if (partial_) damage_ += "; the complete messages before the cut were recovered";
-      return;
-    }
-    if (partial_) {
-      damage_ += "; that " + compression + "-compressed chunk is lost";
-      return;
-    }
-    if (size > kMaxRecordBytes) {
-      damage_ = where + " claims an implausible size of " + std::to_string(size) + " bytes";
-      return;
-    }
-    chunk_.resize(size);
-    unsigned int out_size = size;
-    int rc = 0;
-    if (compression == "lz4") {
-      rc = roslz4_buffToBuffDecompress(reinterpret_cast<char*>(record_data_.data()),
-                                       static_cast<unsigned int>(record_data_.size()),
-                                       reinterpret_cast<char*>(chunk_.data()),
-                                       &out_size);
-      rc = rc == ROSLZ4_OK ? 0 : 1;
-    } else if (compression == "bz2") {
-      rc = BZ2_bzBuffToBuffDecompress(reinterpret_cast<char*>(chunk_.data()),
-                                      &out_size,
-                                      reinterpret_cast<char*>(record_data_.data()),
-                                      static_cast<unsigned int>(record_data_.size()),
-                                      /*small=*/0,
-                                      /*verbosity=*/0);
-      rc = rc == BZ_OK ? 0 : 1;
-    } else {
-      damage_ = where + " uses unknown compression '" + compression + "'";
-      return;
-    }
-    if (rc != 0 || out_size != size) {
-      damage_ = "cannot decompress the " + compression + " " + where + " (corrupt data)";
-      return;
-    }
-    ParseChunkRecords(chunk_.data(), chunk_.size(), record_pos);
-  }
-
-  // Queues the connection and message records inside a (decompressed) chunk. Stops at the first
-  // incomplete record, which is damage unless the chunk itself was cut off (partial_).
-  void ParseChunkRecords(const uint8_t* p, size_t size, uint64_t chunk_pos) {
-    size_t i = 0;
-    const std::string where = " in the chunk at byte " + std::to_string(chunk_pos);
-    while (i < size) {
-      const size_t record_offset = i;
-      if (size - i < 4) break;
-      const uint32_t header_len = ReadU32(p + i);
-      if (header_len > size - i - 4) break;
-      Fields fields;
-      uint8_t op = 0;
-      if (!ParseFields(p + i + 4, header_len, &fields) || !FieldOp(fields, &op)) {
-        SetDamage("corrupt record header at offset " + std::to_string(record_offset) + where);
-        return;
-      }
-      i += 4 + header_len;
-      if (size - i < 4) break;
-      const uint32_t data_len = ReadU32(p + i);
-      i += 4;
-      if (data_len > size - i) break;
-      bool ok = true;
-      if (op == kOpConnection) {
-        ok = AddConnection(fields, p + i, data_len, chunk_pos);
-      } else if (op == kOpMessageData) {
-        ok = AddMessage(fields, p + i, data_len, chunk_pos);
-      }
-      if (!ok) return;
-      i += data_len;
-    }
-    if (i < size && !partial_) {
-      SetDamage("truncated record at offset " + std::to_string(i) + where);
-    }
-  }
-
   void SetDamage(const std::string& what) {
     if (damage_.empty()) damage_ = what;
   }
 
-  bool AddConnection(const Fields& header, const uint8_t* data, size_t size, uint64_t pos) {
+  void ReadChunk(const RecordHeader& header, bool cut) {
+    const std::string where = "the chunk at " + At(header.pos);
+    auto compression = header.fields.find("compression");
+    uint32_t size = 0;
+    if (compression == header.fields.end() || !FieldU32(header.fields, "size", &size)) {
+      SetDamage(where + " lacks its compression or size");
+      return;
+    }
+    if (cut) {
+      if (compression->second == "none") {
+        // A cut-off uncompressed chunk still yields its complete records.
+        ParseChunk(data_.data(), data_.size(), where, /*cut=*/true);
+        damage_ += "; the complete messages before the cut were recovered";
+      } else {
+        damage_ += "; that " + compression->second + "-compressed chunk is lost";
+      }
+      return;
+    }
+    std::string why;
+    if (!Decompress(compression->second, data_, size, &chunk_, &why)) {
+      SetDamage(where + ": " + why);
+      return;
+    }
+    ParseChunk(chunk_.data(), chunk_.size(), where, /*cut=*/false);
+  }
+
+  void ParseChunk(const uint8_t* p, size_t size, const std::string& where, bool cut) {
+    size_t offset = 0;
+    while (offset < size) {
+      InnerRecord record;
+      const InnerResult result = ParseInnerRecord(p, size, offset, &record);
+      if (result == InnerResult::kIncomplete) {
+        if (!cut)
+          SetDamage("truncated record at offset " + std::to_string(offset) + " in " + where);
+        return;
+      }
+      if (result == InnerResult::kCorrupt) {
+        SetDamage("corrupt record header at offset " + std::to_string(offset) + " in " + where);
+        return;
+      }
+      bool ok = true;
+      if (record.op == kOpConnection) {
+        ok = AddConnection(record.fields, record.data, record.data_len, 0, where);
+      } else if (record.op == kOpMessageData) {
+        ok = AddMessage(record.fields, record.data, record.data_len, 0, where);
+      }
+      if (!ok) return;
+      offset = record.end;
+    }
+  }
+
+  bool AddConnection(const Fields& header,
+                     const uint8_t* data,
+                     size_t size,
+                     uint64_t pos,
+                     const std::string& where = "") {
     uint32_t id = 0;
-    Fields conn_header;
-    if (!FieldU32(header, "conn", &id) || !ParseFields(data, size, &conn_header)) {
-      SetDamage("corrupt connection record near byte " + std::to_string(pos));
+    Connection connection;
+    if (!ParseConnection(header, data, size, &id, &connection)) {
+      SetDamage("corrupt connection record " + (where.empty() ? "at " + At(pos) : "in " + where));
       return false;
     }
-    Connection connection;
-    auto topic_it = header.find("topic");
-    if (topic_it != header.end()) connection.topic = topic_it->second;
-    connection.type = conn_header["type"];
-    connection.md5sum = conn_header["md5sum"];
     connections_[id] = connection;
     return true;
   }
 
-  bool AddMessage(const Fields& header, const uint8_t* data, size_t size, uint64_t pos) {
-    uint32_t id = 0;
-    auto time_it = header.find("time");
-    if (!FieldU32(header, "conn", &id) || time_it == header.end() || time_it->second.size() != 8) {
-      SetDamage("corrupt message record near byte " + std::to_string(pos));
-      return false;
-    }
-    if (connections_.count(id) == 0) {
-      SetDamage("message near byte " + std::to_string(pos) + " refers to unknown connection " +
-                std::to_string(id));
-      return false;
-    }
-    const auto* t = reinterpret_cast<const uint8_t*>(time_it->second.data());
+  bool AddMessage(const Fields& header,
+                  const uint8_t* data,
+                  size_t size,
+                  uint64_t pos,
+                  const std::string& where = "") {
     RawMessage message;
-    message.connection = id;
-    message.time_ns = int64_t{ReadU32(t)} * kNsPerS + ReadU32(t + 4);
+    const std::string place = where.empty() ? "at " + At(pos) : "in " + where;
+    if (!FieldU32(header, "conn", &message.connection) ||
+        !FieldTime(header, "time", &message.time_ns)) {
+      SetDamage("corrupt message record " + place);
+      return false;
+    }
+    if (connections_.count(message.connection) == 0) {
+      SetDamage("a message " + place + " refers to unknown connection " +
+                std::to_string(message.connection));
+      return false;
+    }
     message.data.assign(data, data + size);
     pending_.push_back(std::move(message));
     return true;
   }
 
-  FILE* file_ = nullptr;
-  uint64_t file_size_ = 0;
-  uint64_t index_pos_ = 0;
+  BagFile file_;
   uint64_t pos_ = 0;
-  bool partial_ = false;
   std::string damage_;
   std::map<uint32_t, Connection> connections_;
-  std::vector<uint8_t> record_data_;
+  std::vector<uint8_t> data_;
   std::vector<uint8_t> chunk_;
   std::vector<RawMessage> pending_;
   size_t pending_next_ = 0;
 };
 
-// --- Decoding message bytes into the sensor structs. ----------------------------------------------
+// --- Decoding serialised messages ----------------------------------------------------------------
 
-template <typename T>
-bool Deserialize(const std::vector<uint8_t>& bytes, T* message, std::string* error) {
-  try {
-    ros::serialization::IStream stream(const_cast<uint8_t*>(bytes.data()),
-                                       static_cast<uint32_t>(bytes.size()));
-    ros::serialization::deserialize(stream, *message);
-    if (stream.getLength() != 0) {
-      *error = std::to_string(stream.getLength()) + " bytes left over after a " + RosType<T>() +
-               " (message does not match its type)";
+// Reads ROS1 serialisation (little-endian, uint32 lengths) with every length checked against the
+// bytes left, so a corrupt message can neither overrun nor allocate more than its own size.
+class Wire {
+ public:
+  Wire(const uint8_t* p, size_t size) : p_(p), left_(size) {}
+
+  template <typename T>
+  bool Get(T* value) {
+    static_assert(std::is_arithmetic_v<T>);
+    if (left_ < sizeof(T)) return Overrun();
+    std::memcpy(value, p_, sizeof(T));
+    p_ += sizeof(T);
+    left_ -= sizeof(T);
+    return true;
+  }
+  template <typename T, size_t N>
+  bool Get(boost::array<T, N>* values) {
+    for (T& v : *values) {
+      if (!Get(&v)) return false;
+    }
+    return true;
+  }
+  bool Get(std::string* s) {
+    uint32_t n = 0;
+    if (!Get(&n)) return false;
+    if (n > left_) return Overrun();
+    s->assign(reinterpret_cast<const char*>(p_), n);
+    p_ += n;
+    left_ -= n;
+    return true;
+  }
+  // The length of an array whose elements take at least `min_element_bytes` each.
+  bool Count(size_t min_element_bytes, uint32_t* n) {
+    if (!Get(n)) return false;
+    if (uint64_t{*n} * min_element_bytes > left_) return Overrun();
+    return true;
+  }
+  template <typename T>
+  bool Get(std::vector<T>* values) {
+    uint32_t n = 0;
+    if (!Count(std::is_arithmetic_v<T> ? sizeof(T) : 4, &n)) return false;
+    values->resize(n);
+    if constexpr (std::is_arithmetic_v<T>) {
+      if (n > 0) std::memcpy(values->data(), p_, n * sizeof(T));
+      p_ += n * sizeof(T);
+      left_ -= n * sizeof(T);
+      return true;
+    } else {
+      for (T& v : *values) {
+        if (!Get(&v)) return false;
+      }
+      return true;
+    }
+  }
+  bool Get(ros::Time* t) { return Get(&t->sec) && Get(&t->nsec); }
+  bool Get(std_msgs::Header* h) { return Get(&h->seq) && Get(&h->stamp) && Get(&h->frame_id); }
+  bool Get(geometry_msgs::Vector3* v) { return Get(&v->x) && Get(&v->y) && Get(&v->z); }
+  bool Get(geometry_msgs::Quaternion* q) {
+    return Get(&q->x) && Get(&q->y) && Get(&q->z) && Get(&q->w);
+  }
+  bool Get(sensor_msgs::PointField* f) {
+    return Get(&f->name) && Get(&f->offset) && Get(&f->datatype) && Get(&f->count);
+  }
+  bool Get(livox_ros_driver::CustomPoint* p) {
+    return Get(&p->offset_time) && Get(&p->x) && Get(&p->y) && Get(&p->z) &&
+           Get(&p->reflectivity) && Get(&p->tag) && Get(&p->line);
+  }
+
+  bool Get(sensor_msgs::Imu* m) {
+    return Get(&m->header) && Get(&m->orientation) && Get(&m->orientation_covariance) &&
+           Get(&m->angular_velocity) && Get(&m->angular_velocity_covariance) &&
+           Get(&m->linear_acceleration) && Get(&m->linear_acceleration_covariance);
+  }
+  bool Get(sensor_msgs::NavSatFix* m) {
+    return Get(&m->header) && Get(&m->status.status) && Get(&m->status.service) &&
+           Get(&m->latitude) && Get(&m->longitude) && Get(&m->altitude) &&
+           Get(&m->position_covariance) && Get(&m->position_covariance_type);
+  }
+  bool Get(sensor_msgs::JointState* m) {
+    return Get(&m->header) && Get(&m->name) && Get(&m->position) && Get(&m->velocity) &&
+           Get(&m->effort);
+  }
+  bool Get(sensor_msgs::PointCloud2* m) {
+    uint32_t num_fields = 0;
+    if (!Get(&m->header) || !Get(&m->height) || !Get(&m->width) || !Count(13, &num_fields)) {
       return false;
     }
-  } catch (const std::exception& e) {
-    *error = std::string("cannot deserialize ") + RosType<T>() + ": " + e.what();
+    m->fields.resize(num_fields);
+    for (auto& f : m->fields) {
+      if (!Get(&f)) return false;
+    }
+    return Get(&m->is_bigendian) && Get(&m->point_step) && Get(&m->row_step) && Get(&m->data) &&
+           Get(&m->is_dense);
+  }
+  bool Get(livox_ros_driver::CustomMsg* m) {
+    uint32_t n = 0;
+    if (!Get(&m->header) || !Get(&m->timebase) || !Get(&m->point_num) || !Get(&m->lidar_id) ||
+        !Get(&m->rsvd) || !Count(19, &n)) {
+      return false;
+    }
+    m->points.resize(n);
+    for (auto& p : m->points) {
+      if (!Get(&p)) return false;
+    }
+    return true;
+  }
+
+  size_t left() const { return left_; }
+
+ private:
+  bool Overrun() {
+    left_ = 0;
+    return false;
+  }
+  const uint8_t* p_;
+  size_t left_;
+};
+
+template <typename T>
+bool Deserialize(const uint8_t* data, size_t size, T* message, std::string* error) {
+  Wire wire(data, size);
+  if (!wire.Get(message)) {
+    *error = std::string("message too short for a ") + RosType<T>() + " (" + std::to_string(size) +
+             " bytes; corrupt or a different definition)";
+    return false;
+  }
+  if (wire.left() != 0) {
+    *error = std::to_string(wire.left()) + " bytes left over after a " + RosType<T>() +
+             " (corrupt or a different definition)";
     return false;
   }
   return true;
 }
+
+int64_t ToNs(const ros::Time& t) { return int64_t{t.sec} * kNsPerS + t.nsec; }
 
 void ConvertCustomMsg(const livox_ros_driver::CustomMsg& in, LidarFrame* out) {
   out->stamp_ns = ToNs(in.header.stamp);
@@ -624,11 +945,12 @@ bool ConvertPointCloud2(const sensor_msgs::PointCloud2& in,
       q.z = static_cast<float>(z);
       if (fi) {
         const double v = ReadScalar(p + fi->offset, fi->datatype);
-        q.reflectivity = static_cast<uint8_t>(std::isfinite(v) ? std::clamp(std::round(v), 0.0, 255.0)
-                                                               : 0.0);
+        q.reflectivity =
+            static_cast<uint8_t>(std::isfinite(v) ? std::clamp(std::round(v), 0.0, 255.0) : 0.0);
       }
       if (fl) {
-        q.line = static_cast<uint8_t>(std::clamp(ReadScalar(p + fl->offset, fl->datatype), 0.0, 255.0));
+        q.line =
+            static_cast<uint8_t>(std::clamp(ReadScalar(p + fl->offset, fl->datatype), 0.0, 255.0));
       }
       if (fg) q.tag = static_cast<uint8_t>(ReadScalar(p + fg->offset, fg->datatype));
       out->points.push_back(q);
@@ -660,12 +982,13 @@ enum class Role { kLidar, kImu, kGnss, kOdometer };
 struct TopicRole {
   Role role = Role::kLidar;
   uint8_t lidar_index = 0;
-  const char* name = "";  // for messages: "lidar", "imu", ...
+  const char* name = "";  // "lidar", "imu", ... for messages
 };
 
 bool Decode(const TopicRole& role,
             const std::string& type,
-            const std::vector<uint8_t>& bytes,
+            const uint8_t* data,
+            size_t size,
             SensorMessage* out,
             std::string* error) {
   switch (role.role) {
@@ -673,7 +996,7 @@ bool Decode(const TopicRole& role,
       LidarFrame frame;
       if (type == RosType<livox_ros_driver::CustomMsg>()) {
         livox_ros_driver::CustomMsg msg;
-        if (!Deserialize(bytes, &msg, error)) return false;
+        if (!Deserialize(data, size, &msg, error)) return false;
         if (msg.point_num != msg.points.size()) {
           *error = "CustomMsg point_num " + std::to_string(msg.point_num) + " but " +
                    std::to_string(msg.points.size()) + " points";
@@ -682,7 +1005,7 @@ bool Decode(const TopicRole& role,
         ConvertCustomMsg(msg, &frame);
       } else {
         sensor_msgs::PointCloud2 msg;
-        if (!Deserialize(bytes, &msg, error)) return false;
+        if (!Deserialize(data, size, &msg, error)) return false;
         if (!ConvertPointCloud2(msg, role.lidar_index, &frame, error)) return false;
       }
       out->data = std::move(frame);
@@ -690,7 +1013,7 @@ bool Decode(const TopicRole& role,
     }
     case Role::kImu: {
       sensor_msgs::Imu msg;
-      if (!Deserialize(bytes, &msg, error)) return false;
+      if (!Deserialize(data, size, &msg, error)) return false;
       ImuSample sample;
       sample.stamp_ns = ToNs(msg.header.stamp);
       sample.frame_id = msg.header.frame_id;
@@ -706,7 +1029,7 @@ bool Decode(const TopicRole& role,
     }
     case Role::kGnss: {
       sensor_msgs::NavSatFix msg;
-      if (!Deserialize(bytes, &msg, error)) return false;
+      if (!Deserialize(data, size, &msg, error)) return false;
       GnssFix fix;
       fix.stamp_ns = ToNs(msg.header.stamp);
       fix.frame_id = msg.header.frame_id;
@@ -722,7 +1045,7 @@ bool Decode(const TopicRole& role,
     }
     case Role::kOdometer: {
       sensor_msgs::JointState msg;
-      if (!Deserialize(bytes, &msg, error)) return false;
+      if (!Deserialize(data, size, &msg, error)) return false;
       auto it = std::find(msg.name.begin(), msg.name.end(), "wheel");
       if (it == msg.name.end()) {
         *error = "JointState has no joint named 'wheel'";
@@ -763,6 +1086,32 @@ std::vector<ExpectedType> AcceptedTypes(Role role) {
       return {{RosType<sensor_msgs::JointState>(), RosMd5<sensor_msgs::JointState>()}};
   }
   return {};
+}
+
+// Topics of a set of connections, with message counts, for the summary.
+std::vector<BagTopicInfo> TopicInfos(const std::map<uint32_t, Connection>& connections,
+                                     const std::map<uint32_t, uint64_t>& counts) {
+  std::map<std::tuple<std::string, std::string, std::string>, BagTopicInfo> infos;
+  for (const auto& [id, c] : connections) {
+    BagTopicInfo& info = infos[{c.topic, c.type, c.md5sum}];
+    info.topic = c.topic;
+    info.type = c.type;
+    info.md5sum = c.md5sum;
+    auto count = counts.find(id);
+    if (count != counts.end()) info.message_count += count->second;
+  }
+  std::vector<BagTopicInfo> topics;
+  for (auto& [key, info] : infos) topics.push_back(info);
+  return topics;
+}
+
+std::string ListTopics(const BagSummary& summary) {
+  if (summary.topics.empty()) return "none";
+  std::string list;
+  for (const auto& t : summary.topics) {
+    list += (list.empty() ? "" : ", ") + t.topic + " (" + t.type + ")";
+  }
+  return list;
 }
 
 }  // namespace
@@ -843,13 +1192,15 @@ struct BagReader::Impl {
   std::string error;
   bool finished = false;
 
-  // Indexed bags: rosbag's View merges the topics in time order.
-  std::unique_ptr<rosbag::Bag> bag;
-  std::unique_ptr<rosbag::View> view;
-  rosbag::View::iterator it;
-  bool started = false;
+  // A bag with a sound index: its entries of the configured topics in time order.
+  BagFile file;
+  BagIndex index;
+  std::vector<IndexEntry> entries;
+  size_t next_entry = 0;
+  std::list<std::pair<uint32_t, std::vector<uint8_t>>> chunk_cache;  // most recent first
+  std::vector<uint8_t> chunk_data;
 
-  // Bags without a usable index: a sequential scan.
+  // A bag without a usable index: a sequential scan.
   std::unique_ptr<BagScanner> scanner;
 
   bool Fail(const std::string& what) {
@@ -865,57 +1216,70 @@ struct BagReader::Impl {
     return false;
   }
 
-  bool Deliver(const std::string& topic,
-               const std::string& type,
+  bool Deliver(const Connection& connection,
                int64_t time_ns,
-               const std::vector<uint8_t>& bytes,
+               const uint8_t* data,
+               size_t size,
                SensorMessage* message) {
-    const TopicRole& role = roles.at(topic);
     std::string why;
     SensorMessage out;
-    out.topic = topic;
+    out.topic = connection.topic;
     out.receive_ns = time_ns;
-    if (!Decode(role, type, bytes, &out, &why)) {
-      return Fail("bad " + type + " on " + topic + " at bag time " + FormatSeconds(time_ns) +
-                  " s: " + why);
+    if (!Decode(roles.at(connection.topic), connection.type, data, size, &out, &why)) {
+      return Fail("bad " + connection.type + " on " + connection.topic + " at bag time " +
+                  FormatSeconds(time_ns) + " s: " + why);
     }
     *message = std::move(out);
-    ++delivered[topic];
+    ++delivered[connection.topic];
     ++delivered_total;
     last_time_ns = time_ns;
     return true;
   }
 
+  // The decompressed data of a chunk, through a small cache.
+  const std::vector<uint8_t>* ChunkData(uint32_t id, std::string* why) {
+    for (auto it = chunk_cache.begin(); it != chunk_cache.end(); ++it) {
+      if (it->first == id) {
+        chunk_cache.splice(chunk_cache.begin(), chunk_cache, it);
+        return &chunk_cache.front().second;
+      }
+    }
+    const Chunk& chunk = index.chunks[id];
+    std::vector<uint8_t> decompressed;
+    if (!file.ReadData(chunk.record, &chunk_data)) {
+      *why = "read error";
+      return nullptr;
+    }
+    if (!Decompress(chunk.compression, chunk_data, chunk.size, &decompressed, why)) {
+      return nullptr;
+    }
+    chunk_cache.emplace_front(id, std::move(decompressed));
+    if (chunk_cache.size() > kChunkCacheSize) chunk_cache.pop_back();
+    return &chunk_cache.front().second;
+  }
+
   bool NextIndexed(SensorMessage* message) {
-    if (!view) {
+    if (next_entry >= entries.size()) {
       finished = true;
       return false;
     }
-    std::vector<uint8_t> bytes;
-    try {
-      if (!started) {
-        it = view->begin();
-        started = true;
-      } else {
-        ++it;
-      }
-      if (it == view->end()) {
-        finished = true;
-        return false;
-      }
-      const rosbag::MessageInstance& m = *it;
-      const uint32_t size = m.size();
-      if (size > kMaxRecordBytes) {
-        return Fail("message on " + m.getTopic() + " claims " + std::to_string(size) +
-                    " bytes (corrupt record)");
-      }
-      bytes.resize(size);
-      ros::serialization::OStream stream(bytes.data(), size);
-      m.write(stream);
-      return Deliver(m.getTopic(), m.getDataType(), ToNs(m.getTime()), bytes, message);
-    } catch (const std::exception& e) {
-      return Fail(std::string("read failed: ") + e.what());
+    const IndexEntry& entry = entries[next_entry++];
+    const std::string where = "the chunk at " + At(index.chunks[entry.chunk].record.pos) +
+                              ", offset " + std::to_string(entry.offset);
+    std::string why;
+    const std::vector<uint8_t>* chunk = ChunkData(entry.chunk, &why);
+    if (!chunk) return Fail("damaged: " + where + ": " + why);
+    InnerRecord record;
+    uint32_t connection = 0;
+    int64_t time_ns = 0;
+    if (ParseInnerRecord(chunk->data(), chunk->size(), entry.offset, &record) != InnerResult::kOk ||
+        record.op != kOpMessageData || !FieldU32(record.fields, "conn", &connection) ||
+        !FieldTime(record.fields, "time", &time_ns) || connection != entry.connection ||
+        time_ns != entry.time_ns) {
+      return Fail("damaged: the index points to no matching message record in " + where);
     }
+    return Deliver(
+        index.connections.at(connection), time_ns, record.data, record.data_len, message);
   }
 
   bool NextScanned(SensorMessage* message) {
@@ -923,7 +1287,7 @@ struct BagReader::Impl {
     while (scanner->Next(&raw)) {
       const Connection& connection = scanner->connections().at(raw.connection);
       if (roles.count(connection.topic) == 0) continue;
-      return Deliver(connection.topic, connection.type, raw.time_ns, raw.data, message);
+      return Deliver(connection, raw.time_ns, raw.data.data(), raw.data.size(), message);
     }
     // summary.damage holds why the index is unusable and where the scan stopped.
     if (!scanner->damage().empty()) return Fail("damaged: " + summary.damage);
@@ -931,75 +1295,6 @@ struct BagReader::Impl {
     return false;
   }
 };
-
-namespace {
-
-// Summary of an indexed bag through rosbag's index.
-void SummariseIndexed(rosbag::Bag& bag, BagSummary* summary) {
-  rosbag::View all(bag);
-  summary->message_count = all.size();
-  if (summary->message_count > 0) {
-    summary->start_ns = ToNs(all.getBeginTime());
-    summary->end_ns = ToNs(all.getEndTime());
-  }
-  std::map<std::tuple<std::string, std::string, std::string>, BagTopicInfo> infos;
-  for (const rosbag::ConnectionInfo* c : all.getConnections()) {
-    BagTopicInfo& info = infos[{c->topic, c->datatype, c->md5sum}];
-    info.topic = c->topic;
-    info.type = c->datatype;
-    info.md5sum = c->md5sum;
-  }
-  for (auto& [key, info] : infos) {
-    // A topic may carry several connections; count those of this type only.
-    const BagTopicInfo wanted = info;
-    rosbag::View one(bag, [&wanted](const rosbag::ConnectionInfo* c) {
-      return c->topic == wanted.topic && c->datatype == wanted.type && c->md5sum == wanted.md5sum;
-    });
-    info.message_count = one.size();
-    summary->topics.push_back(info);
-  }
-}
-
-// Summary of a bag without index: scan it completely (decompressing every chunk).
-void SummariseScanned(const std::string& path, BagSummary* summary) {
-  BagScanner scanner;
-  std::string error;
-  if (!scanner.Open(path, &error)) {
-    summary->damage = error;
-    return;
-  }
-  std::map<uint32_t, uint64_t> counts;
-  RawMessage raw;
-  bool any = false;
-  while (scanner.Next(&raw)) {
-    ++counts[raw.connection];
-    ++summary->message_count;
-    if (!any || raw.time_ns < summary->start_ns) summary->start_ns = raw.time_ns;
-    if (!any || raw.time_ns > summary->end_ns) summary->end_ns = raw.time_ns;
-    any = true;
-  }
-  summary->damage = scanner.damage();
-  std::map<std::tuple<std::string, std::string, std::string>, BagTopicInfo> infos;
-  for (const auto& [id, c] : scanner.connections()) {
-    BagTopicInfo& info = infos[{c.topic, c.type, c.md5sum}];
-    info.topic = c.topic;
-    info.type = c.type;
-    info.md5sum = c.md5sum;
-    info.message_count += counts[id];
-  }
-  for (auto& [key, info] : infos) summary->topics.push_back(info);
-}
-
-std::string ListTopics(const BagSummary& summary) {
-  if (summary.topics.empty()) return "none";
-  std::string list;
-  for (const auto& t : summary.topics) {
-    list += (list.empty() ? "" : ", ") + t.topic + " (" + t.type + ")";
-  }
-  return list;
-}
-
-}  // namespace
 
 BagReader::BagReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
@@ -1013,8 +1308,8 @@ std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
   if (!topics.IsValid(error)) return nullptr;
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
-    *error = "bag " + path + " does not exist";
-    if (errno != ENOENT) *error = "cannot access bag " + path + ": " + std::strerror(errno);
+    *error = errno == ENOENT ? "bag " + path + " does not exist"
+                             : "cannot access bag " + path + ": " + std::strerror(errno);
     return nullptr;
   }
   if (!S_ISREG(st.st_mode)) {
@@ -1026,38 +1321,41 @@ std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
   BagSummary& summary = impl->summary;
   summary.path = path;
   summary.file_size_bytes = static_cast<uint64_t>(st.st_size);
+  if (!impl->file.Open(path, error)) return nullptr;
 
-  // Check the magic and the bag header ourselves: rosbag's error messages for a non-bag are
-  // obscure, and a bag whose index position is 0 or past the end has no usable index.
-  {
-    BagScanner probe;
-    if (!probe.Open(path, error)) return nullptr;
-    summary.indexed = probe.index_pos() != 0 && probe.index_pos() < probe.file_size();
-    if (!summary.indexed) {
-      summary.damage = probe.index_pos() == 0
-                           ? "the bag has no index (its recording was not closed)"
-                           : "the index position " + std::to_string(probe.index_pos()) +
-                                 " lies beyond the end of the file (" +
-                                 std::to_string(probe.file_size()) + " bytes): truncated";
+  std::string why;
+  try {
+    summary.indexed = impl->index.Load(impl->file, &why);
+    if (summary.indexed) {
+      std::map<uint32_t, uint64_t> counts;
+      for (const IndexEntry& e : impl->index.entries) ++counts[e.connection];
+      summary.topics = TopicInfos(impl->index.connections, counts);
+      summary.message_count = impl->index.entries.size();
+      if (!impl->index.entries.empty()) {
+        summary.start_ns = impl->index.entries.front().time_ns;
+        summary.end_ns = impl->index.entries.back().time_ns;
+      }
+    } else {
+      // No usable index: scan the whole bag once for its connections, counts and damage.
+      impl->index = BagIndex();
+      BagScanner scanner;
+      if (!scanner.Open(path, error)) return nullptr;
+      std::map<uint32_t, uint64_t> counts;
+      RawMessage raw;
+      bool any = false;
+      while (scanner.Next(&raw)) {
+        ++counts[raw.connection];
+        ++summary.message_count;
+        if (!any || raw.time_ns < summary.start_ns) summary.start_ns = raw.time_ns;
+        if (!any || raw.time_ns > summary.end_ns) summary.end_ns = raw.time_ns;
+        any = true;
+      }
+      summary.topics = TopicInfos(scanner.connections(), counts);
+      summary.damage = why + (scanner.damage().empty() ? "" : "; " + scanner.damage());
     }
-  }
-  if (summary.indexed) {
-    try {
-      impl->bag = std::make_unique<rosbag::Bag>();
-      impl->bag->open(path, rosbag::bagmode::Read);
-      SummariseIndexed(*impl->bag, &summary);
-    } catch (const std::exception& e) {
-      summary.indexed = false;
-      summary.damage = std::string("its index cannot be read (") + e.what() + ")";
-      summary.topics.clear();
-      summary.message_count = 0;
-      impl->bag.reset();
-    }
-  }
-  if (!summary.indexed) {
-    const std::string why = summary.damage;
-    SummariseScanned(path, &summary);
-    summary.damage = why + (summary.damage.empty() ? "" : "; " + summary.damage);
+  } catch (const std::bad_alloc&) {
+    *error = "bag " + path + ": out of memory while reading its index";
+    return nullptr;
   }
 
   // Every configured topic must be present with an accepted type and md5.
@@ -1070,23 +1368,19 @@ std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
   if (!topics.odometer.empty()) {
     wanted.push_back({topics.odometer, {Role::kOdometer, 0, "odometer"}});
   }
-  const std::string damage_note =
-      summary.damage.empty() ? "" : " (the bag is damaged: " + summary.damage + ")";
   for (const auto& [topic, role] : wanted) {
     bool found = false;
     for (const BagTopicInfo& info : summary.topics) {
       if (info.topic != topic) continue;
       found = true;
-      const std::vector<ExpectedType> accepted = AcceptedTypes(role.role);
       std::string names;
       bool ok = false;
-      for (const ExpectedType& e : accepted) {
+      for (const ExpectedType& e : AcceptedTypes(role.role)) {
         names += (names.empty() ? "" : " or ") + e.type;
         if (e.type != info.type) continue;
         if (e.md5sum != info.md5sum) {
           *error = "bag " + path + ": topic " + topic + " has type " + info.type + " with md5 " +
-                   info.md5sum + ", expected md5 " + e.md5sum +
-                   " (a different message definition)";
+                   info.md5sum + ", expected md5 " + e.md5sum + " (a different message definition)";
           return nullptr;
         }
         ok = true;
@@ -1099,21 +1393,17 @@ std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
     }
     if (!found) {
       *error = "bag " + path + " has no " + role.name + " topic " + topic +
-               "; it has: " + ListTopics(summary) + damage_note;
+               "; it has: " + ListTopics(summary) +
+               (summary.damage.empty() ? "" : " (the bag is damaged: " + summary.damage + ")");
       return nullptr;
     }
     impl->roles[topic] = role;
   }
 
   if (summary.indexed) {
-    if (!impl->roles.empty()) {
-      std::vector<std::string> names;
-      for (const auto& [topic, role] : impl->roles) names.push_back(topic);
-      try {
-        impl->view = std::make_unique<rosbag::View>(*impl->bag, rosbag::TopicQuery(names));
-      } catch (const std::exception& e) {
-        *error = "bag " + path + ": cannot query its index: " + e.what();
-        return nullptr;
+    for (const IndexEntry& e : impl->index.entries) {
+      if (impl->roles.count(impl->index.connections.at(e.connection).topic)) {
+        impl->entries.push_back(e);
       }
     }
   } else {
@@ -1133,11 +1423,11 @@ bool BagReader::Inspect(const std::string& path, BagSummary* summary, std::strin
 bool BagReader::Next(SensorMessage* message) {
   Impl& d = *impl_;
   if (d.finished) return false;
-  if (d.roles.empty()) {
-    d.finished = true;
-    return false;
+  try {
+    return d.summary.indexed ? d.NextIndexed(message) : d.NextScanned(message);
+  } catch (const std::exception& e) {  // bad_alloc on a huge yet consistent message
+    return d.Fail(std::string("read failed: ") + e.what());
   }
-  return d.summary.indexed ? d.NextIndexed(message) : d.NextScanned(message);
 }
 
 const std::string& BagReader::error() const { return impl_->error; }

@@ -39,8 +39,8 @@ struct BagSummary {
   /// then it is read by scanning its records, and `damage` says what is wrong.
   bool indexed = true;
   uint64_t message_count = 0;
-  int64_t start_ns = 0;  ///< earliest bag time
-  int64_t end_ns = 0;    ///< latest bag time
+  int64_t start_ns = 0;              ///< earliest bag time
+  int64_t end_ns = 0;                ///< latest bag time
   std::vector<BagTopicInfo> topics;  ///< sorted by topic
   std::string damage;  ///< empty for a sound bag; else what is wrong and at which byte offset
   /// Multi-line text in the style of `rosbag info`.

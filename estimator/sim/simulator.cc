@@ -1,6 +1,7 @@
 #include "estimator/sim/simulator.h"
 
 #include <cmath>
+#include <future>
 #include <limits>
 
 #include <nlohmann/json.hpp>
@@ -74,26 +75,15 @@ bool Simulator::Next(io::SensorMessage* message) {
     last_time_s_ = next;
 
     if (frame_t <= next) {
-      const LivoxHorizonModel& unit = lidars_[next_unit_];
-      const uint64_t frame = frame_index_;
-      if (++next_unit_ == lidars_.size()) {
-        next_unit_ = 0;
-        ++frame_index_;
+      if (next_pending_ == 0) ScanFrames(frame_t);
+      if (next_pending_ < pending_frames_.size()) {
+        *message = std::move(pending_frames_[next_pending_++]);
+        return true;
       }
-      const double t0 = frame * period;
-      if (EventActive(scenario_, Event::Kind::kLidarBlackout, t0, unit.config().name)) continue;
-      io::LidarFrame out;
-      out.stamp_ns = StampNs(t0);
-      out.timebase_ns = static_cast<uint64_t>(out.stamp_ns);
-      out.frame_id = "livox_" + unit.config().name;
-      out.lidar_id = unit.config().lidar_id;
-      const TruthMotion& truth = *truth_;
-      unit.Scan(frame, t0, [&truth](double t) { return truth.Pose(t); }, *caster_, &out.points,
-                nullptr);
-      message->topic = unit.config().topic;
-      message->receive_ns = StampNs(frame_t);
-      message->data = std::move(out);
-      return true;
+      pending_frames_.clear();
+      next_pending_ = 0;
+      ++frame_index_;
+      continue;
     }
     if (imu_t <= next) {
       ++imu_index_;
@@ -120,6 +110,40 @@ bool Simulator::Next(io::SensorMessage* message) {
     message->data = fix;
     return true;
   }
+}
+
+void Simulator::ScanFrames(double receive_t) {
+  const double t0 = frame_index_ / scenario_.lidar_rate_hz;
+  pending_frames_.clear();
+  for (const LivoxHorizonModel& unit : lidars_) {
+    if (EventActive(scenario_, Event::Kind::kLidarBlackout, t0, unit.config().name)) continue;
+    io::SensorMessage message;
+    message.topic = unit.config().topic;
+    message.receive_ns = StampNs(receive_t);
+    io::LidarFrame frame;
+    frame.stamp_ns = StampNs(t0);
+    frame.timebase_ns = static_cast<uint64_t>(frame.stamp_ns);
+    frame.frame_id = "livox_" + unit.config().name;
+    frame.lidar_id = unit.config().lidar_id;
+    message.data = std::move(frame);
+    pending_frames_.push_back(std::move(message));
+  }
+  // The units are independent: scan them concurrently, one thread each.
+  const TruthMotion& truth = *truth_;
+  auto scan = [this, &truth, t0](io::SensorMessage* message) {
+    auto& frame = std::get<io::LidarFrame>(message->data);
+    for (const LivoxHorizonModel& unit : lidars_) {
+      if ("livox_" + unit.config().name != frame.frame_id) continue;
+      unit.Scan(frame_index_, t0, [&truth](double t) { return truth.Pose(t); }, *caster_,
+                &frame.points, nullptr);
+    }
+  };
+  std::vector<std::future<void>> workers;
+  for (size_t i = 1; i < pending_frames_.size(); ++i) {
+    workers.push_back(std::async(std::launch::async, scan, &pending_frames_[i]));
+  }
+  if (!pending_frames_.empty()) scan(&pending_frames_[0]);
+  for (std::future<void>& worker : workers) worker.get();
 }
 
 api::StampedPose Simulator::TruthPose(double t) const {

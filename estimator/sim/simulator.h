@@ -64,6 +64,8 @@ class Simulator : public io::SensorSource {
 
  private:
   explicit Simulator(const Scenario& scenario);
+  /// Scans frame `frame_index_` of every unit that is not blacked out into pending_frames_.
+  void ScanFrames(double receive_t);
 
   Scenario scenario_;
   SimOptions options_;
@@ -83,7 +85,10 @@ class Simulator : public io::SensorSource {
 
   // Scheduling: the next sample index of each stream.
   uint64_t imu_index_ = 0, odometer_index_ = 0, gnss_index_ = 0, frame_index_ = 0;
-  size_t next_unit_ = 0;  ///< which LiDAR of the current frame goes next
+  /// Frames of the current frame index, scanned together (one thread per unit), handed out in
+  /// unit order.
+  std::vector<io::SensorMessage> pending_frames_;
+  size_t next_pending_ = 0;
 };
 
 }  // namespace raillomer::sim

@@ -466,10 +466,10 @@ void World::BuildStations() {
       platform.mesh.AddBox(alignment_.Beside(mid, side * 4.75, 0.5 * (top + bottom)), R,
                            Vec3(5.0, 3.0, 0.5 * (top - bottom)), Material::kPlatform);
       // Canopy pillars and roof, lamp posts.
-      platform.mesh.AddCylinder(alignment_.Beside(mid, side * 5.5, top),
-                                alignment_.Beside(mid, side * 5.5, top + 3.6), 0.15, 6,
+      platform.mesh.AddCylinder(alignment_.Beside(mid, side * 5.6, top),
+                                alignment_.Beside(mid, side * 5.6, top + 4.4), 0.15, 6,
                                 Material::kMast);
-      platform.mesh.AddBox(alignment_.Beside(mid, side * 5.0, top + 3.7), R, Vec3(5.0, 2.6, 0.1),
+      platform.mesh.AddBox(alignment_.Beside(mid, side * 5.6, top + 4.5), R, Vec3(5.0, 2.0, 0.1),
                            Material::kRoof);
       platform.mesh.AddCylinder(alignment_.Beside(s, side * 7.4, top),
                                 alignment_.Beside(s, side * 7.4, top + 5.0), 0.06, 4,
@@ -641,6 +641,7 @@ void World::ApplyChanges(std::mt19937& rng) {
     r.centre_world = box.center();
     r.extent_m = box.sizes();
     for (const Eigen::Vector3f& v : object.mesh.vertices) {
+      if (kind == "object_removed") break;  // what is gone cannot be in the way
       double along, lateral, height;
       local(object.chainage_m, v.cast<double>(), &along, &lateral, &height);
       if (std::fabs(along) < 50.0 && std::fabs(lateral) < kClearanceHalfWidthM && height > 0.0 &&

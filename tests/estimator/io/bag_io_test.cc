@@ -83,7 +83,9 @@ LidarFrame MakeFrame(int64_t stamp_ns, uint8_t lidar_id, size_t num_points, uint
 std::vector<SensorMessage> MakeStream(const StreamSpec& spec) {
   std::vector<SensorMessage> messages;
   const int64_t duration_ns = static_cast<int64_t>(spec.duration_s * 1e9);
-  const auto period = [](double rate_hz) { return static_cast<int64_t>(std::llround(1e9 / rate_hz)); };
+  const auto period = [](double rate_hz) {
+    return static_cast<int64_t>(std::llround(1e9 / rate_hz));
+  };
   int frame_index = 0;
   for (int64_t t = 0; t < duration_ns; t += period(spec.lidar_rate_hz), ++frame_index) {
     for (uint8_t id = 0; id < 2; ++id) {
@@ -365,8 +367,8 @@ TEST_F(RosbagIoTest, ReadsPointCloud2WithRelativeSecondsTime) {
   EXPECT_EQ(frame.stamp_ns, 1700000000500000000);
   EXPECT_EQ(frame.frame_id, "velodyne");
   // float32 -0.05 s is -50000000.7 ns; the earliest point defines the timebase.
-  EXPECT_EQ(frame.timebase_ns, static_cast<uint64_t>(1700000000500000000 +
-                                                     std::llround(double{-0.05f} * 1e9)));
+  EXPECT_EQ(frame.timebase_ns,
+            static_cast<uint64_t>(1700000000500000000 + std::llround(double{-0.05f} * 1e9)));
   ASSERT_EQ(frame.points.size(), 2u);  // the NaN point is dropped
   EXPECT_EQ(frame.points[0].offset_time_ns, 0u);
   EXPECT_EQ(frame.points[1].offset_time_ns,

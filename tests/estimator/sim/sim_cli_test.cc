@@ -1,0 +1,178 @@
+// raillomer-sim end to end: the outputs of a short run, the independent bag check (python
+// rosbag, not our reader), and clear errors on bad input with nothing half-written left behind.
+
+#include <cstdlib>
+#include <unistd.h>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "api/trajectory.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string Env(const char* name) {
+  const char* value = std::getenv(name);
+  return value ? value : "";
+}
+
+std::string ReadFile(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+struct CommandResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+/// Runs a shell command, capturing stdout and stderr.
+CommandResult Shell(const std::string& command, const fs::path& dir) {
+  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
+  const int status = std::system((command + " >" + out.string() + " 2>" + err.string()).c_str());
+  CommandResult run;
+  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  run.out = ReadFile(out);
+  run.err = ReadFile(err);
+  return run;
+}
+
+class SimCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    sim_ = Env("RAILLOMER_BIN") + "/raillomer-sim";
+    checker_ = Env("RAILLOMER_SOURCE") + "/tests/tools/check_bag.py";
+    ASSERT_TRUE(fs::exists(sim_)) << sim_;
+    dir_ = fs::temp_directory_path() /
+           ("raillomer_sim_cli_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string sim_, checker_;
+  fs::path dir_;
+};
+
+TEST_F(SimCli, ListsTheScenarioSuite) {
+  const CommandResult run = Shell(sim_ + " --list", dir_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  for (const char* name :
+       {"rich_low_station_a", "rich_low_yard_b", "rich_high_town_a", "rich_high_mixed_b",
+        "poor_low_open_a", "poor_low_embankment_b", "poor_high_open_a", "poor_high_catenary_b",
+        "imu_loss", "reverse_running", "winter_wheel_slip", "tunnel_gnss_outage", "long_20km",
+        "rich_low_station_a_changed"}) {
+    EXPECT_NE(run.out.find(name), std::string::npos) << name;
+  }
+  EXPECT_EQ(run.out.find("invalid"), std::string::npos) << run.out;
+}
+
+TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
+  const fs::path out = dir_ / "run";
+  const CommandResult run = Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5",
+                        dir_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  for (const char* file : {"run.bag", "truth.tum", "gnss.tum", "rig.yaml"}) {
+    EXPECT_TRUE(fs::exists(out / file)) << file;
+  }
+  EXPECT_FALSE(fs::exists(out / "changes.json"));
+  for (const auto& entry : fs::directory_iterator(out)) {
+    EXPECT_EQ(entry.path().filename().string().find(".tmp-"), std::string::npos)
+        << "leftover temporary " << entry.path();
+  }
+
+  raillomer::api::Trajectory truth;
+  std::string error;
+  ASSERT_TRUE(raillomer::api::ReadTum((out / "truth.tum").string(), &truth, &error)) << error;
+  EXPECT_EQ(truth.utm_zone, "50N");
+  ASSERT_EQ(truth.poses.size(), 301u);  // 100 Hz over 3 s, both ends
+  EXPECT_EQ(truth.poses[1].stamp_ns - truth.poses[0].stamp_ns, 10000000);
+  EXPECT_GT(truth.poses.front().p_world.x(), 166000.0);  // a UTM easting, not a local frame
+  EXPECT_GT(truth.poses.front().p_world.y(), 3.0e6);
+  EXPECT_EQ(ReadFile(out / "truth.tum").rfind("# utm_zone 50N\n", 0), 0u);
+
+  raillomer::api::Trajectory gnss;
+  ASSERT_TRUE(raillomer::api::ReadTum((out / "gnss.tum").string(), &gnss, &error)) << error;
+  EXPECT_GE(gnss.poses.size(), 3u);
+  EXPECT_LT((gnss.poses.front().p_world - truth.poses.front().p_world).norm(), 40.0);
+
+  const std::string rig = ReadFile(out / "rig.yaml");
+  for (const char* key : {"/livox/lidar_up", "/livox/lidar_down", "/imu/data", "/odometer",
+                          "/gnss/fix", "wheel_diameter_m", "pulses_per_rev", "rpy_deg"}) {
+    EXPECT_NE(rig.find(key), std::string::npos) << key;
+  }
+
+  // The independent check: topics, types, md5 sums, definitions, rates, points per frame.
+  const CommandResult check = Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() +
+                              " --duration-s 3 --points-per-frame 24000",
+                          dir_);
+  EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
+  EXPECT_NE(check.out.find("0 failed"), std::string::npos) << check.out;
+}
+
+TEST_F(SimCli, ChangedRunWritesTheGroundTruthOfItsEdits) {
+  const fs::path out = dir_ / "changed";
+  const CommandResult run = Shell(
+      sim_ + " --scenario rich_low_station_a_changed --out " + out.string() + " --duration 1",
+      dir_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const std::string changes = ReadFile(out / "changes.json");
+  for (const char* kind : {"fallen_tree", "vegetation_growth", "object_removed", "object_moved",
+                           "object_added", "centre_utm", "intrudes_clearance", "50N"}) {
+    EXPECT_NE(changes.find(kind), std::string::npos) << kind;
+  }
+}
+
+TEST_F(SimCli, MalformedScenarioNamesTheKeyAndLineAndWritesNothing) {
+  const fs::path scenario = dir_ / "bad.yaml";
+  std::ofstream(scenario) << "name: bad\n"
+                             "alignment:\n"
+                             "  - {type: straight, length_m: 900}\n"
+                             "corridor:\n"
+                             "  treez: {per_km: 3}\n"
+                             "motion:\n"
+                             "  phases: [{to_kmh: 30}, {for_s: 10}]\n";
+  const fs::path out = dir_ / "out";
+  const CommandResult run = Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
+  EXPECT_EQ(run.exit_code, 2);
+  EXPECT_NE(run.err.find("bad.yaml:5:"), std::string::npos) << run.err;
+  EXPECT_NE(run.err.find("corridor.treez"), std::string::npos) << run.err;
+  EXPECT_FALSE(fs::exists(out / "run.bag"));
+
+  std::ofstream(scenario) << "name: bad\n"
+                             "alignment:\n"
+                             "  - {type: curve, length_m: 900, radius_m: 800, direction: up}\n";
+  const CommandResult direction = Shell(sim_ + " --scenario " + scenario.string() + " --out " +
+                                  out.string(),
+                              dir_);
+  EXPECT_EQ(direction.exit_code, 2);
+  EXPECT_NE(direction.err.find("bad.yaml:3:"), std::string::npos) << direction.err;
+  EXPECT_NE(direction.err.find("left or right"), std::string::npos) << direction.err;
+}
+
+TEST_F(SimCli, UnknownScenarioAndTooLongDurationAreClearErrors) {
+  const CommandResult unknown = Shell(sim_ + " --scenario no_such_line --out " + dir_.string(), dir_);
+  EXPECT_EQ(unknown.exit_code, 2);
+  EXPECT_NE(unknown.err.find("no_such_line"), std::string::npos);
+  EXPECT_NE(unknown.err.find("rich_low_station_a"), std::string::npos);  // lists the built-ins
+
+  const CommandResult too_long =
+      Shell(sim_ + " --scenario demo --out " + (dir_ / "x").string() + " --duration 500", dir_);
+  EXPECT_EQ(too_long.exit_code, 2);
+  EXPECT_NE(too_long.err.find("exceeds"), std::string::npos) << too_long.err;
+  EXPECT_FALSE(fs::exists(dir_ / "x" / "run.bag"));
+
+  const CommandResult missing = Shell(sim_ + " --scenario demo", dir_);
+  EXPECT_NE(missing.exit_code, 0);
+  EXPECT_NE(missing.err.find("--out"), std::string::npos);
+}
+
+}  // namespace
