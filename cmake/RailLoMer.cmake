@@ -35,12 +35,16 @@ function(raillomer_add_test name)
   raillomer_target_options(${name})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main)
   set_target_properties(${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
+  # Where the sources (scripts, fixtures) and the programs are; $RAILLOMER_BIN (set by ctest)
+  # and $RAILLOMER_SOURCE override them.
+  target_compile_definitions(${name} PRIVATE RAILLOMER_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+                                             RAILLOMER_BIN_DIR="${CMAKE_BINARY_DIR}/bin")
   if(NOT ARG_LABELS)
     set(ARG_LABELS unit)
   endif()
   gtest_discover_tests(${name}
     TEST_PREFIX "${name}."
     WORKING_DIRECTORY ${CMAKE_BINARY_DIR}
-    PROPERTIES LABELS "${ARG_LABELS}" ENVIRONMENT "RAILLOMER_BIN=${CMAKE_BINARY_DIR}/bin\\;RAILLOMER_SOURCE=${PROJECT_SOURCE_DIR}"
+    PROPERTIES LABELS "${ARG_LABELS}" ENVIRONMENT "RAILLOMER_BIN=${CMAKE_BINARY_DIR}/bin"
     DISCOVERY_MODE PRE_TEST)
 endfunction()

@@ -7,6 +7,7 @@
 // The message definitions are the ones livox_ros_driver v2.x publishes (msg/CustomMsg.msg,
 // msg/CustomPoint.msg), in the gendeps full-text form rosbag stores in the connection header.
 // genmsg re-hashes them to the md5 sums below (tests/estimator/io checks this with python rosbag).
+// Comments are part of the text rosbag stores; "costom" is the upstream spelling, keep it.
 
 #include <cstdint>
 #include <vector>

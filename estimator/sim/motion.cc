@@ -32,8 +32,9 @@ void SpeedProfile::At(double t, double* distance_m, double* speed_mps, double* a
   auto it = std::upper_bound(
       pieces_.begin(), pieces_.end(), t, [](double value, const Piece& p) { return value < p.t0; });
   const Piece& p = it == pieces_.begin() ? pieces_.front() : *(it - 1);
-  const double dt = std::max(0.0, t - p.t0);
-  // The final piece holds the last speed at zero acceleration.
+  // Before t = 0 the first piece extends backwards (the IMU differentiates across t = 0); the
+  // final piece holds the last speed at zero acceleration.
+  const double dt = t - p.t0;
   *distance_m = p.x0 + p.v0 * dt + 0.5 * p.a * dt * dt;
   *speed_mps = p.v0 + p.a * dt;
   *accel_mps2 = p.a;

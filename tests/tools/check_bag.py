@@ -9,7 +9,7 @@ definitions re-hash (genmsg) to those md5 sums; python rosbag deserialises the f
 every topic from the definition stored in the bag; frame rates by median interval (dropouts are
 reported as gaps, not failures); points per frame (exact); per-point offset_time non-decreasing and
 within [0, 100 ms]; line in 0..5; header stamp == timebase; IMU rate and gravity; GNSS rate and
-plausible lat/lon; odometer JointState name == ["wheel"].
+plausible lat/lon; IMU samples without spikes; odometer JointState name == ["wheel"].
 
 Speed: CustomMsg and Imu are read raw and parsed with struct; point columns are cut out of the
 point array with strided byte slices, so every point is checked without a Python-level loop.
@@ -193,10 +193,16 @@ def check_lidar(report, bag, topic, args):
                  "finite, within 1 km (sampled)" if not bad_values else "; ".join(bad_values[:5]))
 
 
+MAX_ACCEL_MPS2 = 100.0  # ~10 g: beyond this a sample is a glitch, not a rail vehicle
+MAX_GYRO_RADPS = 10.0
+
+
 def check_imu(report, bag, topic, args):
     stamps = []
-    norms = []
+    sum_accel = [0.0, 0.0, 0.0]
+    finite = 0
     bad = 0
+    spikes = []
     for _, raw, _t in bag.read_messages(topics=[topic], raw=True):
         data = raw[1]
         stamp_ns, _frame_id, pos = parse_header(data)
@@ -207,17 +213,29 @@ def check_imu(report, bag, topic, args):
         if not all(math.isfinite(v) for v in gyro + accel):
             bad += 1
             continue
-        norms.append(math.sqrt(sum(a * a for a in accel)))
+        finite += 1
+        for k in range(3):
+            sum_accel[k] += accel[k]
+        accel_norm = math.sqrt(sum(a * a for a in accel))
+        gyro_norm = math.sqrt(sum(w * w for w in gyro))
+        if accel_norm > MAX_ACCEL_MPS2 or gyro_norm > MAX_GYRO_RADPS:
+            spikes.append("sample %d at %.3f s: |accel| %.1f m/s^2, |gyro| %.2f rad/s" % (
+                len(stamps) - 1, (stamp_ns - stamps[0]) / 1e9, accel_norm, gyro_norm))
     report.stats[topic] = {"messages": len(stamps)}
     if not report.check("imu %s messages" % topic, stamps, "%d samples" % len(stamps)):
         return
     check_rate(report, "imu", stamps, args.imu_rate)
     report.check("imu finite values", bad == 0, "%d samples with NaN/inf" % bad if bad else "")
-    if norms:
-        mean = statistics.fmean(norms)
-        report.stats[topic]["mean_accel_norm"] = mean
-        report.check("imu gravity", abs(mean - 9.8) <= 0.5,
-                     "mean |accel| %.3f m/s^2 (expected 9.8 +- 0.5)" % mean)
+    report.check("imu no spikes", not spikes,
+                 "all |accel| <= %g m/s^2, |gyro| <= %g rad/s" % (MAX_ACCEL_MPS2, MAX_GYRO_RADPS)
+                 if not spikes else "%d: %s" % (len(spikes), "; ".join(spikes[:3])))
+    if finite:
+        mean = [v / finite for v in sum_accel]
+        norm = math.sqrt(sum(v * v for v in mean))
+        report.stats[topic]["mean_accel_mps2"] = mean
+        report.check("imu gravity", abs(norm - 9.8) <= 0.5,
+                     "|mean accel| %.3f m/s^2 (expected 9.8 +- 0.5), mean (%.3f, %.3f, %.3f)" %
+                     (norm, mean[0], mean[1], mean[2]))
 
 
 def check_gnss(report, bag, topic, args):
@@ -264,9 +282,9 @@ def main(argv):
     parser.add_argument("--duration-s", type=float, help="expected time span of the bag")
     parser.add_argument("--points-per-frame", type=int, default=24000)
     parser.add_argument("--lidar-topics", default="/livox/lidar_up,/livox/lidar_down")
-    parser.add_argument("--imu-topic", default="/imu/data")
-    parser.add_argument("--gnss-topic", default="/gnss/fix")
-    parser.add_argument("--odom-topic", default="/odometer")
+    parser.add_argument("--imu-topic", default="/imu/data", help="empty: no IMU expected")
+    parser.add_argument("--gnss-topic", default="/gnss/fix", help="empty: no GNSS expected")
+    parser.add_argument("--odom-topic", default="/odometer", help="empty: no odometer expected")
     parser.add_argument("--lidar-rate", type=float, default=10.0)
     parser.add_argument("--imu-rate", type=float, default=200.0)
     parser.add_argument("--gnss-rate", type=float, default=1.0)
@@ -281,9 +299,11 @@ def main(argv):
 
     lidar_topics = [t for t in args.lidar_topics.split(",") if t]
     expected = {t: "livox_ros_driver/CustomMsg" for t in lidar_topics}
-    expected[args.imu_topic] = "sensor_msgs/Imu"
-    expected[args.gnss_topic] = "sensor_msgs/NavSatFix"
-    expected[args.odom_topic] = "sensor_msgs/JointState"
+    for topic, type_name in ((args.imu_topic, "sensor_msgs/Imu"),
+                             (args.gnss_topic, "sensor_msgs/NavSatFix"),
+                             (args.odom_topic, "sensor_msgs/JointState")):
+        if topic:  # an empty name skips that sensor
+            expected[topic] = type_name
 
     report = Report()
     print("bag %s (%d bytes)" % (args.bag, os.path.getsize(args.bag)))
@@ -331,7 +351,8 @@ def main(argv):
                              "%s: %s" % (type(e).__name__, e))
 
         def typed(topic):
-            return any(c.datatype == expected[topic] for c in connections.get(topic, []))
+            return topic in expected and any(c.datatype == expected[topic]
+                                             for c in connections.get(topic, []))
 
         for topic in lidar_topics:
             if typed(topic):

@@ -21,8 +21,12 @@ AlignmentSegment Straight(double length_m, double gradient_permille = 0.0) {
   return seg;
 }
 
-AlignmentSegment Curve(double length_m, double radius_m, int direction, double transition_m = 0.0,
-                       double cant_mm = 0.0, double gradient_permille = 0.0) {
+AlignmentSegment Curve(double length_m,
+                       double radius_m,
+                       int direction,
+                       double transition_m = 0.0,
+                       double cant_mm = 0.0,
+                       double gradient_permille = 0.0) {
   AlignmentSegment seg;
   seg.kind = AlignmentSegment::Kind::kCurve;
   seg.length_m = length_m;
@@ -105,8 +109,8 @@ TEST(Alignment, StraightFollowsTheInitialAzimuth) {
     EXPECT_NEAR(beyond.position.y(), 550.0 * std::cos(30.0 * kDeg), 1e-9);
     // Beside: lateral in the horizontal plane, height above the rail top.
     const Eigen::Vector3d beside = a.Beside(200.0, 3.0, 1.5);
-    EXPECT_NEAR((beside - p.position - 3.0 * p.Left() - Eigen::Vector3d(0, 0, 1.5)).norm(), 0.0,
-                1e-12);
+    EXPECT_NEAR(
+        (beside - p.position - 3.0 * p.Left() - Eigen::Vector3d(0, 0, 1.5)).norm(), 0.0, 1e-12);
     EXPECT_NEAR(beside.x(), 200.0 * std::sin(30.0 * kDeg) - 3.0 * std::cos(30.0 * kDeg), 1e-9);
   }
 }
@@ -123,7 +127,8 @@ TEST(Alignment, CircularCurveMatchesTheCircle) {
     for (double arc = 0.0; arc <= L; arc += 25.0) {
       const double phi = arc / R;
       const TrackPoint p = a.At(100.0 + arc);
-      const Eigen::Vector2d expected(100.0 + R * std::sin(phi), direction * R * (1.0 - std::cos(phi)));
+      const Eigen::Vector2d expected(100.0 + R * std::sin(phi),
+                                     direction * R * (1.0 - std::cos(phi)));
       EXPECT_LT((p.position.head<2>() - expected).norm(), 1e-3) << "arc " << arc;
       EXPECT_NEAR((p.position.head<2>() - centre).norm(), R, 1e-3);
       EXPECT_NEAR(p.heading_rad, k * arc, 1e-8);
@@ -148,7 +153,9 @@ TEST(Alignment, ClothoidRampsCurvatureLinearly) {
   for (double x = 0.0; x <= T; x += 10.0) {
     const double s = 100.0 + x;
     EXPECT_NEAR(a.At(s).curvature, k * x / T, 1e-9) << "x " << x;
-    if (x >= 2.0 && x <= T - 2.0) EXPECT_NEAR(NumericCurvature(a, s), k * x / T, 1e-6) << x;
+    if (x >= 2.0 && x <= T - 2.0) {
+      EXPECT_NEAR(NumericCurvature(a, s), k * x / T, 1e-6) << x;
+    }
     EXPECT_NEAR(a.At(s).heading_rad, 0.5 * k * x * x / T, 1e-9);
   }
   // Exit transition ramps back down.
@@ -159,7 +166,8 @@ TEST(Alignment, ClothoidRampsCurvatureLinearly) {
   EXPECT_NEAR(a.At(exit + T + 10.0).heading_rad, k * (L + T), 1e-9);
   // End of the entry clothoid against its series expansion (A^2 = R T).
   const Eigen::Vector2d end = a.At(100.0 + T).position.head<2>();
-  const double x_series = T - std::pow(T, 3) / (40.0 * R * R) + std::pow(T, 5) / (3456.0 * std::pow(R, 4));
+  const double x_series =
+      T - std::pow(T, 3) / (40.0 * R * R) + std::pow(T, 5) / (3456.0 * std::pow(R, 4));
   const double y_series = T * T / (6.0 * R) - std::pow(T, 4) / (336.0 * std::pow(R, 3));
   EXPECT_NEAR(end.x() - 100.0, x_series, 1e-4);
   EXPECT_NEAR(end.y(), y_series, 1e-4);
@@ -227,9 +235,12 @@ TEST(Alignment, GradesRiseAndEaseOverVerticalCurves) {
 
 TEST(Alignment, ContinuousAcrossKnotsAndSegmentBoundaries) {
   // Transitions of 37 m put segment boundaries between the 5 m knots.
-  Scenario s = WithAlignment({Straight(123.0), Curve(211.0, 450.0, 1, 37.0, 110.0, 8.0),
-                              Straight(96.0, -6.0), Curve(180.0, 300.0, -1, 41.0, 150.0, 12.0),
-                              Curve(0.5, 2000.0, 1), Straight(150.0)},
+  Scenario s = WithAlignment({Straight(123.0),
+                              Curve(211.0, 450.0, 1, 37.0, 110.0, 8.0),
+                              Straight(96.0, -6.0),
+                              Curve(180.0, 300.0, -1, 41.0, 150.0, 12.0),
+                              Curve(0.5, 2000.0, 1),
+                              Straight(150.0)},
                              47.0);
   s.vertical_curve_m = 40.0;
   const Alignment a(s);

@@ -37,16 +37,20 @@ ScannedFrame Scan(const Simulator& sim, size_t unit, uint64_t frame) {
   ScannedFrame out;
   out.t0 = frame / sim.scenario().lidar_rate_hz;
   const TruthMotion& truth = sim.truth();
-  sim.lidars()[unit].Scan(frame, out.t0, [&truth](double t) { return truth.Pose(t); },
-                          sim.caster(), &out.points, &out.kinds);
+  sim.lidars()[unit].Scan(
+      frame,
+      out.t0,
+      [&truth](double t) { return truth.Pose(t); },
+      sim.caster(),
+      &out.points,
+      &out.kinds);
   return out;
 }
 
 /// Range along the measured ray from the true sensor pose at `pose_t` to the world, minus the
 /// measured range.
 double RangeResidual(const Simulator& sim, size_t unit, const io::LivoxPoint& p, double pose_t) {
-  const Eigen::Isometry3d T =
-      sim.truth().Pose(pose_t) * sim.lidars()[unit].T_body_lidar();
+  const Eigen::Isometry3d T = sim.truth().Pose(pose_t) * sim.lidars()[unit].T_body_lidar();
   const Eigen::Vector3d q(p.x, p.y, p.z);
   const double measured = q.norm();
   const RayHit hit = sim.caster().Cast(T.translation(), T.linear() * (q / measured), 300.0);

@@ -81,8 +81,12 @@ TEST(Scenario, EveryBuiltinScenarioParsesAndValidates) {
     EXPECT_GT(s.ProfileDurationS(), 0.0);
     EXPECT_FALSE(s.lidars.empty());
   }
-  for (const char* expected : {"demo", "rich_low_station_a", "rich_low_station_a_changed",
-                               "tunnel_gnss_outage", "winter_wheel_slip", "reverse_running"}) {
+  for (const char* expected : {"demo",
+                               "rich_low_station_a",
+                               "rich_low_station_a_changed",
+                               "tunnel_gnss_outage",
+                               "winter_wheel_slip",
+                               "reverse_running"}) {
     EXPECT_TRUE(names.count(expected)) << expected;
   }
 }
@@ -104,16 +108,16 @@ TEST(Scenario, UnknownTopLevelKeyNamesKeyAndLine) {
 
 TEST(Scenario, UnknownNestedKeyNamesKeyPathAndLine) {
   const std::string corridor = kMinimal +
-                               "corridor:\n"                 // 8
-                               "  trees: {per_km: 5}\n"      // 9
-                               "  treez: {per_km: 5}\n";     // 10
+                               "corridor:\n"              // 8
+                               "  trees: {per_km: 5}\n"   // 9
+                               "  treez: {per_km: 5}\n";  // 10
   std::string error = ParseError(corridor);
   EXPECT_TRUE(Contains(error, "test.yaml:10:"));
   EXPECT_TRUE(Contains(error, "unknown key 'corridor.treez'"));
 
   // Two levels down, in a flow map.
   error = ParseError(kMinimal +
-                     "corridor:\n"                                  // 8
+                     "corridor:\n"                                   // 8
                      "  trees: {per_km: 5, offset_mm: [6, 30]}\n");  // 9
   EXPECT_TRUE(Contains(error, "test.yaml:9:"));
   EXPECT_TRUE(Contains(error, "unknown key 'corridor.trees.offset_mm'"));
@@ -149,10 +153,11 @@ TEST(Scenario, WrongTypeNamesKeyAndLine) {
 
 TEST(Scenario, BadEnumsAreRejected) {
   // Curve direction.
-  std::string error = ParseError(Replace(
-      kMinimal, "  - {type: straight, length_m: 1000}\n",
-      "  - {type: straight, length_m: 1000}\n"
-      "  - {type: curve, length_m: 100, radius_m: 800, direction: up}\n"));  // line 4
+  std::string error = ParseError(
+      Replace(kMinimal,
+              "  - {type: straight, length_m: 1000}\n",
+              "  - {type: straight, length_m: 1000}\n"
+              "  - {type: curve, length_m: 100, radius_m: 800, direction: up}\n"));  // line 4
   EXPECT_TRUE(Contains(error, "test.yaml:4:"));
   EXPECT_TRUE(Contains(error, "alignment[1].direction"));
   EXPECT_TRUE(Contains(error, "'up'"));
@@ -165,14 +170,14 @@ TEST(Scenario, BadEnumsAreRejected) {
 
   // Event type.
   error = ParseError(kMinimal +
-                     "events:\n"                                           // 8
+                     "events:\n"                                             // 8
                      "  - {type: imu_loss, at_s: 0.5, duration_s: 0.2}\n");  // 9
   EXPECT_TRUE(Contains(error, "test.yaml:9:"));
   EXPECT_TRUE(Contains(error, "'imu_loss'"));
 
   // Change kind and side.
   error = ParseError(kMinimal +
-                     "changes:\n"                           // 8
+                     "changes:\n"                              // 8
                      "  - {kind: object_stolen, at_m: 5}\n");  // 9
   EXPECT_TRUE(Contains(error, "test.yaml:9:"));
   EXPECT_TRUE(Contains(error, "'object_stolen'"));
@@ -182,14 +187,15 @@ TEST(Scenario, BadEnumsAreRejected) {
 }
 
 TEST(Scenario, ImpossibleValuesAreRejected) {
-  EXPECT_TRUE(Contains(
-      ParseError(Replace(kMinimal, "type: straight, length_m: 1000",
-                         "type: curve, length_m: 1000, radius_m: 100")),
-      "radius_m"));
+  EXPECT_TRUE(Contains(ParseError(Replace(kMinimal,
+                                          "type: straight, length_m: 1000",
+                                          "type: curve, length_m: 1000, radius_m: 100")),
+                       "radius_m"));
   EXPECT_TRUE(Contains(ParseError(Replace(kMinimal, "{for_s: 1}", "{for_s: 1, for_m: 3}")),
                        "exactly one of"));
   // for_m while standing still would never end.
-  EXPECT_TRUE(Contains(ParseError(Replace(kMinimal, "{for_s: 1}", "{for_m: 3}")), "standing still"));
+  EXPECT_TRUE(
+      Contains(ParseError(Replace(kMinimal, "{for_s: 1}", "{for_m: 3}")), "standing still"));
   // A blackout of a unit that does not exist.
   EXPECT_TRUE(Contains(ParseError(kMinimal + "events: [{type: lidar_blackout, at_s: 0, "
                                              "duration_s: 1, lidar: left}]\n"),

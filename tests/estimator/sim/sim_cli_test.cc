@@ -1,8 +1,8 @@
 // raillomer-sim end to end: the outputs of a short run, the independent bag check (python
 // rosbag, not our reader), and clear errors on bad input with nothing half-written left behind.
 
-#include <cstdlib>
 #include <unistd.h>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -16,9 +16,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string Env(const char* name) {
+std::string Env(const char* name, const char* fallback) {
   const char* value = std::getenv(name);
-  return value ? value : "";
+  return value ? value : fallback;
 }
 
 std::string ReadFile(const fs::path& path) {
@@ -47,8 +47,8 @@ CommandResult Shell(const std::string& command, const fs::path& dir) {
 class SimCli : public ::testing::Test {
  protected:
   void SetUp() override {
-    sim_ = Env("RAILLOMER_BIN") + "/raillomer-sim";
-    checker_ = Env("RAILLOMER_SOURCE") + "/tests/tools/check_bag.py";
+    sim_ = Env("RAILLOMER_BIN", RAILLOMER_BIN_DIR) + "/raillomer-sim";
+    checker_ = Env("RAILLOMER_SOURCE", RAILLOMER_SOURCE_DIR) + "/tests/tools/check_bag.py";
     ASSERT_TRUE(fs::exists(sim_)) << sim_;
     dir_ = fs::temp_directory_path() /
            ("raillomer_sim_cli_" + std::to_string(::getpid()) + "_" +
@@ -65,11 +65,20 @@ class SimCli : public ::testing::Test {
 TEST_F(SimCli, ListsTheScenarioSuite) {
   const CommandResult run = Shell(sim_ + " --list", dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  for (const char* name :
-       {"rich_low_station_a", "rich_low_yard_b", "rich_high_town_a", "rich_high_mixed_b",
-        "poor_low_open_a", "poor_low_embankment_b", "poor_high_open_a", "poor_high_catenary_b",
-        "imu_loss", "reverse_running", "winter_wheel_slip", "tunnel_gnss_outage", "long_20km",
-        "rich_low_station_a_changed"}) {
+  for (const char* name : {"rich_low_station_a",
+                           "rich_low_yard_b",
+                           "rich_high_town_a",
+                           "rich_high_mixed_b",
+                           "poor_low_open_a",
+                           "poor_low_embankment_b",
+                           "poor_high_open_a",
+                           "poor_high_catenary_b",
+                           "imu_loss",
+                           "reverse_running",
+                           "winter_wheel_slip",
+                           "tunnel_gnss_outage",
+                           "long_20km",
+                           "rich_low_station_a_changed"}) {
     EXPECT_NE(run.out.find(name), std::string::npos) << name;
   }
   EXPECT_EQ(run.out.find("invalid"), std::string::npos) << run.out;
@@ -77,8 +86,8 @@ TEST_F(SimCli, ListsTheScenarioSuite) {
 
 TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   const fs::path out = dir_ / "run";
-  const CommandResult run = Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5",
-                        dir_);
+  const CommandResult run =
+      Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5", dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
   for (const char* file : {"run.bag", "truth.tum", "gnss.tum", "rig.yaml"}) {
     EXPECT_TRUE(fs::exists(out / file)) << file;
@@ -105,28 +114,53 @@ TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   EXPECT_LT((gnss.poses.front().p_world - truth.poses.front().p_world).norm(), 40.0);
 
   const std::string rig = ReadFile(out / "rig.yaml");
-  for (const char* key : {"/livox/lidar_up", "/livox/lidar_down", "/imu/data", "/odometer",
-                          "/gnss/fix", "wheel_diameter_m", "pulses_per_rev", "rpy_deg"}) {
+  for (const char* key : {"/livox/lidar_up",
+                          "/livox/lidar_down",
+                          "/imu/data",
+                          "/odometer",
+                          "/gnss/fix",
+                          "wheel_diameter_m",
+                          "pulses_per_rev",
+                          "rpy_deg"}) {
     EXPECT_NE(rig.find(key), std::string::npos) << key;
   }
 
   // The independent check: topics, types, md5 sums, definitions, rates, points per frame.
-  const CommandResult check = Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() +
-                              " --duration-s 3 --points-per-frame 24000",
-                          dir_);
+  const CommandResult check =
+      Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() +
+                " --duration-s 3 --points-per-frame 24000",
+            dir_);
   EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
   EXPECT_NE(check.out.find("0 failed"), std::string::npos) << check.out;
 }
 
+TEST_F(SimCli, RunStartingAtSpeedPassesTheIndependentCheck) {
+  // A run that starts at 100 km/h: no start-up transient in the IMU or odometer.
+  const fs::path out = dir_ / "fast";
+  const CommandResult run = Shell(
+      sim_ + " --scenario rich_high_town_a --out " + out.string() + " --duration 1.5", dir_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const CommandResult check = Shell("/usr/bin/python3 " + checker_ + " " +
+                                        (out / "run.bag").string() + " --duration-s 1.5",
+                                    dir_);
+  EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
+}
+
 TEST_F(SimCli, ChangedRunWritesTheGroundTruthOfItsEdits) {
   const fs::path out = dir_ / "changed";
-  const CommandResult run = Shell(
-      sim_ + " --scenario rich_low_station_a_changed --out " + out.string() + " --duration 1",
-      dir_);
+  const CommandResult run =
+      Shell(sim_ + " --scenario rich_low_station_a_changed --out " + out.string() + " --duration 1",
+            dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
   const std::string changes = ReadFile(out / "changes.json");
-  for (const char* kind : {"fallen_tree", "vegetation_growth", "object_removed", "object_moved",
-                           "object_added", "centre_utm", "intrudes_clearance", "50N"}) {
+  for (const char* kind : {"fallen_tree",
+                           "vegetation_growth",
+                           "object_removed",
+                           "object_moved",
+                           "object_added",
+                           "centre_utm",
+                           "intrudes_clearance",
+                           "50N"}) {
     EXPECT_NE(changes.find(kind), std::string::npos) << kind;
   }
 }
@@ -141,7 +175,8 @@ TEST_F(SimCli, MalformedScenarioNamesTheKeyAndLineAndWritesNothing) {
                              "motion:\n"
                              "  phases: [{to_kmh: 30}, {for_s: 10}]\n";
   const fs::path out = dir_ / "out";
-  const CommandResult run = Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
+  const CommandResult run =
+      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("bad.yaml:5:"), std::string::npos) << run.err;
   EXPECT_NE(run.err.find("corridor.treez"), std::string::npos) << run.err;
@@ -150,16 +185,16 @@ TEST_F(SimCli, MalformedScenarioNamesTheKeyAndLineAndWritesNothing) {
   std::ofstream(scenario) << "name: bad\n"
                              "alignment:\n"
                              "  - {type: curve, length_m: 900, radius_m: 800, direction: up}\n";
-  const CommandResult direction = Shell(sim_ + " --scenario " + scenario.string() + " --out " +
-                                  out.string(),
-                              dir_);
+  const CommandResult direction =
+      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
   EXPECT_EQ(direction.exit_code, 2);
   EXPECT_NE(direction.err.find("bad.yaml:3:"), std::string::npos) << direction.err;
   EXPECT_NE(direction.err.find("left or right"), std::string::npos) << direction.err;
 }
 
 TEST_F(SimCli, UnknownScenarioAndTooLongDurationAreClearErrors) {
-  const CommandResult unknown = Shell(sim_ + " --scenario no_such_line --out " + dir_.string(), dir_);
+  const CommandResult unknown =
+      Shell(sim_ + " --scenario no_such_line --out " + dir_.string(), dir_);
   EXPECT_EQ(unknown.exit_code, 2);
   EXPECT_NE(unknown.err.find("no_such_line"), std::string::npos);
   EXPECT_NE(unknown.err.find("rich_low_station_a"), std::string::npos);  // lists the built-ins
