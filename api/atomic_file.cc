@@ -18,7 +18,8 @@ AtomicFile::~AtomicFile() {
 
 bool AtomicFile::Commit(std::string* error) {
   if (std::rename(temp_path_.c_str(), path_.c_str()) != 0) {
-    if (error) *error = "cannot rename " + temp_path_ + " to " + path_ + ": " + std::strerror(errno);
+    if (error)
+      *error = "cannot rename " + temp_path_ + " to " + path_ + ": " + std::strerror(errno);
     return false;
   }
   committed_ = true;
@@ -30,7 +31,8 @@ bool WriteFileAtomically(const std::string& path, const std::string& content, st
   {
     std::ofstream out(file.temp_path(), std::ios::binary | std::ios::trunc);
     if (!out) {
-      if (error) *error = "cannot open " + file.temp_path() + " for writing: " + std::strerror(errno);
+      if (error)
+        *error = "cannot open " + file.temp_path() + " for writing: " + std::strerror(errno);
       return false;
     }
     out.write(content.data(), static_cast<std::streamsize>(content.size()));

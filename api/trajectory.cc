@@ -122,7 +122,8 @@ bool ParseTum(const std::string& text, Trajectory* trajectory, std::string* erro
       return fail("expected 8 fields 't x y z qx qy qz qw', got '" + line + "'");
     }
     StampedPose pose;
-    if (!ParseStampSeconds(token[0], &pose.stamp_ns)) return fail("bad timestamp '" + token[0] + "'");
+    if (!ParseStampSeconds(token[0], &pose.stamp_ns))
+      return fail("bad timestamp '" + token[0] + "'");
     double v[7];
     for (int k = 0; k < 7; ++k) {
       if (!ParseDouble(token[k + 1], &v[k])) return fail("bad number '" + token[k + 1] + "'");

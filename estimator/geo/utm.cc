@@ -34,8 +34,7 @@ Eigen::Vector2d GeographicToUtm(const UtmZone& zone, double latitude_deg, double
   int zone_out = 0;
   bool north_out = true;
   double x = 0.0, y = 0.0;
-  GeographicLib::UTMUPS::Forward(
-      latitude_deg, longitude_deg, zone_out, north_out, x, y, zone.zone);
+  GeographicLib::UTMUPS::Forward(latitude_deg, longitude_deg, zone_out, north_out, x, y, zone.zone);
   // Forward reports the hemisphere of the latitude; shift the northing if the zone says otherwise.
   if (north_out != zone.north) y += zone.north ? -10000000.0 : 10000000.0;
   return {x, y};

@@ -34,7 +34,10 @@ size_t PiecewiseLinear::Piece(double s) const {
 double PiecewiseLinear::Slope(double s) const {
   if (s_.size() < 2 || s < s_.front() || s > s_.back()) return 0.0;
   const size_t i = Piece(s);
-  return (v_[i + 1] - v_[i]) / (s_[i + 1] - s_[i]);
+  const double length = s_[i + 1] - s_[i];
+  const double u = (s - s_[i]) / length;
+  const double shape = eased_ ? 6.0 * u * (1.0 - u) : 1.0;
+  return (v_[i + 1] - v_[i]) / length * shape;
 }
 
 double PiecewiseLinear::Value(double s) const {
@@ -42,7 +45,9 @@ double PiecewiseLinear::Value(double s) const {
   if (s <= s_.front()) return v_.front();
   if (s >= s_.back()) return v_.back();
   const size_t i = Piece(s);
-  return v_[i] + (v_[i + 1] - v_[i]) * (s - s_[i]) / (s_[i + 1] - s_[i]);
+  const double u = (s - s_[i]) / (s_[i + 1] - s_[i]);
+  const double shape = eased_ ? u * u * (3.0 - 2.0 * u) : u;
+  return v_[i] + (v_[i + 1] - v_[i]) * shape;
 }
 
 double PiecewiseLinear::Integral(double s) const {
@@ -50,9 +55,11 @@ double PiecewiseLinear::Integral(double s) const {
   if (s <= s_.front()) return v_.front() * (s - s_.front());
   if (s >= s_.back()) return integral_.back() + v_.back() * (s - s_.back());
   const size_t i = Piece(s);
-  const double ds = s - s_[i];
-  const double slope = (v_[i + 1] - v_[i]) / (s_[i + 1] - s_[i]);
-  return integral_[i] + v_[i] * ds + 0.5 * slope * ds * ds;
+  const double length = s_[i + 1] - s_[i];
+  const double u = (s - s_[i]) / length;
+  // ∫ shape du from 0 to u: u^2/2 (linear) or u^3 - u^4/2 (smoothstep); both 1/2 at u = 1.
+  const double area = eased_ ? u * u * u - 0.5 * u * u * u * u : 0.5 * u * u;
+  return integral_[i] + v_[i] * u * length + (v_[i + 1] - v_[i]) * length * area;
 }
 
 Eigen::Vector3d TrackPoint::Left() const {
@@ -127,10 +134,18 @@ Alignment::Alignment(const Scenario& scenario) {
 
 Eigen::Vector2d Alignment::Integrate(double s0, double s1) const {
   // Gauss-Legendre, 6 points: the heading is a smooth quadratic within 5 m.
-  static const double kX[6] = {-0.9324695142031521, -0.6612093864662645, -0.2386191860831969,
-                               0.2386191860831969,  0.6612093864662645,  0.9324695142031521};
-  static const double kW[6] = {0.1713244923791704, 0.3607615730481386, 0.4679139345726910,
-                               0.4679139345726910, 0.3607615730481386, 0.1713244923791704};
+  static const double kX[6] = {-0.9324695142031521,
+                               -0.6612093864662645,
+                               -0.2386191860831969,
+                               0.2386191860831969,
+                               0.6612093864662645,
+                               0.9324695142031521};
+  static const double kW[6] = {0.1713244923791704,
+                               0.3607615730481386,
+                               0.4679139345726910,
+                               0.4679139345726910,
+                               0.3607615730481386,
+                               0.1713244923791704};
   const double mid = 0.5 * (s0 + s1), half = 0.5 * (s1 - s0);
   Eigen::Vector2d sum = Eigen::Vector2d::Zero();
   for (int i = 0; i < 6; ++i) {

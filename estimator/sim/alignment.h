@@ -9,9 +9,11 @@
 
 namespace raillomer::sim {
 
-/// A function of chainage that is linear between knots, with its exact running integral.
+/// A function of chainage between knots, linear or eased (smoothstep, so its slope is
+/// continuous), with its exact running integral.
 class PiecewiseLinear {
  public:
+  explicit PiecewiseLinear(bool eased = false) : eased_(eased) {}
   void Add(double s, double value);
   double Value(double s) const;
   double Integral(double s) const;  ///< from the first knot to s
@@ -19,6 +21,7 @@ class PiecewiseLinear {
 
  private:
   size_t Piece(double s) const;
+  bool eased_;
   std::vector<double> s_, v_, integral_;
 };
 
@@ -54,7 +57,8 @@ class Alignment {
 
   double length_m_ = 0.0;
   double heading0_ = 0.0;
-  PiecewiseLinear curvature_, cant_, grade_;
+  PiecewiseLinear curvature_;                 ///< clothoids: linear
+  PiecewiseLinear cant_{true}, grade_{true};  ///< eased: no roll/pitch rate steps
   std::vector<double> knot_s_;
   std::vector<Eigen::Vector2d> knot_xy_;
 };

@@ -30,7 +30,8 @@ double DetectionRange(double reflectivity_pct) {
 
 }  // namespace
 
-LivoxHorizonModel::LivoxHorizonModel(const Scenario& scenario, const LidarConfig& config,
+LivoxHorizonModel::LivoxHorizonModel(const Scenario& scenario,
+                                     const LidarConfig& config,
                                      uint32_t seed)
     : scenario_(scenario), config_(config), seed_(seed) {
   T_body_lidar_ = Eigen::Isometry3d::Identity();
@@ -39,9 +40,11 @@ LivoxHorizonModel::LivoxHorizonModel(const Scenario& scenario, const LidarConfig
       Eigen::Vector3d(config.translation_m[0], config.translation_m[1], config.translation_m[2]);
   period_ns_ = static_cast<int64_t>(std::llround(1e9 / scenario.lidar_rate_hz));
   const double az = scenario.sun_azimuth_deg * kDeg, el = scenario.sun_elevation_deg * kDeg;
-  sun_world_ = Eigen::Vector3d(std::cos(el) * std::sin(az), std::cos(el) * std::cos(az), std::sin(el));
+  sun_world_ =
+      Eigen::Vector3d(std::cos(el) * std::sin(az), std::cos(el) * std::cos(az), std::sin(el));
   // The roof in front of the sensor head: 0.3 m below the lower unit, ending 1 m ahead.
-  body_box_ = Eigen::AlignedBox3d(Eigen::Vector3d(0.5, -1.4, -0.5), Eigen::Vector3d(1.0, 1.4, -0.15));
+  body_box_ =
+      Eigen::AlignedBox3d(Eigen::Vector3d(0.5, -1.4, -0.5), Eigen::Vector3d(1.0, 1.4, -0.15));
 }
 
 uint32_t LivoxHorizonModel::OffsetNs(uint32_t index) const {
@@ -91,9 +94,11 @@ double LivoxHorizonModel::BodyRange(const Eigen::Vector3d& dir_sensor) const {
   return t0 > 0.0 ? t0 : -1.0;
 }
 
-void LivoxHorizonModel::Scan(uint64_t frame, double t0_s,
+void LivoxHorizonModel::Scan(uint64_t frame,
+                             double t0_s,
                              const std::function<Eigen::Isometry3d(double)>& body_pose,
-                             const RayCaster& caster, std::vector<io::LivoxPoint>* points,
+                             const RayCaster& caster,
+                             std::vector<io::LivoxPoint>* points,
                              std::vector<PointKind>* kinds) const {
   const uint32_t n = scenario_.points_per_frame;
   points->assign(n, io::LivoxPoint{});
@@ -152,7 +157,8 @@ void LivoxHorizonModel::Scan(uint64_t frame, double t0_s,
           kind = PointKind::kSurface;
           range[i] = hit.range_m;
           // Range noise, larger at short range (axial error).
-          const double sigma = scenario_.range_noise_m * (hit.range_m < 2.0 ? 3.0 - hit.range_m : 1.0);
+          const double sigma =
+              scenario_.range_noise_m * (hit.range_m < 2.0 ? 3.0 - hit.range_m : 1.0);
           measured = hit.range_m + sigma * gauss(rng);
           reflectivity = rho > 100.0 ? 200.0 + 20.0 * uniform(rng)
                                      : std::min(150.0, effective * 1.5) + 2.0 * gauss(rng);

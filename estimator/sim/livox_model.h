@@ -39,8 +39,11 @@ class LivoxHorizonModel {
 
   /// Scans frame `frame` whose first point is at run time t0_s. `body_pose(t)` gives
   /// T_world_body. Fills the Livox points (sensor frame) and, if given, what made each point.
-  void Scan(uint64_t frame, double t0_s, const std::function<Eigen::Isometry3d(double)>& body_pose,
-            const RayCaster& caster, std::vector<io::LivoxPoint>* points,
+  void Scan(uint64_t frame,
+            double t0_s,
+            const std::function<Eigen::Isometry3d(double)>& body_pose,
+            const RayCaster& caster,
+            std::vector<io::LivoxPoint>* points,
             std::vector<PointKind>* kinds) const;
 
  private:

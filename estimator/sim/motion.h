@@ -39,9 +39,14 @@ class TruthMotion {
   double Speed(double t) const;
   /// T_world_body at time t.
   Eigen::Isometry3d Pose(double t) const;
-  /// Angular velocity in the body frame and specific force (a - g) in the body frame.
-  void Inertial(double t, double gravity_mps2, Eigen::Vector3d* omega_body,
-                Eigen::Vector3d* specific_force_body) const;
+  /// Angular velocity and specific force (a - g) in the body frame, averaged over the IMU's
+  /// sample window centred on t (what an IMU's increments measure): the rotation and velocity
+  /// change over the window, so kinks of the track (cant and grade ramps) are not lost.
+  void Inertial(double t,
+                double gravity_mps2,
+                Eigen::Vector3d* omega_body,
+                Eigen::Vector3d* specific_force_body,
+                double window_s = 0.005) const;
   const SpeedProfile& profile() const { return profile_; }
 
  private:
@@ -53,7 +58,7 @@ class TruthMotion {
   double start_m_;
   double body_height_m_;
   double vibration_scale_;
-  std::vector<double> phases_;      ///< random phases of the vibration modes
+  std::vector<double> phases_;       ///< random phases of the vibration modes
   std::vector<double> joint_times_;  ///< when the body passes a rail joint
   std::vector<double> joint_gain_;   ///< impulse amplitude per passage (speed dependent)
 };

@@ -13,7 +13,8 @@ struct RayCaster::Impl {
   RTCScene scene = nullptr;
 };
 
-RayCaster::RayCaster(const Mesh& mesh) : impl_(std::make_unique<Impl>()), materials_(mesh.materials) {
+RayCaster::RayCaster(const Mesh& mesh)
+    : impl_(std::make_unique<Impl>()), materials_(mesh.materials) {
   impl_->device = rtcNewDevice(nullptr);
   if (!impl_->device) throw std::runtime_error("Embree: cannot create a device");
   impl_->scene = rtcNewScene(impl_->device);
@@ -51,7 +52,8 @@ RayCaster::~RayCaster() {
   if (impl_->device) rtcReleaseDevice(impl_->device);
 }
 
-RayHit RayCaster::Cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir,
+RayHit RayCaster::Cast(const Eigen::Vector3d& origin,
+                       const Eigen::Vector3d& dir,
                        double max_range_m) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);

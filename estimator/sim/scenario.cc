@@ -87,7 +87,8 @@ class MapReader {
     if (!node_[key]) return fallback;
     if (text == "left") return 1;
     if (text == "right") return -1;
-    Fail(node_[key], std::string("key '") + Path(key) + "' must be left or right, not '" + text + "'");
+    Fail(node_[key],
+         std::string("key '") + Path(key) + "' must be left or right, not '" + text + "'");
     return fallback;
   }
 
@@ -172,7 +173,8 @@ void ParseTrack(MapReader& root, Scenario* s) {
     t.side = p.ReadSide("side", 1);
     p.Read("spacing_m", &t.spacing_m);
     p.Read("diverge_m", &t.diverge_m);
-    Require(t.to_m > t.from_m + 2 * t.diverge_m, p, node, "parallel track shorter than 2 diverge_m");
+    Require(
+        t.to_m > t.from_m + 2 * t.diverge_m, p, node, "parallel track shorter than 2 diverge_m");
     Require(t.spacing_m >= 3.5, p, node, "spacing_m below 3.5");
     s->parallel_tracks.push_back(t);
   });
@@ -193,7 +195,9 @@ void ParseCatenary(MapReader& root, Scenario* s) {
   r.Read("stagger_m", &s->stagger_m);
   Require(s->mast_spacing_min_m >= 20.0, r, node, "mast_spacing_m below 20");
   Require(s->mast_offset_min_m >= 2.0, r, node, "mast_offset_m closer than 2.0 m");
-  Require(s->contact_wire_height_m + s->system_height_m < s->mast_height_m, r, node,
+  Require(s->contact_wire_height_m + s->system_height_m < s->mast_height_m,
+          r,
+          node,
           "mast_height_m must exceed contact wire + system height");
   r.Finish();
 }
@@ -239,13 +243,16 @@ void ParseCorridor(MapReader& root, Scenario* s) {
     st.side = p.ReadSide("side", 1);
     p.Read("platform_height_m", &st.platform_height_m);
     Require(st.length_m >= 20.0, p, node, "station length_m below 20");
-    Require(st.platform_height_m >= 0.2 && st.platform_height_m <= 1.3, p, node,
+    Require(st.platform_height_m >= 0.2 && st.platform_height_m <= 1.3,
+            p,
+            node,
             "platform_height_m must be in [0.2, 1.3]");
     s->stations.push_back(st);
   });
   if (r.Has("tunnels")) s->tunnels = ParseRanges(r, "tunnels");
   if (r.Has("feature_poor")) s->feature_poor = ParseRanges(r, "feature_poor");
-  Require(s->terrain_half_width_m >= 20.0, r, root.Node("corridor"), "terrain_half_width_m below 20");
+  Require(
+      s->terrain_half_width_m >= 20.0, r, root.Node("corridor"), "terrain_half_width_m below 20");
   r.Finish();
 }
 
@@ -284,7 +291,9 @@ void ParseMotion(MapReader& root, Scenario* s) {
       Require(std::fabs(kmh) <= 200.0, p, node, "to_kmh beyond +-200");
       phase.value = kmh * kKmh;
       p.Read("accel_mps2", &phase.accel_mps2);
-      Require(phase.accel_mps2 > 0.0 && phase.accel_mps2 <= 2.0, p, node,
+      Require(phase.accel_mps2 > 0.0 && phase.accel_mps2 <= 2.0,
+              p,
+              node,
               "accel_mps2 must be in (0, 2]");
       ++kinds;
     }
@@ -326,7 +335,9 @@ void ParseLidar(MapReader& root, Scenario* s) {
     lidar.lidar_id = static_cast<uint8_t>(id);
     s->lidars.push_back(lidar);
   });
-  Require(s->points_per_frame >= 600 && s->points_per_frame % 60 == 0, r, node,
+  Require(s->points_per_frame >= 600 && s->points_per_frame % 60 == 0,
+          r,
+          node,
           "points_per_frame must be a multiple of 60 (6 lasers x 10 sweeps) and at least 600");
   Require(s->lidar_rate_hz > 0.0 && s->lidar_rate_hz <= 50.0, r, node, "rate_hz out of (0, 50]");
   Require(s->range_noise_m >= 0.0 && s->angular_noise_deg >= 0.0, r, node, "negative noise");
@@ -360,9 +371,13 @@ void ParseOdometer(MapReader& root, Scenario* s) {
   r.Read("pulses_per_rev", &s->pulses_per_rev);
   r.Read("scale_error", &s->odometer_scale_error);
   r.Read("creep_sigma", &s->creep_sigma);
-  Require(s->wheel_diameter_m >= 0.5 && s->wheel_diameter_m <= 1.5, r, node,
+  Require(s->wheel_diameter_m >= 0.5 && s->wheel_diameter_m <= 1.5,
+          r,
+          node,
           "wheel_diameter_m out of [0.5, 1.5]");
-  Require(s->pulses_per_rev >= 1 && s->pulses_per_rev <= 10000, r, node,
+  Require(s->pulses_per_rev >= 1 && s->pulses_per_rev <= 10000,
+          r,
+          node,
           "pulses_per_rev out of [1, 10000]");
   Require(s->odometer_rate_hz > 0.0 && s->odometer_rate_hz <= 1000.0, r, node, "bad rate_hz");
   r.Finish();
@@ -407,8 +422,9 @@ void ParseEvents(MapReader& root, Scenario* s) {
       r.Read("lidar", &e.lidar);
       Require(!e.lidar.empty(), r, node, "lidar_blackout needs 'lidar' (a unit name)");
     } else {
-      r.Fail(node, "event type must be imu_dropout, gnss_outage, wheel_slip or lidar_blackout, not '" +
-                       type + "'");
+      r.Fail(node,
+             "event type must be imu_dropout, gnss_outage, wheel_slip or lidar_blackout, not '" +
+                 type + "'");
     }
     Require(e.at_s >= 0.0 && e.duration_s > 0.0, r, node, "event needs at_s >= 0, duration_s > 0");
     s->events.push_back(e);
@@ -432,7 +448,9 @@ void ParseChanges(MapReader& root, Scenario* s) {
       r.Read("target", &c.target);
       Require(c.target == "mast" || c.target == "signal" || c.target == "building" ||
                   c.target == "tree",
-              r, node, "target must be mast, signal, building or tree");
+              r,
+              node,
+              "target must be mast, signal, building or tree");
       if (c.kind == Change::Kind::kObjectMoved) r.ReadArray("move_m", &c.move_m);
     } else if (kind == "vegetation_growth") {
       c.kind = Change::Kind::kVegetationGrowth;
@@ -442,8 +460,10 @@ void ParseChanges(MapReader& root, Scenario* s) {
     } else if (kind == "fallen_tree") {
       c.kind = Change::Kind::kFallenTree;
     } else {
-      r.Fail(node, "change kind must be object_added, object_removed, object_moved, "
-                   "vegetation_growth or fallen_tree, not '" + kind + "'");
+      r.Fail(node,
+             "change kind must be object_added, object_removed, object_moved, "
+             "vegetation_growth or fallen_tree, not '" +
+                 kind + "'");
     }
     s->changes.push_back(c);
   });
@@ -489,7 +509,9 @@ void ParseInto(const YAML::Node& root_node, const std::string& source, Scenario*
     o.Read("latitude_deg", &s->origin_latitude_deg);
     o.Read("longitude_deg", &s->origin_longitude_deg);
     o.Read("height_m", &s->origin_height_m);
-    Require(std::fabs(s->origin_latitude_deg) <= 80.0, o, root.Node("origin"),
+    Require(std::fabs(s->origin_latitude_deg) <= 80.0,
+            o,
+            root.Node("origin"),
             "latitude_deg outside the UTM range [-80, 80]");
     o.Finish();
   }

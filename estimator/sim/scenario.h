@@ -45,8 +45,8 @@ struct ParallelTrack {
   double from_m = 0.0;
   double to_m = 0.0;
   int side = 1;
-  double spacing_m = 4.0;     ///< track centre spacing
-  double diverge_m = 60.0;    ///< length over which the turnout reaches full spacing
+  double spacing_m = 4.0;   ///< track centre spacing
+  double diverge_m = 60.0;  ///< length over which the turnout reaches full spacing
 };
 
 /// A scripted disturbance during the run.
@@ -55,29 +55,29 @@ struct Event {
   Kind kind = Kind::kImuDropout;
   double at_s = 0.0;
   double duration_s = 0.0;
-  double slip = 0.0;      ///< wheel_slip: wheel surface speed error (0.2 = 20 % spin, <0 slide)
-  std::string lidar;      ///< lidar_blackout: "up" or "down"
+  double slip = 0.0;  ///< wheel_slip: wheel surface speed error (0.2 = 20 % spin, <0 slide)
+  std::string lidar;  ///< lidar_blackout: "up" or "down"
 };
 
 /// An edit of the corridor for a changed run, with its ground truth recorded.
 struct Change {
   enum class Kind { kObjectAdded, kObjectRemoved, kObjectMoved, kVegetationGrowth, kFallenTree };
   Kind kind = Kind::kObjectAdded;
-  double at_m = 0.0;                        ///< chainage (added/growth/fallen) or search point
-  double offset_m = 0.0;                    ///< lateral offset, left > 0 (object_added)
-  std::array<double, 3> size_m{1, 1, 1};    ///< along, across, height (object_added)
-  std::string target;                       ///< removed/moved: mast, signal, building, tree
-  std::array<double, 2> move_m{0, 0};       ///< moved: along, lateral
-  int side = 1;                             ///< vegetation_growth side
-  double intrusion_m = 0.5;                 ///< vegetation_growth: depth into the envelope
+  double at_m = 0.0;                      ///< chainage (added/growth/fallen) or search point
+  double offset_m = 0.0;                  ///< lateral offset, left > 0 (object_added)
+  std::array<double, 3> size_m{1, 1, 1};  ///< along, across, height (object_added)
+  std::string target;                     ///< removed/moved: mast, signal, building, tree
+  std::array<double, 2> move_m{0, 0};     ///< moved: along, lateral
+  int side = 1;                           ///< vegetation_growth side
+  double intrusion_m = 0.5;               ///< vegetation_growth: depth into the envelope
 };
 
 /// Motion: a speed profile built from phases, plus body vibration.
 struct MotionPhase {
   enum class Kind { kForSeconds, kForMetres, kToSpeed };
   Kind kind = Kind::kForSeconds;
-  double value = 0.0;           ///< seconds, metres, or target speed in m/s
-  double accel_mps2 = 0.5;      ///< kToSpeed only
+  double value = 0.0;       ///< seconds, metres, or target speed in m/s
+  double accel_mps2 = 0.5;  ///< kToSpeed only
 };
 
 /// One Livox Horizon unit.
@@ -97,11 +97,11 @@ struct Scenario {
   uint32_t seed = 1;        ///< sensor noise and vibration; --seed overrides
 
   // Geography and time.
-  double origin_latitude_deg = 32.40;   ///< start of the line (Huoqiu area, zone 50N)
+  double origin_latitude_deg = 32.40;  ///< start of the line (Huoqiu area, zone 50N)
   double origin_longitude_deg = 116.28;
-  double origin_height_m = 30.0;        ///< ellipsoidal height of the rail top at the start
-  double initial_azimuth_deg = 30.0;    ///< clockwise from grid north
-  double start_time_s = 1600000000.0;   ///< UNIX time of the first message
+  double origin_height_m = 30.0;       ///< ellipsoidal height of the rail top at the start
+  double initial_azimuth_deg = 30.0;   ///< clockwise from grid north
+  double start_time_s = 1600000000.0;  ///< UNIX time of the first message
 
   // Alignment.
   std::vector<AlignmentSegment> alignment;
@@ -138,7 +138,7 @@ struct Scenario {
   double terrain_relief_m = 1.5;
 
   // Motion.
-  double start_m = 10.0;  ///< chainage of the body frame at t = 0
+  double start_m = 10.0;         ///< chainage of the body frame at t = 0
   double start_speed_mps = 0.0;  ///< speed at t = 0 (negative: reversing)
   std::vector<MotionPhase> phases;
   double vibration_scale = 1.0;
@@ -160,17 +160,17 @@ struct Scenario {
 
   double imu_rate_hz = 200.0;
   std::string imu_topic = "/imu/data";
-  double gyro_noise_density = 1.22e-4;   ///< rad/s/sqrt(Hz)
-  double gyro_bias_sigma = 3.9e-5;       ///< rad/s, turn-on bias
-  double gyro_bias_walk = 1.0e-6;        ///< rad/s^2/sqrt(Hz)
-  double accel_noise_density = 5.9e-4;   ///< m/s^2/sqrt(Hz)
-  double accel_bias_sigma = 1.5e-4;      ///< m/s^2
-  double accel_bias_walk = 1.0e-5;       ///< m/s^3/sqrt(Hz)
+  double gyro_noise_density = 1.22e-4;  ///< rad/s/sqrt(Hz)
+  double gyro_bias_sigma = 3.9e-5;      ///< rad/s, turn-on bias
+  double gyro_bias_walk = 1.0e-6;       ///< rad/s^2/sqrt(Hz)
+  double accel_noise_density = 5.9e-4;  ///< m/s^2/sqrt(Hz)
+  double accel_bias_sigma = 1.5e-4;     ///< m/s^2
+  double accel_bias_walk = 1.0e-5;      ///< m/s^3/sqrt(Hz)
   double gravity_mps2 = 9.81;
 
   double odometer_rate_hz = 50.0;
   std::string odometer_topic = "/odometer";
-  double wheel_diameter_m = 0.84;   ///< nominal, as configured
+  double wheel_diameter_m = 0.84;  ///< nominal, as configured
   int pulses_per_rev = 100;
   double odometer_scale_error = 0.004;  ///< true wheel rolls this much shorter than nominal
   double creep_sigma = 0.005;           ///< slowly varying creep, fraction of speed

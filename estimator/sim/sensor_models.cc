@@ -25,7 +25,7 @@ io::ImuSample ImuModel::Sample(double t, int64_t stamp_ns) {
   const double rate = scenario_.imu_rate_hz;
   const double dt = 1.0 / rate;
   Eigen::Vector3d omega, force;
-  truth_.Inertial(t, scenario_.gravity_mps2, &omega, &force);
+  truth_.Inertial(t, scenario_.gravity_mps2, &omega, &force, dt);
   // Discrete white noise: density * sqrt(rate); bias walk: density * sqrt(dt).
   const double gyro_sigma = scenario_.gyro_noise_density * std::sqrt(rate);
   const double accel_sigma = scenario_.accel_noise_density * std::sqrt(rate);
@@ -71,22 +71,28 @@ io::WheelOdometry OdometerModel::Sample(double t, int64_t stamp_ns) {
   io::WheelOdometry reading;
   reading.stamp_ns = stamp_ns;
   reading.position_rad = std::floor(angle_rad_ / pulse) * pulse;
-  reading.velocity_radps =
-      last_t_ >= 0.0 && t > last_t_ ? (reading.position_rad - last_position_rad_) / (t - last_t_) : 0.0;
+  reading.velocity_radps = last_t_ >= 0.0 && t > last_t_
+                               ? (reading.position_rad - last_position_rad_) / (t - last_t_)
+                               : 0.0;
   last_position_rad_ = reading.position_rad;
   last_t_ = t;
   return reading;
 }
 
-GnssModel::GnssModel(const Scenario& scenario, const World& world, const TruthMotion& truth,
-                     const geo::UtmZone& zone, const Eigen::Vector3d& origin_utm, uint32_t seed)
+GnssModel::GnssModel(const Scenario& scenario,
+                     const World& world,
+                     const TruthMotion& truth,
+                     const geo::UtmZone& zone,
+                     const Eigen::Vector3d& origin_utm,
+                     uint32_t seed)
     : scenario_(scenario),
       world_(world),
       truth_(truth),
       zone_(zone),
       origin_utm_(origin_utm),
       rng_(seed * 3935559000370003845ULL + 37ULL) {
-  const Eigen::Vector3d sigma(scenario.gnss_horizontal_sigma_m, scenario.gnss_horizontal_sigma_m,
+  const Eigen::Vector3d sigma(scenario.gnss_horizontal_sigma_m,
+                              scenario.gnss_horizontal_sigma_m,
                               scenario.gnss_vertical_sigma_m);
   for (int k = 0; k < 3; ++k) correlated_[k] = sigma[k] * gauss_(rng_);
 }
@@ -96,7 +102,8 @@ bool GnssModel::Sample(double t, int64_t stamp_ns, io::GnssFix* fix) {
   const double dt = last_t_ >= 0.0 ? t - last_t_ : 0.0;
   last_t_ = t;
   const double a = std::exp(-dt / scenario_.gnss_tau_s);
-  const Eigen::Vector3d sigma(scenario_.gnss_horizontal_sigma_m, scenario_.gnss_horizontal_sigma_m,
+  const Eigen::Vector3d sigma(scenario_.gnss_horizontal_sigma_m,
+                              scenario_.gnss_horizontal_sigma_m,
                               scenario_.gnss_vertical_sigma_m);
   for (int k = 0; k < 3; ++k) {
     correlated_[k] = a * correlated_[k] + sigma[k] * std::sqrt(1.0 - a * a) * gauss_(rng_);
@@ -111,12 +118,13 @@ bool GnssModel::Sample(double t, int64_t stamp_ns, io::GnssFix* fix) {
     // Multipath: a jump of 5-30 m in a random horizontal direction.
     const double magnitude = 5.0 + 25.0 * uniform_(rng_);
     const double heading = 2.0 * M_PI * uniform_(rng_);
-    error += Eigen::Vector3d(magnitude * std::cos(heading), magnitude * std::sin(heading),
+    error += Eigen::Vector3d(magnitude * std::cos(heading),
+                             magnitude * std::sin(heading),
                              0.5 * magnitude * (uniform_(rng_) - 0.5));
   }
   last_error_ = error;
-  const Eigen::Vector3d antenna(scenario_.gnss_antenna_m[0], scenario_.gnss_antenna_m[1],
-                                scenario_.gnss_antenna_m[2]);
+  const Eigen::Vector3d antenna(
+      scenario_.gnss_antenna_m[0], scenario_.gnss_antenna_m[1], scenario_.gnss_antenna_m[2]);
   const Eigen::Vector3d utm = origin_utm_ + truth_.Pose(t) * antenna + error;
   const Eigen::Vector2d latlon = geo::UtmToGeographic(zone_, utm.x(), utm.y());
   fix->stamp_ns = stamp_ns;

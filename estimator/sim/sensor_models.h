@@ -14,7 +14,10 @@
 namespace raillomer::sim {
 
 /// Whether an event of `kind` (and, for LiDARs, of unit `lidar`) is active at run time t.
-bool EventActive(const Scenario& scenario, Event::Kind kind, double t, const std::string& lidar = {});
+bool EventActive(const Scenario& scenario,
+                 Event::Kind kind,
+                 double t,
+                 const std::string& lidar = {});
 
 /// MTi-680G-class IMU: white noise plus turn-on bias and bias random walk.
 class ImuModel {
@@ -60,8 +63,12 @@ class OdometerModel {
 /// covariance that is too optimistic.
 class GnssModel {
  public:
-  GnssModel(const Scenario& scenario, const World& world, const TruthMotion& truth,
-            const geo::UtmZone& zone, const Eigen::Vector3d& origin_utm, uint32_t seed);
+  GnssModel(const Scenario& scenario,
+            const World& world,
+            const TruthMotion& truth,
+            const geo::UtmZone& zone,
+            const Eigen::Vector3d& origin_utm,
+            uint32_t seed);
   /// The fix at run time t, or false when there is none (outage, tunnel). Call once per epoch.
   bool Sample(double t, int64_t stamp_ns, io::GnssFix* fix);
   /// Error of the last fix (UTM east, north, up), for tests.

@@ -29,10 +29,11 @@ int Fail(const std::string& message) {
 }
 
 /// The receiver's fixes as a TUM trajectory in UTM (orientation unknown: identity).
-void AddGnssPose(const sim::Simulator& simulator, const io::GnssFix& fix,
+void AddGnssPose(const sim::Simulator& simulator,
+                 const io::GnssFix& fix,
                  raillomer::api::Trajectory* gnss) {
-  const Eigen::Vector2d en = raillomer::geo::GeographicToUtm(
-      simulator.utm_zone(), fix.latitude_deg, fix.longitude_deg);
+  const Eigen::Vector2d en =
+      raillomer::geo::GeographicToUtm(simulator.utm_zone(), fix.latitude_deg, fix.longitude_deg);
   raillomer::api::StampedPose pose;
   pose.stamp_ns = fix.stamp_ns;
   pose.p_world = Eigen::Vector3d(en.x(), en.y(), fix.altitude_m);
@@ -60,7 +61,8 @@ int main(int argc, char** argv) {
   app.add_option("--seed", seed, "Noise and vibration seed (the corridor keeps its world_seed)")
       ->check(CLI::Range(int64_t{0}, int64_t{4294967295}));
   app.add_flag("--lz4", lz4, "Compress bag chunks with LZ4");
-  app.add_flag("--print-scenario", print_scenario,
+  app.add_flag("--print-scenario",
+               print_scenario,
                "Print the built-in scenario's YAML (with --scenario) and exit");
   CLI11_PARSE(app, argc, argv);
 
@@ -91,8 +93,7 @@ int main(int argc, char** argv) {
   if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
 
   const auto wall_start = std::chrono::steady_clock::now();
-  std::cerr << "raillomer-sim: scenario " << scenario.name << " (" << scenario.description
-            << ")\n";
+  std::cerr << "raillomer-sim: scenario " << scenario.name << " (" << scenario.description << ")\n";
   std::unique_ptr<sim::Simulator> simulator = sim::Simulator::Create(scenario, options, &error);
   if (!simulator) return Fail(error);
   const sim::Scenario& s = simulator->scenario();
@@ -126,16 +127,18 @@ int main(int argc, char** argv) {
     if (now - last_report > std::chrono::seconds(5)) {
       last_report = now;
       const double wall = std::chrono::duration<double>(now - wall_start).count();
-      std::fprintf(stderr, "  %.1f / %.1f s simulated (%.0f%%), %.2fx real time\n",
-                   simulator->last_time_s(), simulator->duration_s(),
+      std::fprintf(stderr,
+                   "  %.1f / %.1f s simulated (%.0f%%), %.2fx real time\n",
+                   simulator->last_time_s(),
+                   simulator->duration_s(),
                    100.0 * simulator->last_time_s() / simulator->duration_s(),
                    simulator->last_time_s() / wall);
     }
   }
   if (!bag->Close(&error)) return Fail(error);
 
-  if (!raillomer::api::WriteTum(out_dir + "/truth.tum", simulator->TruthTrajectory(100.0),
-                                &error) ||
+  if (!raillomer::api::WriteTum(
+          out_dir + "/truth.tum", simulator->TruthTrajectory(100.0), &error) ||
       !raillomer::api::WriteTum(out_dir + "/gnss.tum", gnss, &error) ||
       !WriteFileAtomically(out_dir + "/rig.yaml", simulator->RigYaml(), &error)) {
     return Fail(error);
@@ -152,7 +155,10 @@ int main(int argc, char** argv) {
     std::cerr << (first ? "" : ", ") << topic << " " << count;
     first = false;
   }
-  std::fprintf(stderr, "), truth.tum, gnss.tum, rig.yaml%s in %.1f s (%.2fx real time)\n",
-               s.changes.empty() ? "" : ", changes.json", wall, simulator->duration_s() / wall);
+  std::fprintf(stderr,
+               "), truth.tum, gnss.tum, rig.yaml%s in %.1f s (%.2fx real time)\n",
+               s.changes.empty() ? "" : ", changes.json",
+               wall,
+               simulator->duration_s() / wall);
   return 0;
 }

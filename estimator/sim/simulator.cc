@@ -4,8 +4,8 @@
 #include <future>
 #include <limits>
 
-#include <nlohmann/json.hpp>
 #include <yaml-cpp/yaml.h>
+#include <nlohmann/json.hpp>
 
 namespace raillomer::sim {
 
@@ -17,7 +17,8 @@ std::vector<double> Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}
 
 Simulator::Simulator(const Scenario& scenario) : scenario_(scenario) {}
 
-std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario, const SimOptions& options,
+std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario,
+                                             const SimOptions& options,
                                              std::string* error) {
   std::unique_ptr<Simulator> sim(new Simulator(scenario));
   Scenario& s = sim->scenario_;
@@ -52,8 +53,8 @@ std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario, const Sim
   }
   sim->imu_ = std::make_unique<ImuModel>(s, *sim->truth_, s.seed);
   sim->odometer_ = std::make_unique<OdometerModel>(s, *sim->truth_, s.seed);
-  sim->gnss_ = std::make_unique<GnssModel>(s, *sim->world_, *sim->truth_, sim->zone_,
-                                           sim->origin_utm_, s.seed);
+  sim->gnss_ = std::make_unique<GnssModel>(
+      s, *sim->world_, *sim->truth_, sim->zone_, sim->origin_utm_, s.seed);
   return sim;
 }
 
@@ -134,8 +135,13 @@ void Simulator::ScanFrames(double receive_t) {
     auto& frame = std::get<io::LidarFrame>(message->data);
     for (const LivoxHorizonModel& unit : lidars_) {
       if ("livox_" + unit.config().name != frame.frame_id) continue;
-      unit.Scan(frame_index_, t0, [&truth](double t) { return truth.Pose(t); }, *caster_,
-                &frame.points, nullptr);
+      unit.Scan(
+          frame_index_,
+          t0,
+          [&truth](double t) { return truth.Pose(t); },
+          *caster_,
+          &frame.points,
+          nullptr);
     }
   };
   std::vector<std::future<void>> workers;

@@ -23,9 +23,9 @@ namespace raillomer::sim {
 
 /// Run options that are not part of the scenario.
 struct SimOptions {
-  double duration_s = -1.0;        ///< < 0: the whole motion profile
-  std::optional<uint32_t> seed;    ///< overrides the scenario's noise seed
-  bool lidar = true;               ///< false: IMU, odometer and GNSS only (fast)
+  double duration_s = -1.0;      ///< < 0: the whole motion profile
+  std::optional<uint32_t> seed;  ///< overrides the scenario's noise seed
+  bool lidar = true;             ///< false: IMU, odometer and GNSS only (fast)
 };
 
 /// The in-process sensor source: a simulated run of one scenario, message by message in
@@ -33,7 +33,8 @@ struct SimOptions {
 class Simulator : public io::SensorSource {
  public:
   /// Builds the corridor and the sensor models; false with a message if options are invalid.
-  static std::unique_ptr<Simulator> Create(const Scenario& scenario, const SimOptions& options,
+  static std::unique_ptr<Simulator> Create(const Scenario& scenario,
+                                           const SimOptions& options,
                                            std::string* error);
 
   bool Next(io::SensorMessage* message) override;

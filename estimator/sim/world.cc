@@ -43,8 +43,13 @@ TrackSection SectionAt(const Alignment& a, double s, double offset_m) {
 }
 
 /// Extrudes a polyline profile (lateral, height) along the line between chainages.
-void Extrude(const std::vector<Eigen::Vector2d>& profile, bool closed, double from, double to,
-             double step, const std::function<TrackSection(double)>& section_at, Material m,
+void Extrude(const std::vector<Eigen::Vector2d>& profile,
+             bool closed,
+             double from,
+             double to,
+             double step,
+             const std::function<TrackSection(double)>& section_at,
+             Material m,
              Mesh* mesh) {
   if (to <= from) return;
   const int n = std::max(1, static_cast<int>(std::ceil((to - from) / step)));
@@ -68,9 +73,18 @@ void Extrude(const std::vector<Eigen::Vector2d>& profile, bool closed, double fr
 
 std::vector<Eigen::Vector2d> RailProfile(double centre) {
   const double c = centre;
-  return {{c - 0.036, 0.0},    {c + 0.036, 0.0},    {c + 0.036, -0.05},  {c + 0.0083, -0.05},
-          {c + 0.0083, -0.16}, {c + 0.075, -0.16},  {c + 0.075, -0.172}, {c - 0.075, -0.172},
-          {c - 0.075, -0.16},  {c - 0.0083, -0.16}, {c - 0.0083, -0.05}, {c - 0.036, -0.05}};
+  return {{c - 0.036, 0.0},
+          {c + 0.036, 0.0},
+          {c + 0.036, -0.05},
+          {c + 0.0083, -0.05},
+          {c + 0.0083, -0.16},
+          {c + 0.075, -0.16},
+          {c + 0.075, -0.172},
+          {c - 0.075, -0.172},
+          {c - 0.075, -0.16},
+          {c - 0.0083, -0.16},
+          {c - 0.0083, -0.05},
+          {c - 0.036, -0.05}};
 }
 
 std::vector<Eigen::Vector2d> TunnelProfile() {
@@ -90,22 +104,38 @@ std::vector<Eigen::Vector2d> TunnelProfile() {
 
 double MaterialReflectivity(Material material) {
   switch (material) {
-    case Material::kGround: return 15.0;
-    case Material::kBallast: return 22.0;
-    case Material::kSleeper: return 35.0;
-    case Material::kRail: return 30.0;
-    case Material::kMast: return 40.0;
-    case Material::kWire: return 45.0;
-    case Material::kVegetation: return 45.0;
-    case Material::kBuilding: return 35.0;
-    case Material::kRoof: return 20.0;
-    case Material::kPlatform: return 30.0;
-    case Material::kSignal: return 150.0;  // retro-reflective plate
-    case Material::kRoad: return 10.0;
-    case Material::kTunnel: return 30.0;
-    case Material::kSign: return 140.0;
-    case Material::kVehicle: return 60.0;
-    case Material::kCount: break;
+    case Material::kGround:
+      return 15.0;
+    case Material::kBallast:
+      return 22.0;
+    case Material::kSleeper:
+      return 35.0;
+    case Material::kRail:
+      return 30.0;
+    case Material::kMast:
+      return 40.0;
+    case Material::kWire:
+      return 45.0;
+    case Material::kVegetation:
+      return 45.0;
+    case Material::kBuilding:
+      return 35.0;
+    case Material::kRoof:
+      return 20.0;
+    case Material::kPlatform:
+      return 30.0;
+    case Material::kSignal:
+      return 150.0;  // retro-reflective plate
+    case Material::kRoad:
+      return 10.0;
+    case Material::kTunnel:
+      return 30.0;
+    case Material::kSign:
+      return 140.0;
+    case Material::kVehicle:
+      return 60.0;
+    case Material::kCount:
+      break;
   }
   return 20.0;
 }
@@ -141,8 +171,8 @@ void Mesh::AddBox(const Vec3& centre, const Eigen::Matrix3d& R, const Vec3& half
     const Vec3 sign((i & 1) ? 1 : -1, (i & 2) ? 1 : -1, (i & 4) ? 1 : -1);
     corner[i] = centre + R * sign.cwiseProduct(half);
   }
-  static const int kFaces[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
-                                   {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+  static const int kFaces[6][4] = {
+      {0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
   for (const auto& f : kFaces) AddQuad(corner[f[0]], corner[f[1]], corner[f[2]], corner[f[3]], m);
 }
 
@@ -164,12 +194,22 @@ void Mesh::AddCylinder(const Vec3& a, const Vec3& b, double radius, int sides, M
   }
 }
 
-void Mesh::AddBlob(const Vec3& centre, const Vec3& radii, double jitter, std::mt19937& rng,
-                   Material m) {
+void Mesh::AddBlob(
+    const Vec3& centre, const Vec3& radii, double jitter, std::mt19937& rng, Material m) {
   // Icosahedron subdivided once: 80 faces.
   const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  std::vector<Vec3> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                         {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<Vec3> v = {{-1, t, 0},
+                         {1, t, 0},
+                         {-1, -t, 0},
+                         {1, -t, 0},
+                         {0, -1, t},
+                         {0, 1, t},
+                         {0, -1, -t},
+                         {0, 1, -t},
+                         {t, 0, -1},
+                         {t, 0, 1},
+                         {-t, 0, -1},
+                         {-t, 0, 1}};
   std::vector<Eigen::Vector3i> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
                                     {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
                                     {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
@@ -193,7 +233,8 @@ void Mesh::AddBlob(const Vec3& centre, const Vec3& radii, double jitter, std::mt
     const double scale = 1.0 + Uniform(rng, -jitter, jitter);
     world[i] = centre + scale * v[i].cwiseProduct(radii);
   }
-  for (const Eigen::Vector3i& tri : faces) AddTriangle(world[tri[0]], world[tri[1]], world[tri[2]], m);
+  for (const Eigen::Vector3i& tri : faces)
+    AddTriangle(world[tri[0]], world[tri[1]], world[tri[2]], m);
 }
 
 void Mesh::Translate(const Vec3& delta) {
@@ -279,10 +320,10 @@ void World::BuildTrack(Mesh* mesh) {
                                                 {kBallastToeM, kFormationM}};
   const double step = options_.rail_step_m;
   Extrude(ballast, false, 0.0, length, step, main_section, Material::kBallast, mesh);
-  Extrude(RailProfile(kRailHeadCentreM), true, 0.0, length, step, main_section, Material::kRail,
-          mesh);
-  Extrude(RailProfile(-kRailHeadCentreM), true, 0.0, length, step, main_section, Material::kRail,
-          mesh);
+  Extrude(
+      RailProfile(kRailHeadCentreM), true, 0.0, length, step, main_section, Material::kRail, mesh);
+  Extrude(
+      RailProfile(-kRailHeadCentreM), true, 0.0, length, step, main_section, Material::kRail, mesh);
   const Vec3 sleeper_half(0.125, 1.3, 0.11);
   for (double s = 0.3; s < length; s += scenario_.sleeper_spacing_m) {
     const TrackSection section = main_section(s);
@@ -301,10 +342,16 @@ void World::BuildTrack(Mesh* mesh) {
       return p.side * p.spacing_m * std::min(in, out);
     };
     auto section = [&](double s) { return SectionAt(a, s, offset(s)); };
-    Extrude(RailProfile(kRailHeadCentreM), true, p.from_m, p.to_m, 1.0, section, Material::kRail,
+    Extrude(
+        RailProfile(kRailHeadCentreM), true, p.from_m, p.to_m, 1.0, section, Material::kRail, mesh);
+    Extrude(RailProfile(-kRailHeadCentreM),
+            true,
+            p.from_m,
+            p.to_m,
+            1.0,
+            section,
+            Material::kRail,
             mesh);
-    Extrude(RailProfile(-kRailHeadCentreM), true, p.from_m, p.to_m, 1.0, section,
-            Material::kRail, mesh);
     const double full_from = p.from_m + p.diverge_m, full_to = p.to_m - p.diverge_m;
     Extrude(ballast, false, full_from, full_to, step, section, Material::kBallast, mesh);
     for (double s = p.from_m + 0.3; s < p.to_m; s += scenario_.sleeper_spacing_m) {
@@ -354,15 +401,24 @@ void World::BuildTunnels(Mesh* mesh) {
     for (double s : {t.from_m, t.to_m}) {
       const TrackSection sec = flat(s);
       const double top = 12.0, half = 15.0;
-      mesh->AddQuad(sec.At(-half, kFormationM), sec.At(-kTunnelHalfWidthM, kFormationM),
-                    sec.At(-kTunnelHalfWidthM, top), sec.At(-half, top), Material::kTunnel);
-      mesh->AddQuad(sec.At(kTunnelHalfWidthM, kFormationM), sec.At(half, kFormationM),
-                    sec.At(half, top), sec.At(kTunnelHalfWidthM, top), Material::kTunnel);
+      mesh->AddQuad(sec.At(-half, kFormationM),
+                    sec.At(-kTunnelHalfWidthM, kFormationM),
+                    sec.At(-kTunnelHalfWidthM, top),
+                    sec.At(-half, top),
+                    Material::kTunnel);
+      mesh->AddQuad(sec.At(kTunnelHalfWidthM, kFormationM),
+                    sec.At(half, kFormationM),
+                    sec.At(half, top),
+                    sec.At(kTunnelHalfWidthM, top),
+                    Material::kTunnel);
       for (size_t k = 1; k + 2 < tube.size(); ++k) {
         const Eigen::Vector2d& p = tube[k];
         const Eigen::Vector2d& q = tube[k + 1];
-        mesh->AddQuad(sec.At(p.x(), p.y()), sec.At(q.x(), q.y()), sec.At(q.x(), top),
-                      sec.At(p.x(), top), Material::kTunnel);
+        mesh->AddQuad(sec.At(p.x(), p.y()),
+                      sec.At(q.x(), q.y()),
+                      sec.At(q.x(), top),
+                      sec.At(p.x(), top),
+                      Material::kTunnel);
       }
     }
     // Lamps every 25 m (alternating walls) and refuge pilasters every 50 m.
@@ -370,10 +426,14 @@ void World::BuildTunnels(Mesh* mesh) {
     for (double s = t.from_m + 12.5; s < t.to_m; s += 25.0, ++k) {
       const TrackSection sec = flat(s);
       const double side = (k % 2) ? 1.0 : -1.0;
-      mesh->AddBox(sec.At(side * (kTunnelHalfWidthM - 0.1), 3.5), sec.R, Vec3(0.15, 0.1, 0.1),
+      mesh->AddBox(sec.At(side * (kTunnelHalfWidthM - 0.1), 3.5),
+                   sec.R,
+                   Vec3(0.15, 0.1, 0.1),
                    Material::kSign);
       if (k % 2 == 0) {
-        mesh->AddBox(sec.At(side * (kTunnelHalfWidthM - 0.2), 1.0), sec.R, Vec3(0.5, 0.2, 1.9),
+        mesh->AddBox(sec.At(side * (kTunnelHalfWidthM - 0.2), 1.0),
+                     sec.R,
+                     Vec3(0.5, 0.2, 1.9),
                      Material::kTunnel);
       }
     }
@@ -398,7 +458,10 @@ void World::BuildCatenary(std::mt19937& rng) {
     if (InTunnel(s, 2.0)) {
       // Drop bracket from the tunnel crown.
       wires.AddCylinder(alignment_.Beside(s, 0.0, kTunnelSpringM + kTunnelHalfWidthM - 0.05),
-                        contact_point, 0.04, 4, Material::kMast);
+                        contact_point,
+                        0.04,
+                        4,
+                        Material::kMast);
       feeder_supports.clear();
       continue;
     }
@@ -412,12 +475,15 @@ void World::BuildCatenary(std::mt19937& rng) {
     const Vec3 top = alignment_.Beside(s, offset, scenario_.mast_height_m);
     mast.mesh.AddCylinder(base, top, 0.17, 8, Material::kMast);
     const double inner = offset - scenario_.mast_side * 0.2;
-    mast.mesh.AddCylinder(alignment_.Beside(s, inner, messenger + 0.3), messenger_point, 0.03, 4,
-                          Material::kMast);
+    mast.mesh.AddCylinder(
+        alignment_.Beside(s, inner, messenger + 0.3), messenger_point, 0.03, 4, Material::kMast);
     mast.mesh.AddCylinder(alignment_.Beside(s, inner, contact + 0.2),
-                          alignment_.Beside(s, stagger, contact + 0.15), 0.03, 4, Material::kMast);
-    mast.mesh.AddCylinder(contact_point + Vec3(0, 0, 0.15), messenger_point, 0.02, 4,
+                          alignment_.Beside(s, stagger, contact + 0.15),
+                          0.03,
+                          4,
                           Material::kMast);
+    mast.mesh.AddCylinder(
+        contact_point + Vec3(0, 0, 0.15), messenger_point, 0.02, 4, Material::kMast);
     objects_.push_back(std::move(mast));
     const Vec3 feeder = alignment_.Beside(s, offset, scenario_.mast_height_m - 0.3);
     if (!feeder_supports.empty()) {
@@ -439,8 +505,11 @@ void World::BuildCatenary(std::mt19937& rng) {
       return m0 + u * (m1 - m0) - Vec3(0, 0, sag * 4.0 * u * (1.0 - u));
     };
     for (int k = 0; k < pieces; ++k) {
-      wires.AddCylinder(messenger_at(double(k) / pieces), messenger_at(double(k + 1) / pieces),
-                        0.006, 4, Material::kWire);
+      wires.AddCylinder(messenger_at(double(k) / pieces),
+                        messenger_at(double(k + 1) / pieces),
+                        0.006,
+                        4,
+                        Material::kWire);
     }
     const int droppers = std::max(1, static_cast<int>(span / 9.0));
     for (int k = 1; k < droppers; ++k) {
@@ -463,16 +532,22 @@ void World::BuildStations() {
       const TrackPoint p = alignment_.At(mid);
       const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
       const double bottom = kFormationM, top = st.platform_height_m;
-      platform.mesh.AddBox(alignment_.Beside(mid, side * 4.75, 0.5 * (top + bottom)), R,
-                           Vec3(5.0, 3.0, 0.5 * (top - bottom)), Material::kPlatform);
+      platform.mesh.AddBox(alignment_.Beside(mid, side * 4.75, 0.5 * (top + bottom)),
+                           R,
+                           Vec3(5.0, 3.0, 0.5 * (top - bottom)),
+                           Material::kPlatform);
       // Canopy pillars and roof, lamp posts.
       platform.mesh.AddCylinder(alignment_.Beside(mid, side * 5.6, top),
-                                alignment_.Beside(mid, side * 5.6, top + 4.4), 0.15, 6,
+                                alignment_.Beside(mid, side * 5.6, top + 4.4),
+                                0.15,
+                                6,
                                 Material::kMast);
-      platform.mesh.AddBox(alignment_.Beside(mid, side * 5.6, top + 4.5), R, Vec3(5.0, 2.0, 0.1),
-                           Material::kRoof);
+      platform.mesh.AddBox(
+          alignment_.Beside(mid, side * 5.6, top + 4.5), R, Vec3(5.0, 2.0, 0.1), Material::kRoof);
       platform.mesh.AddCylinder(alignment_.Beside(s, side * 7.4, top),
-                                alignment_.Beside(s, side * 7.4, top + 5.0), 0.06, 4,
+                                alignment_.Beside(s, side * 7.4, top + 5.0),
+                                0.06,
+                                4,
                                 Material::kMast);
     }
     objects_.push_back(std::move(platform));
@@ -484,8 +559,10 @@ void World::BuildStations() {
     const TrackPoint p = alignment_.At(mid);
     const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
     const double ground = GroundHeight(mid, side * 16.0);
-    building.mesh.AddBox(alignment_.Beside(mid, side * 16.0, ground + 4.0), R,
-                         Vec3(std::min(30.0, 0.2 * st.length_m), 5.0, 4.0), Material::kBuilding);
+    building.mesh.AddBox(alignment_.Beside(mid, side * 16.0, ground + 4.0),
+                         R,
+                         Vec3(std::min(30.0, 0.2 * st.length_m), 5.0, 4.0),
+                         Material::kBuilding);
     objects_.push_back(std::move(building));
   }
   // Level crossings: road panel, barrier posts and booms, cross-buck signs.
@@ -495,15 +572,19 @@ void World::BuildStations() {
     crossing.chainage_m = at;
     const TrackPoint p = alignment_.At(at);
     const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-    crossing.mesh.AddBox(alignment_.Beside(at, 0.0, 0.5 * (-0.01 + kFormationM)), R,
-                         Vec3(3.0, 20.0, 0.5 * (kFormationM + 0.01) * -1.0), Material::kRoad);
+    crossing.mesh.AddBox(alignment_.Beside(at, 0.0, 0.5 * (-0.01 + kFormationM)),
+                         R,
+                         Vec3(3.0, 20.0, 0.5 * (kFormationM + 0.01) * -1.0),
+                         Material::kRoad);
     for (double side : {1.0, -1.0}) {
       const double along = side * 5.0;
       const Vec3 post = alignment_.Beside(at + along, side * 4.5, kFormationM);
       crossing.mesh.AddCylinder(post, post + Vec3(0, 0, 1.3), 0.12, 6, Material::kMast);
       crossing.mesh.AddCylinder(post + Vec3(0, 0, 1.1),
                                 alignment_.Beside(at + along, side * 10.0, kFormationM + 1.1),
-                                0.05, 4, Material::kSign);
+                                0.05,
+                                4,
+                                Material::kSign);
       const Vec3 sign = alignment_.Beside(at - along, side * 4.0, kFormationM);
       crossing.mesh.AddCylinder(sign, sign + Vec3(0, 0, 2.8), 0.05, 4, Material::kMast);
       crossing.mesh.AddBox(sign + Vec3(0, 0, 2.6), R, Vec3(0.03, 0.6, 0.1), Material::kSign);
@@ -540,7 +621,9 @@ void World::BuildCorridor(std::mt19937& rng) {
       post.chainage_m = s;
       post.lateral_m = 3.6;
       const Vec3 base = alignment_.Beside(s, 3.6, GroundHeight(s, 3.6));
-      post.mesh.AddBox(base + Vec3(0, 0, 0.65), Eigen::Matrix3d::Identity(), Vec3(0.08, 0.08, 0.65),
+      post.mesh.AddBox(base + Vec3(0, 0, 0.65),
+                       Eigen::Matrix3d::Identity(),
+                       Vec3(0.08, 0.08, 0.65),
                        Material::kSign);
       objects_.push_back(std::move(post));
     }
@@ -568,11 +651,12 @@ void World::BuildCorridor(std::mt19937& rng) {
     const double trunk = Uniform(rng, 1.5, 4.0);
     const double crown = std::min(Uniform(rng, 1.5, 4.0), std::fabs(lateral) - 3.0);
     const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
-    tree.mesh.AddCylinder(base, base + Vec3(0, 0, trunk + crown), 0.15 + 0.03 * crown, 6,
-                          Material::kVegetation);
+    tree.mesh.AddCylinder(
+        base, base + Vec3(0, 0, trunk + crown), 0.15 + 0.03 * crown, 6, Material::kVegetation);
     const int blobs = 3 + static_cast<int>(rng() % 3);
     for (int b = 0; b < blobs; ++b) {
-      const Vec3 c = base + Vec3(Uniform(rng, -0.4, 0.4) * crown, Uniform(rng, -0.4, 0.4) * crown,
+      const Vec3 c = base + Vec3(Uniform(rng, -0.4, 0.4) * crown,
+                                 Uniform(rng, -0.4, 0.4) * crown,
                                  trunk + crown * Uniform(rng, 0.6, 1.4));
       const double r = crown * Uniform(rng, 0.5, 0.8);
       tree.mesh.AddBlob(c, Vec3(r, r, r * 0.9), 0.25, rng, Material::kVegetation);
@@ -584,12 +668,18 @@ void World::BuildCorridor(std::mt19937& rng) {
     bush.kind = "bush";
     bush.chainage_m = s;
     bush.lateral_m = lateral;
-    const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
     const int blobs = 1 + static_cast<int>(rng() % 3);
+    const double side = lateral > 0.0 ? 1.0 : -1.0;
     for (int b = 0; b < blobs; ++b) {
-      const double r = Uniform(rng, 0.5, 1.4);
-      bush.mesh.AddBlob(base + Vec3(Uniform(rng, -1, 1), Uniform(rng, -1, 1), 0.6 * r),
-                        Vec3(r, r, 0.8 * r), 0.3, rng, Material::kVegetation);
+      // Blobs spread along the line and away from it; with their jitter (x1.3) they stay out of
+      // the structure gauge (2.44 m) with 0.15 m to spare.
+      const double away = Uniform(rng, 0.0, 1.0);
+      const double r_max = (std::fabs(lateral) + away - kClearanceHalfWidthM - 0.15) / 1.3;
+      const double r = std::min(Uniform(rng, 0.5, 1.4), std::max(0.2, r_max));
+      const double s_blob = s + Uniform(rng, -1.0, 1.0);
+      const Vec3 centre =
+          alignment_.Beside(s_blob, lateral + side * away, GroundHeight(s_blob, lateral) + 0.6 * r);
+      bush.mesh.AddBlob(centre, Vec3(r, r, 0.8 * r), 0.3, rng, Material::kVegetation);
     }
     objects_.push_back(std::move(bush));
   });
@@ -600,7 +690,8 @@ void World::BuildCorridor(std::mt19937& rng) {
     building.lateral_m = lateral;
     const TrackPoint p = alignment_.At(s);
     const Eigen::Matrix3d R =
-        Eigen::AngleAxisd(p.heading_rad + Uniform(rng, -0.3, 0.3), Vec3::UnitZ()).toRotationMatrix();
+        Eigen::AngleAxisd(p.heading_rad + Uniform(rng, -0.3, 0.3), Vec3::UnitZ())
+            .toRotationMatrix();
     const Vec3 half(Uniform(rng, 3.0, 12.0), Uniform(rng, 3.0, 7.0), Uniform(rng, 1.5, 6.0));
     const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral) - 0.3);
     const Vec3 centre = base + Vec3(0, 0, half.z());
@@ -640,15 +731,25 @@ void World::ApplyChanges(std::mt19937& rng) {
     const Eigen::AlignedBox3d box = object.mesh.Bounds();
     r.centre_world = box.center();
     r.extent_m = box.sizes();
-    for (const Eigen::Vector3f& v : object.mesh.vertices) {
-      if (kind == "object_removed") break;  // what is gone cannot be in the way
-      double along, lateral, height;
-      local(object.chainage_m, v.cast<double>(), &along, &lateral, &height);
-      if (std::fabs(along) < 50.0 && std::fabs(lateral) < kClearanceHalfWidthM && height > 0.0 &&
-          height < kClearanceHeightM) {
-        r.intrudes_clearance = true;
-        break;
+    // Sample the triangle edges every 0.25 m: long members (a trunk) cross the envelope between
+    // their vertices. What is gone cannot be in the way.
+    const Mesh& mesh = object.mesh;
+    for (size_t t = 0; t < mesh.triangles.size() && kind != "object_removed"; ++t) {
+      for (int e = 0; e < 3 && !r.intrudes_clearance; ++e) {
+        const Vec3 a = mesh.vertices[mesh.triangles[t][e]].cast<double>();
+        const Vec3 b = mesh.vertices[mesh.triangles[t][(e + 1) % 3]].cast<double>();
+        const int steps = 1 + static_cast<int>((b - a).norm() / 0.25);
+        for (int k = 0; k <= steps; ++k) {
+          double along, lateral, height;
+          local(object.chainage_m, a + (b - a) * (double(k) / steps), &along, &lateral, &height);
+          if (std::fabs(along) < 50.0 && std::fabs(lateral) < kClearanceHalfWidthM &&
+              height > 0.0 && height < kClearanceHeightM) {
+            r.intrudes_clearance = true;
+            break;
+          }
+        }
       }
+      if (r.intrudes_clearance) break;
     }
     return r;
   };
@@ -660,11 +761,12 @@ void World::ApplyChanges(std::mt19937& rng) {
       box.lateral_m = c.offset_m;
       const TrackPoint p = alignment_.At(c.at_m);
       const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-      const double ground = std::fabs(c.offset_m) < kBallastShoulderM
-                                ? 0.0
-                                : GroundHeight(c.at_m, c.offset_m);
-      box.mesh.AddBox(alignment_.Beside(c.at_m, c.offset_m, ground + 0.5 * c.size_m[2]), R,
-                      0.5 * Vec3(c.size_m[0], c.size_m[1], c.size_m[2]), Material::kBuilding);
+      const double ground =
+          std::fabs(c.offset_m) < kBallastShoulderM ? 0.0 : GroundHeight(c.at_m, c.offset_m);
+      box.mesh.AddBox(alignment_.Beside(c.at_m, c.offset_m, ground + 0.5 * c.size_m[2]),
+                      R,
+                      0.5 * Vec3(c.size_m[0], c.size_m[1], c.size_m[2]),
+                      Material::kBuilding);
       changes_.push_back(record("object_added", box));
       objects_.push_back(std::move(box));
     } else if (c.kind == Change::Kind::kObjectRemoved || c.kind == Change::Kind::kObjectMoved) {
@@ -699,9 +801,12 @@ void World::ApplyChanges(std::mt19937& rng) {
       tree.chainage_m = c.at_m;
       tree.lateral_m = lateral;
       const Vec3 base = alignment_.Beside(c.at_m, lateral, GroundHeight(c.at_m, lateral));
-      tree.mesh.AddCylinder(base, alignment_.Beside(c.at_m, lateral, 4.0), 0.2, 6,
-                            Material::kVegetation);
-      tree.mesh.AddBlob(alignment_.Beside(c.at_m, lateral, 4.0), Vec3(crown, crown, 1.8), 0.0, rng,
+      tree.mesh.AddCylinder(
+          base, alignment_.Beside(c.at_m, lateral, 4.0), 0.2, 6, Material::kVegetation);
+      tree.mesh.AddBlob(alignment_.Beside(c.at_m, lateral, 4.0),
+                        Vec3(crown, crown, 1.8),
+                        0.0,
+                        rng,
                         Material::kVegetation);
       changes_.push_back(record("vegetation_growth", tree));
       objects_.push_back(std::move(tree));
@@ -716,7 +821,10 @@ void World::ApplyChanges(std::mt19937& rng) {
       tree.mesh.AddCylinder(centre - 6.0 * dir, centre + 6.0 * dir, 0.22, 8, Material::kVegetation);
       for (int b = 0; b < 3; ++b) {
         tree.mesh.AddBlob(centre + (7.0 + 1.2 * b) * dir + Vec3(0, 0, 0.8),
-                          Vec3(1.4, 1.4, 1.0), 0.25, rng, Material::kVegetation);
+                          Vec3(1.4, 1.4, 1.0),
+                          0.25,
+                          rng,
+                          Material::kVegetation);
       }
       changes_.push_back(record("fallen_tree", tree));
       objects_.push_back(std::move(tree));

@@ -43,19 +43,29 @@ struct Mesh {
   std::vector<Material> materials;
 
   void Append(const Mesh& other);
-  void AddTriangle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+  void AddTriangle(const Eigen::Vector3d& a,
+                   const Eigen::Vector3d& b,
+                   const Eigen::Vector3d& c,
                    Material m);
-  void AddQuad(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-               const Eigen::Vector3d& d, Material m);
+  void AddQuad(const Eigen::Vector3d& a,
+               const Eigen::Vector3d& b,
+               const Eigen::Vector3d& c,
+               const Eigen::Vector3d& d,
+               Material m);
   /// A box with the given centre, orientation and half extents.
-  void AddBox(const Eigen::Vector3d& centre, const Eigen::Matrix3d& R, const Eigen::Vector3d& half,
+  void AddBox(const Eigen::Vector3d& centre,
+              const Eigen::Matrix3d& R,
+              const Eigen::Vector3d& half,
               Material m);
   /// A capped prism of `sides` faces around the segment a-b.
-  void AddCylinder(const Eigen::Vector3d& a, const Eigen::Vector3d& b, double radius, int sides,
-                   Material m);
+  void AddCylinder(
+      const Eigen::Vector3d& a, const Eigen::Vector3d& b, double radius, int sides, Material m);
   /// An irregular ellipsoid (subdivided icosahedron with jittered radii).
-  void AddBlob(const Eigen::Vector3d& centre, const Eigen::Vector3d& radii, double jitter,
-               std::mt19937& rng, Material m);
+  void AddBlob(const Eigen::Vector3d& centre,
+               const Eigen::Vector3d& radii,
+               double jitter,
+               std::mt19937& rng,
+               Material m);
   void Translate(const Eigen::Vector3d& delta);
   Eigen::AlignedBox3d Bounds() const;
 };

@@ -214,17 +214,18 @@ TEST(Alignment, GradesRiseAndEaseOverVerticalCurves) {
   EXPECT_NEAR(a.At(700.0).grade, 0.01, 1e-12);
   EXPECT_NEAR(a.At(1800.0).grade, -0.005, 1e-12);
   EXPECT_NEAR(a.At(1900.0).position.z() - a.At(1600.0).position.z(), -0.005 * 300.0, 1e-9);
-  // The grade eases linearly over 60 m centred on the change.
+  // The grade eases over 60 m centred on the change, as a smoothstep (so the pitch rate has no
+  // steps): 3u^2 - 2u^3 of the change at u = 0.25 and 0.75.
   EXPECT_NEAR(a.At(470.0).grade, 0.0, 1e-9);
-  EXPECT_NEAR(a.At(485.0).grade, 0.0025, 1e-9);
+  EXPECT_NEAR(a.At(485.0).grade, 0.01 * 0.15625, 1e-9);
   EXPECT_NEAR(a.At(500.0).grade, 0.005, 1e-9);
-  EXPECT_NEAR(a.At(515.0).grade, 0.0075, 1e-9);
+  EXPECT_NEAR(a.At(515.0).grade, 0.01 * 0.84375, 1e-9);
   EXPECT_NEAR(a.At(530.0).grade, 0.01, 1e-9);
   EXPECT_NEAR(a.At(1500.0).grade, 0.0025, 1e-9);
   EXPECT_NEAR(a.At(530.0).position.z() - a.At(470.0).position.z(), 0.3, 1e-9);
   // The reported grade is the slope of the positions; the track frame pitches up with it.
   for (double at : {300.0, 480.0, 500.0, 520.0, 700.0, 1490.0, 1800.0}) {
-    const double h = 0.5;
+    const double h = 0.05;
     const double slope = (a.At(at + h).position.z() - a.At(at - h).position.z()) / (2.0 * h);
     EXPECT_NEAR(slope, a.At(at).grade, 1e-7) << at;
   }

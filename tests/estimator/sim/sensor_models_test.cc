@@ -7,6 +7,7 @@
 #include <cmath>
 #include <memory>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -299,11 +300,6 @@ TEST(GnssModel, ErrorLevelsCorrelationAndConversion) {
   EXPECT_NEAR(horizontal, expected_horizontal, 0.3 * expected_horizontal);
   EXPECT_NEAR(horizontal, 1.2, 0.36);  // the paper's receiver
   EXPECT_NEAR(vertical, 2.5, 0.4 * 2.5);
-  std::printf("GNSS RMS: horizontal %.3f m (model %.3f), vertical %.3f m\n",
-              horizontal,
-              expected_horizontal,
-              vertical);
-
   // Gauss-Markov with tau = 120 s at 1 Hz plus white noise: lag-1 autocorrelation
   // exp(-1/tau) * (var - white^2) / var, about 0.87 horizontally and 0.93 vertically with the
   // defaults; it decays by 1/e over tau. The realised variance of a 20,000 s run varies by ~10 %

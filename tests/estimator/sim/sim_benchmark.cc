@@ -2,11 +2,11 @@
 // source and for writing a bag, on a few corridors of different size.
 //   bench_sim [--seconds 20] [--json out.json] [--scenario name ...]
 
+#include <unistd.h>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <unistd.h>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -57,8 +57,13 @@ int main(int argc, char** argv) {
   if (scenarios.empty()) scenarios = {"rich_high_town_a", "poor_high_catenary_b", "long_20km"};
 
   nlohmann::json results = nlohmann::json::array();
-  std::printf("%-22s %9s %10s %12s %12s %10s\n", "scenario", "triangles", "build_s",
-              "source_rtf", "bag_rtf", "bag_MB/s");
+  std::printf("%-22s %9s %10s %12s %12s %10s\n",
+              "scenario",
+              "triangles",
+              "build_s",
+              "source_rtf",
+              "bag_rtf",
+              "bag_MB/s");
   bool ok = true;
   for (const std::string& name : scenarios) {
     sim::Scenario scenario;
@@ -114,8 +119,12 @@ int main(int argc, char** argv) {
     std::filesystem::remove(bag);
     const double bag_rtf = options.duration_s / bag_s;
 
-    std::printf("%-22s %9zu %10.2f %12.2f %12.2f %10.1f\n", name.c_str(),
-                source->world().mesh().triangles.size(), build_s, source_rtf, bag_rtf,
+    std::printf("%-22s %9zu %10.2f %12.2f %12.2f %10.1f\n",
+                name.c_str(),
+                source->world().mesh().triangles.size(),
+                build_s,
+                source_rtf,
+                bag_rtf,
                 bag_mb / bag_s);
     results.push_back({{"scenario", name},
                        {"simulated_s", options.duration_s},
@@ -128,7 +137,8 @@ int main(int argc, char** argv) {
     ok = ok && source_rtf >= 3.0;
   }
   const long rss = PeakRssKb();
-  std::printf("peak RSS %.1f MB; target: in-process source >= 3x real time: %s\n", rss / 1024.0,
+  std::printf("peak RSS %.1f MB; target: in-process source >= 3x real time: %s\n",
+              rss / 1024.0,
               ok ? "met" : "NOT met");
   if (!json_path.empty()) {
     std::ofstream(json_path) << nlohmann::json{{"results", results}, {"peak_rss_kb", rss}}.dump(2)

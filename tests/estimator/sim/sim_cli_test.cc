@@ -137,12 +137,12 @@ TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
 TEST_F(SimCli, RunStartingAtSpeedPassesTheIndependentCheck) {
   // A run that starts at 100 km/h: no start-up transient in the IMU or odometer.
   const fs::path out = dir_ / "fast";
-  const CommandResult run = Shell(
-      sim_ + " --scenario rich_high_town_a --out " + out.string() + " --duration 1.5", dir_);
+  const CommandResult run =
+      Shell(sim_ + " --scenario rich_high_town_a --out " + out.string() + " --duration 1.5", dir_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  const CommandResult check = Shell("/usr/bin/python3 " + checker_ + " " +
-                                        (out / "run.bag").string() + " --duration-s 1.5",
-                                    dir_);
+  const CommandResult check =
+      Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() + " --duration-s 1.5",
+            dir_);
   EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
 }
 

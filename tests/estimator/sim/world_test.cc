@@ -245,11 +245,8 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
     EXPECT_TRUE(changes[i].centre_world.allFinite());
     EXPECT_GT(changes[i].extent_m.minCoeff(), 0.0);
   }
-  const ChangeRecord& fallen = changes[0];
-  EXPECT_EQ(fallen.object, "fallen_tree");
-  EXPECT_DOUBLE_EQ(fallen.chainage_m, 700.0);
-  EXPECT_TRUE(fallen.intrudes_clearance);
-  EXPECT_GT(fallen.extent_m.head<2>().norm(), 10.0);  // a 12 m trunk across the line
+  EXPECT_EQ(changes[0].object, "fallen_tree");
+  EXPECT_DOUBLE_EQ(changes[0].chainage_m, 700.0);
 
   const ChangeRecord& growth = changes[1];
   EXPECT_EQ(growth.object, "tree");
@@ -292,9 +289,6 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
 
   // The flags agree with the geometry of the objects in the changed world.
   for (const WorldObject& o : changed.world->objects()) {
-    if (o.kind == "fallen_tree") {
-      EXPECT_TRUE(Intrudes(*changed.alignment, o));
-    }
     if (o.kind == "box") {
       EXPECT_FALSE(Intrudes(*changed.alignment, o));
     }
@@ -304,9 +298,38 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
   }
 }
 
+TEST(World, FallenTreeAcrossTheTrackIntrudesTheGauge) {
+  // Known simulator bug (see the report): ApplyChanges' record() tests only mesh vertices against
+  // the gauge. The trunk is a 12 m prism whose vertices lie at its ends, 5.6 m either side of the
+  // track, so the record says the tree lying across the rails does not intrude.
+  const Built& changed = Builtin("rich_low_station_a_changed");
+  const ChangeRecord* fallen = FindChange(*changed.world, "fallen_tree");
+  ASSERT_NE(fallen, nullptr);
+  EXPECT_GT(fallen->extent_m.head<2>().norm(), 10.0);  // a 12 m trunk across the line
+  const WorldObject* tree = nullptr;
+  for (const WorldObject& o : changed.world->objects()) {
+    if (o.kind == "fallen_tree") tree = &o;
+  }
+  ASSERT_NE(tree, nullptr);
+  // It spans the track: parts of it on both sides, beyond the gauge.
+  const TrackPoint p = changed.alignment->At(700.0);
+  double min_lateral = 0.0, max_lateral = 0.0;
+  for (const Eigen::Vector3f& v : tree->mesh.vertices) {
+    const double lateral = (v.cast<double>() - p.position).dot(p.Left());
+    min_lateral = std::min(min_lateral, lateral);
+    max_lateral = std::max(max_lateral, lateral);
+  }
+  EXPECT_LT(min_lateral, -2.44);
+  EXPECT_GT(max_lateral, 2.44);
+  EXPECT_TRUE(Intrudes(*changed.alignment, *tree));
+  EXPECT_TRUE(fallen->intrudes_clearance);
+}
+
 TEST(World, BaseCorridorKeepsTheGaugeClear) {
   // Trees, bushes and buildings of a generated corridor stay outside the structure gauge, so a
-  // change detector's intrusions come from the edits alone.
+  // change detector's intrusions come from the edits alone. Known simulator bug (see the report):
+  // bushes at the minimum offset of 4 m reach in to ~1.5 m of the track centre (blobs shifted up
+  // to 1 m sideways, radius up to 1.4 m x 1.3 jitter).
   for (const char* name : {"rich_low_station_a", "demo"}) {
     const Built& built = Builtin(name);
     int intruding = 0, checked = 0;
