@@ -23,19 +23,22 @@ bool ParseDouble(const std::string& text, double* value) {
   return errno == 0 && end == text.c_str() + text.size() && std::isfinite(*value);
 }
 
-bool ValidUtmZone(const std::string& zone) {
-  if (zone.size() < 2 || zone.size() > 3) return false;
-  const char hemisphere = zone.back();
-  if (hemisphere != 'N' && hemisphere != 'S') return false;
-  const std::string number = zone.substr(0, zone.size() - 1);
-  for (char c : number) {
-    if (c < '0' || c > '9') return false;
-  }
-  const int n = std::atoi(number.c_str());
-  return n >= 1 && n <= 60;
-}
-
 }  // namespace
+
+bool ParseUtmZoneName(const std::string& text, int* zone, bool* north) {
+  if (text.size() < 2 || text.size() > 3) return false;
+  const char hemisphere = text.back();
+  if (hemisphere != 'N' && hemisphere != 'S') return false;
+  int number = 0;
+  for (size_t i = 0; i + 1 < text.size(); ++i) {
+    if (text[i] < '0' || text[i] > '9') return false;
+    number = number * 10 + (text[i] - '0');
+  }
+  if (number < 1 || number > 60) return false;
+  *zone = number;
+  *north = hemisphere == 'N';
+  return true;
+}
 
 std::string FormatStampSeconds(int64_t stamp_ns) {
   const bool negative = stamp_ns < 0;
@@ -106,7 +109,9 @@ bool ParseTum(const std::string& text, Trajectory* trajectory, std::string* erro
       std::istringstream comment(line.substr(first + 1));
       std::string key, zone;
       if (comment >> key && key == "utm_zone") {
-        if (!(comment >> zone) || !ValidUtmZone(zone)) {
+        int number = 0;
+        bool north = true;
+        if (!(comment >> zone) || !ParseUtmZoneName(zone, &number, &north)) {
           return fail("bad utm_zone comment '" + line + "' (expected e.g. '# utm_zone 50N')");
         }
         trajectory->utm_zone = zone;

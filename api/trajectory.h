@@ -23,6 +23,9 @@ struct Trajectory {
   std::string utm_zone;
 };
 
+/// Parses a UTM zone name ("50N", "33S") into zone number 1..60 and hemisphere; false if malformed.
+bool ParseUtmZoneName(const std::string& text, int* zone, bool* north);
+
 /// Parses TUM text. Comment lines start with '#'; a `# utm_zone <zone><N|S>` line sets utm_zone.
 /// Timestamps are parsed exactly to nanoseconds. Returns false with a message naming the line.
 bool ParseTum(const std::string& text, Trajectory* trajectory, std::string* error);

@@ -1,27 +1,10 @@
 #include "estimator/geo/utm.h"
 
-#include <cstdlib>
-
 #include <GeographicLib/UTMUPS.hpp>
 
 namespace raillomer::geo {
 
 std::string UtmZone::Name() const { return std::to_string(zone) + (north ? "N" : "S"); }
-
-bool ParseUtmZone(const std::string& text, UtmZone* zone) {
-  if (text.size() < 2 || text.size() > 3) return false;
-  const char hemisphere = text.back();
-  if (hemisphere != 'N' && hemisphere != 'S') return false;
-  int number = 0;
-  for (size_t i = 0; i + 1 < text.size(); ++i) {
-    if (text[i] < '0' || text[i] > '9') return false;
-    number = number * 10 + (text[i] - '0');
-  }
-  if (number < 1 || number > 60) return false;
-  zone->zone = number;
-  zone->north = hemisphere == 'N';
-  return true;
-}
 
 UtmZone StandardZone(double latitude_deg, double longitude_deg) {
   UtmZone zone;

@@ -14,9 +14,6 @@ struct UtmZone {
   std::string Name() const;
 };
 
-/// Parses "50N" / "33S"; false if malformed.
-bool ParseUtmZone(const std::string& text, UtmZone* zone);
-
 /// The standard UTM zone of a WGS84 position.
 UtmZone StandardZone(double latitude_deg, double longitude_deg);
 

@@ -39,6 +39,8 @@ LivoxHorizonModel::LivoxHorizonModel(const Scenario& scenario,
   T_body_lidar_.translation() =
       Eigen::Vector3d(config.translation_m[0], config.translation_m[1], config.translation_m[2]);
   period_ns_ = static_cast<int64_t>(std::llround(1e9 / scenario.lidar_rate_hz));
+  // points_per_frame is validated to be a multiple of kLines * kSweepsPerFrame.
+  groups_per_sweep_ = scenario.points_per_frame / (kLines * kSweepsPerFrame);
   const double az = scenario.sun_azimuth_deg * kDeg, el = scenario.sun_elevation_deg * kDeg;
   sun_world_ =
       Eigen::Vector3d(std::cos(el) * std::sin(az), std::cos(el) * std::cos(az), std::sin(el));
@@ -53,12 +55,10 @@ uint32_t LivoxHorizonModel::OffsetNs(uint32_t index) const {
 }
 
 Eigen::Vector3d LivoxHorizonModel::Direction(uint64_t frame, uint32_t index, uint8_t* line) const {
-  const uint32_t groups = scenario_.points_per_frame / kLines;
-  const uint32_t per_sweep = std::max<uint32_t>(1, groups / kSweepsPerFrame);
   const uint32_t group = index / kLines;
   const int beam = static_cast<int>(index % kLines);
-  const uint32_t sweep = std::min<uint32_t>(group / per_sweep, kSweepsPerFrame - 1);
-  const double u = ((group - sweep * per_sweep) + 0.5) / per_sweep;
+  const uint32_t sweep = group / groups_per_sweep_;
+  const double u = ((group - sweep * groups_per_sweep_) + 0.5) / groups_per_sweep_;
   const double across = (sweep % 2 == 0) ? u : 1.0 - u;  // back and forth
   const double azimuth = (across - 0.5) * kHorizontalFovDeg;
   // Each laser owns a band of the vertical field; the sweeps step through it, shifted by a
@@ -173,7 +173,7 @@ void LivoxHorizonModel::Scan(uint64_t frame,
     }
     // Boundary bleeding between this point and the previous one of the same laser and sweep.
     if (kind == PointKind::kSurface && i >= kLines && range[i - kLines] > 0.0 &&
-        i / kLines % (n / kLines / kSweepsPerFrame) != 0) {
+        i / kLines % groups_per_sweep_ != 0) {
       const double a = range[i - kLines], b = range[i];
       const double lo = std::min(a, b), hi = std::max(a, b);
       if (hi - lo > std::max(0.5, 0.1 * lo) && hi < 80.0 &&

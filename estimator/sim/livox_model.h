@@ -32,8 +32,6 @@ class LivoxHorizonModel {
   Eigen::Vector3d Direction(uint64_t frame, uint32_t index, uint8_t* line) const;
   /// Time of point `index` after the frame's first point, in nanoseconds.
   uint32_t OffsetNs(uint32_t index) const;
-  /// Frame period in nanoseconds.
-  int64_t period_ns() const { return period_ns_; }
   const Eigen::Isometry3d& T_body_lidar() const { return T_body_lidar_; }
   const LidarConfig& config() const { return config_; }
 
@@ -55,6 +53,7 @@ class LivoxHorizonModel {
   uint32_t seed_;
   Eigen::Isometry3d T_body_lidar_;
   int64_t period_ns_;
+  uint32_t groups_per_sweep_;  ///< firings of the 6 lasers in one horizontal sweep
   Eigen::Vector3d sun_world_;
   Eigen::AlignedBox3d body_box_;  ///< vehicle roof edge, body frame
 };

@@ -40,6 +40,24 @@ void SpeedProfile::At(double t, double* distance_m, double* speed_mps, double* a
   *accel_mps2 = p.a;
 }
 
+void SpeedProfile::DistanceRange(double* min_m, double* max_m) const {
+  *min_m = *max_m = 0.0;
+  for (size_t i = 0; i + 1 < pieces_.size(); ++i) {
+    const Piece& p = pieces_[i];
+    const double dt = pieces_[i + 1].t0 - p.t0;
+    double x_end = pieces_[i + 1].x0;
+    // A speed reversal inside the piece: the extreme is where the speed passes through zero.
+    const double t_turn = p.a != 0.0 ? -p.v0 / p.a : -1.0;
+    if (t_turn > 0.0 && t_turn < dt) {
+      const double x_turn = p.x0 + p.v0 * t_turn + 0.5 * p.a * t_turn * t_turn;
+      *min_m = std::min(*min_m, x_turn);
+      *max_m = std::max(*max_m, x_turn);
+    }
+    *min_m = std::min(*min_m, x_end);
+    *max_m = std::max(*max_m, x_end);
+  }
+}
+
 TruthMotion::TruthMotion(const Scenario& scenario, const Alignment& alignment, uint32_t seed)
     : alignment_(alignment),
       profile_(scenario),

@@ -17,6 +17,8 @@ class SpeedProfile {
   double duration_s() const { return duration_s_; }
   /// Distance travelled since t = 0 (signed), speed and acceleration along the track.
   void At(double t, double* distance_m, double* speed_mps, double* accel_mps2) const;
+  /// The least and greatest distance reached (from the start, signed) over the profile.
+  void DistanceRange(double* min_m, double* max_m) const;
 
  private:
   struct Piece {
@@ -47,7 +49,6 @@ class TruthMotion {
                 Eigen::Vector3d* omega_body,
                 Eigen::Vector3d* specific_force_body,
                 double window_s = 0.005) const;
-  const SpeedProfile& profile() const { return profile_; }
 
  private:
   /// Vibration offset (track frame) and small rotation (roll, pitch, yaw) at time t.

@@ -27,7 +27,6 @@ class RayCaster {
 
   /// Nearest hit within max_range_m along the unit direction `dir` from `origin`.
   RayHit Cast(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir, double max_range_m) const;
-  size_t triangle_count() const { return materials_.size(); }
 
  private:
   struct Impl;

@@ -9,7 +9,9 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "estimator/sim/alignment.h"
 #include "estimator/sim/builtin_scenarios.h"
+#include "estimator/sim/motion.h"
 
 namespace raillomer::sim {
 
@@ -538,46 +540,7 @@ std::string Metres(double value) {
   return buffer;
 }
 
-double AlignmentLength(const Scenario& s) {
-  double length = 0.0;
-  for (const AlignmentSegment& seg : s.alignment) length += seg.length_m + 2.0 * seg.transition_m;
-  return length;
-}
-
-/// Distance the profile covers (maximum chainage reached relative to start_m) and its duration.
-void ProfileExtent(const Scenario& s, double* duration_s, double* max_s, double* min_s) {
-  double t = 0.0, v = s.start_speed_mps, x = 0.0;
-  *max_s = 0.0;
-  *min_s = 0.0;
-  for (const MotionPhase& p : s.phases) {
-    double dt = 0.0, dx = 0.0, v_end = v;
-    if (p.kind == MotionPhase::Kind::kForSeconds) {
-      dt = p.value;
-      dx = v * dt;
-    } else if (p.kind == MotionPhase::Kind::kForMetres) {
-      dt = std::fabs(v) > 1e-9 ? p.value / std::fabs(v) : 0.0;
-      dx = v * dt;
-    } else {
-      dt = std::fabs(p.value - v) / p.accel_mps2;
-      dx = 0.5 * (v + p.value) * dt;
-      v_end = p.value;
-      // A speed reversal passes through zero: the extreme is at the turning point.
-      if (v * p.value < 0.0) {
-        const double turn = x + v * std::fabs(v) / (2.0 * p.accel_mps2);
-        *max_s = std::max(*max_s, turn);
-        *min_s = std::min(*min_s, turn);
-      }
-    }
-    t += dt;
-    x += dx;
-    v = v_end;
-    *max_s = std::max(*max_s, x);
-    *min_s = std::min(*min_s, x);
-  }
-  *duration_s = t;
-}
-
-void Validate(const YAML::Node& root, const std::string& source, Scenario* s) {
+void Validate(const std::string& source, Scenario* s) {
   auto fail = [&](const std::string& message) { throw ScenarioError(source + ": " + message); };
   if (s->lidars.empty()) DefaultLidars(s);
   if (s->alignment.empty()) fail("alignment is empty: list at least one straight or curve");
@@ -590,9 +553,9 @@ void Validate(const YAML::Node& root, const std::string& source, Scenario* s) {
     }
     if (p.kind == MotionPhase::Kind::kToSpeed) v = p.value;
   }
-  double duration = 0.0, max_s = 0.0, min_s = 0.0;
-  ProfileExtent(*s, &duration, &max_s, &min_s);
-  const double length = AlignmentLength(*s);
+  double min_s = 0.0, max_s = 0.0;
+  SpeedProfile(*s).DistanceRange(&min_s, &max_s);
+  const double length = Alignment(*s).length_m();
   const double lookahead_m = 150.0;
   if (s->start_m + min_s < 0.0) {
     fail("motion runs back to chainage " + Metres(s->start_m + min_s) +
@@ -615,16 +578,11 @@ void Validate(const YAML::Node& root, const std::string& source, Scenario* s) {
   for (const ChainageRange& t : s->tunnels) {
     if (t.to_m > length) fail("a tunnel ends beyond the alignment's length");
   }
-  (void)root;
 }
 
 }  // namespace
 
-double Scenario::ProfileDurationS() const {
-  double duration = 0.0, max_s = 0.0, min_s = 0.0;
-  ProfileExtent(*this, &duration, &max_s, &min_s);
-  return duration;
-}
+double Scenario::ProfileDurationS() const { return SpeedProfile(*this).duration_s(); }
 
 bool ParseScenario(const std::string& yaml_text,
                    const std::string& source_name,
@@ -635,7 +593,7 @@ bool ParseScenario(const std::string& yaml_text,
     const YAML::Node root = YAML::Load(yaml_text);
     if (!root || root.IsNull()) throw ScenarioError(source_name + ": the scenario is empty");
     ParseInto(root, source_name, &s, 0);
-    Validate(root, source_name, &s);
+    Validate(source_name, &s);
   } catch (const ScenarioError& e) {
     if (error) *error = e.what();
     return false;

@@ -43,15 +43,13 @@ class OdometerModel {
   OdometerModel(const Scenario& scenario, const TruthMotion& truth, uint32_t seed);
   /// The reading at run time t (call with increasing t).
   io::WheelOdometry Sample(double t, int64_t stamp_ns);
-  /// Radius the wheel truly rolls on (nominal / (1 + scale error)).
-  double true_radius_m() const { return true_radius_m_; }
 
  private:
   const Scenario& scenario_;
   const TruthMotion& truth_;
   std::mt19937_64 rng_;
   std::normal_distribution<double> gauss_{0.0, 1.0};
-  double true_radius_m_;
+  double true_radius_m_;  ///< the wheel truly rolls on nominal / (1 + scale error)
   double t_ = 0.0;
   double angle_rad_ = 0.0;  ///< true cumulative wheel angle
   double creep_ = 0.0;

@@ -23,7 +23,6 @@ std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario,
   std::unique_ptr<Simulator> sim(new Simulator(scenario));
   Scenario& s = sim->scenario_;
   if (options.seed) s.seed = *options.seed;
-  sim->options_ = options;
   const double profile = s.ProfileDurationS();
   if (options.duration_s > profile + 1e-9) {
     if (error) {
@@ -116,6 +115,7 @@ bool Simulator::Next(io::SensorMessage* message) {
 void Simulator::ScanFrames(double receive_t) {
   const double t0 = frame_index_ / scenario_.lidar_rate_hz;
   pending_frames_.clear();
+  std::vector<const LivoxHorizonModel*> units;
   for (const LivoxHorizonModel& unit : lidars_) {
     if (EventActive(scenario_, Event::Kind::kLidarBlackout, t0, unit.config().name)) continue;
     io::SensorMessage message;
@@ -128,27 +128,24 @@ void Simulator::ScanFrames(double receive_t) {
     frame.lidar_id = unit.config().lidar_id;
     message.data = std::move(frame);
     pending_frames_.push_back(std::move(message));
+    units.push_back(&unit);
   }
   // The units are independent: scan them concurrently, one thread each.
   const TruthMotion& truth = *truth_;
-  auto scan = [this, &truth, t0](io::SensorMessage* message) {
-    auto& frame = std::get<io::LidarFrame>(message->data);
-    for (const LivoxHorizonModel& unit : lidars_) {
-      if ("livox_" + unit.config().name != frame.frame_id) continue;
-      unit.Scan(
-          frame_index_,
-          t0,
-          [&truth](double t) { return truth.Pose(t); },
-          *caster_,
-          &frame.points,
-          nullptr);
-    }
+  auto scan = [this, &truth, &units, t0](size_t i) {
+    auto& frame = std::get<io::LidarFrame>(pending_frames_[i].data);
+    units[i]->Scan(
+        frame_index_,
+        t0,
+        [&truth](double t) { return truth.Pose(t); },
+        *caster_,
+        &frame.points,
+        nullptr);
   };
   std::vector<std::future<void>> workers;
-  for (size_t i = 1; i < pending_frames_.size(); ++i) {
-    workers.push_back(std::async(std::launch::async, scan, &pending_frames_[i]));
-  }
-  if (!pending_frames_.empty()) scan(&pending_frames_[0]);
+  for (size_t i = 1; i < units.size(); ++i)
+    workers.push_back(std::async(std::launch::async, scan, i));
+  if (!units.empty()) scan(0);
   for (std::future<void>& worker : workers) worker.get();
 }
 

@@ -69,7 +69,6 @@ class Simulator : public io::SensorSource {
   void ScanFrames(double receive_t);
 
   Scenario scenario_;
-  SimOptions options_;
   std::unique_ptr<Alignment> alignment_;
   std::unique_ptr<World> world_;
   std::unique_ptr<TruthMotion> truth_;

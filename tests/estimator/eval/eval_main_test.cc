@@ -15,41 +15,24 @@
 #include "api/trajectory.h"
 #include "estimator/eval/evaluation.h"
 #include "eval_test_util.h"
+#include "tests/support/process.h"
 
 namespace raillomer::eval {
 namespace {
 
 namespace fs = std::filesystem;
 
-struct ProcessResult {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
+using test::CommandResult;
+using test::ReadText;
 
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
-
-std::string Quote(const std::string& text) {
-  std::string quoted = "'";
-  for (char c : text) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return quoted + "'";
-}
+using test::ShellQuote;
 
 class EvalMain : public ::testing::Test {
  protected:
   void SetUp() override {
-    const char* bin = std::getenv("RAILLOMER_BIN");
-    ASSERT_NE(bin, nullptr) << "RAILLOMER_BIN is not set (run through ctest)";
-    program_ = fs::path(bin) / "raillomer-eval";
+    program_ = test::BinDir() / "raillomer-eval";
     ASSERT_TRUE(fs::exists(program_)) << program_;
-    std::string pattern = (fs::temp_directory_path() / "raillomer-eval-test-XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    dir_ = pattern;
+    ASSERT_FALSE(dir_.empty());
 
     // A curved run in UTM zone 50N; the estimate is 0.3 m east and 0.4 m south of it: 0.5 m.
     truth_ = testing::Transformed(testing::CurvedTruth(),
@@ -61,37 +44,27 @@ class EvalMain : public ::testing::Test {
     ASSERT_TRUE(api::WriteTum(Path("estimate.tum"), estimate_, &error)) << error;
   }
 
-  void TearDown() override {
-    std::error_code ignored;
-    if (!dir_.empty()) fs::remove_all(dir_, ignored);
-  }
-
   std::string Path(const std::string& name) const { return (dir_ / name).string(); }
 
-  ProcessResult Execute(const std::string& arguments) const {
-    const std::string command = Quote(program_.string()) + " " + arguments + " >" +
-                                Quote(Path("stdout.txt")) + " 2>" + Quote(Path("stderr.txt"));
-    const int status = std::system(command.c_str());
-    ProcessResult run;
-    run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    run.out = ReadText(Path("stdout.txt"));
-    run.err = ReadText(Path("stderr.txt"));
-    return run;
+  CommandResult Execute(const std::string& arguments) const {
+    return test::RunCommand(ShellQuote(program_.string()) + " " + arguments, dir_);
   }
 
   std::string Inputs() const {
-    return "--estimate " + Quote(Path("estimate.tum")) + " --truth " + Quote(Path("truth.tum"));
+    return "--estimate " + ShellQuote(Path("estimate.tum")) + " --truth " +
+           ShellQuote(Path("truth.tum"));
   }
 
   fs::path program_;
-  fs::path dir_;
+  test::ScratchDir scratch_{"raillomer-eval-test-"};
+  const fs::path& dir_ = scratch_.path();
   api::Trajectory truth_;
   api::Trajectory estimate_;
 };
 
 TEST_F(EvalMain, WritesJsonAndPlotWithKnownFigures) {
-  const ProcessResult run = Execute(Inputs() + " --json " + Quote(Path("summary.json")) +
-                                    " --plot " + Quote(Path("plot.svg")));
+  const CommandResult run = Execute(Inputs() + " --json " + ShellQuote(Path("summary.json")) +
+                                    " --plot " + ShellQuote(Path("plot.svg")));
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.err.find("align=none"), std::string::npos) << run.err;
   EXPECT_NE(run.err.find("max_gap_s=0.5"), std::string::npos) << run.err;
@@ -137,8 +110,8 @@ TEST_F(EvalMain, WritesJsonAndPlotWithKnownFigures) {
 }
 
 TEST_F(EvalMain, Se3AlignmentRemovesTheOffset) {
-  const ProcessResult run =
-      Execute(Inputs() + " --align se3 --json " + Quote(Path("summary.json")));
+  const CommandResult run =
+      Execute(Inputs() + " --align se3 --json " + ShellQuote(Path("summary.json")));
   ASSERT_EQ(run.exit_code, 0) << run.err;
   const nlohmann::json json = nlohmann::json::parse(ReadText(Path("summary.json")));
   EXPECT_EQ(json.at("align"), "se3");
@@ -155,7 +128,7 @@ TEST_F(EvalMain, MalformedLineGivesExitCodeTwoWithFileAndLine) {
   text.insert(at, "1600000000.35 1.0 2.0 oops 0 0 0 1\n");
   std::ofstream(Path("truth.tum"), std::ios::binary) << text;
 
-  const ProcessResult run = Execute(Inputs() + " --json " + Quote(Path("summary.json")));
+  const CommandResult run = Execute(Inputs() + " --json " + ShellQuote(Path("summary.json")));
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("line 5"), std::string::npos) << run.err;
   EXPECT_NE(run.err.find("truth.tum"), std::string::npos) << run.err;
@@ -163,8 +136,8 @@ TEST_F(EvalMain, MalformedLineGivesExitCodeTwoWithFileAndLine) {
 }
 
 TEST_F(EvalMain, MissingFileGivesExitCodeTwo) {
-  const ProcessResult run =
-      Execute("--estimate " + Quote(Path("nothing.tum")) + " --truth " + Quote(Path("truth.tum")));
+  const CommandResult run = Execute("--estimate " + ShellQuote(Path("nothing.tum")) + " --truth " +
+                                    ShellQuote(Path("truth.tum")));
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("nothing.tum"), std::string::npos) << run.err;
 }
@@ -174,7 +147,7 @@ TEST_F(EvalMain, NoOverlapGivesExitCodeTwo) {
   for (api::StampedPose& pose : late.poses) pose.stamp_ns += 3600LL * 1000000000LL;
   std::string error;
   ASSERT_TRUE(api::WriteTum(Path("estimate.tum"), late, &error));
-  const ProcessResult run = Execute(Inputs());
+  const CommandResult run = Execute(Inputs());
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("match"), std::string::npos) << run.err;
 }
@@ -184,18 +157,19 @@ TEST_F(EvalMain, DifferentUtmZonesGiveExitCodeTwo) {
   other.utm_zone = "51N";
   std::string error;
   ASSERT_TRUE(api::WriteTum(Path("estimate.tum"), other, &error));
-  const ProcessResult run = Execute(Inputs());
+  const CommandResult run = Execute(Inputs());
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("51N"), std::string::npos) << run.err;
 }
 
 TEST_F(EvalMain, UnknownAlignAndPlotFormatAreUsageErrors) {
-  ProcessResult run = Execute(Inputs() + " --align sim3 --json " + Quote(Path("summary.json")));
+  CommandResult run =
+      Execute(Inputs() + " --align sim3 --json " + ShellQuote(Path("summary.json")));
   EXPECT_NE(run.exit_code, 0);
   EXPECT_NE(run.err.find("--align"), std::string::npos) << run.err;
   EXPECT_FALSE(fs::exists(Path("summary.json")));
 
-  run = Execute(Inputs() + " --plot " + Quote(Path("plot.png")));
+  run = Execute(Inputs() + " --plot " + ShellQuote(Path("plot.png")));
   EXPECT_NE(run.exit_code, 0);
   EXPECT_NE(run.err.find(".svg"), std::string::npos) << run.err;
   EXPECT_FALSE(fs::exists(Path("plot.png")));

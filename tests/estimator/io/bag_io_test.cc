@@ -23,6 +23,7 @@
 
 #include "estimator/io/bag_reader.h"
 #include "estimator/io/bag_writer.h"
+#include "tests/support/process.h"
 
 namespace raillomer::io {
 namespace {
@@ -35,18 +36,11 @@ constexpr int64_t kMsNs = 1000000;
 // A fresh directory per test, removed afterwards.
 class RosbagIoTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    std::string pattern = (fs::temp_directory_path() / "raillomer_bag_io_XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    dir_ = pattern;
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
+  void SetUp() override { ASSERT_FALSE(scratch_.path().empty()); }
+  std::string Path(const std::string& name) const { return (scratch_.path() / name).string(); }
 
-  fs::path dir_;
+  test::ScratchDir scratch_{"raillomer_bag_io_"};
+  const fs::path& dir_ = scratch_.path();
 };
 
 struct StreamSpec {
@@ -217,16 +211,12 @@ void ExpectSameStreams(const std::vector<SensorMessage>& expected,
 
 // Runs tests/tools/check_bag.py with /usr/bin/python3; returns its exit code.
 int RunChecker(const std::string& bag, const std::string& args, std::string* output) {
-  const char* source = std::getenv("RAILLOMER_SOURCE");
-  const std::string root = source ? source : RAILLOMER_SOURCE_DIR;
-  const std::string log = bag + ".check.txt";
-  const std::string command = "/usr/bin/python3 " + root + "/tests/tools/check_bag.py " + bag +
-                              " " + args + " > " + log + " 2>&1";
-  const int status = std::system(command.c_str());
-  std::ifstream in(log);
-  output->assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  if (status == -1 || !WIFEXITED(status)) return -1;
-  return WEXITSTATUS(status);
+  const test::CommandResult run = test::RunCommand(
+      "/usr/bin/python3 " + (test::SourceDir() / "tests/tools/check_bag.py").string() + " " + bag +
+          " " + args,
+      fs::path(bag).parent_path());
+  *output = run.out + run.err;
+  return run.exit_code;
 }
 
 std::vector<SensorMessage> SmallStream() {

@@ -8,35 +8,15 @@
 
 #include <gtest/gtest.h>
 
+#include "tests/estimator/sim/scenario_builders.h"
+
 namespace raillomer::sim {
 namespace {
 
+using test::Curve;
+using test::Straight;
+
 constexpr double kDeg = M_PI / 180.0;
-
-AlignmentSegment Straight(double length_m, double gradient_permille = 0.0) {
-  AlignmentSegment seg;
-  seg.kind = AlignmentSegment::Kind::kStraight;
-  seg.length_m = length_m;
-  seg.gradient_permille = gradient_permille;
-  return seg;
-}
-
-AlignmentSegment Curve(double length_m,
-                       double radius_m,
-                       int direction,
-                       double transition_m = 0.0,
-                       double cant_mm = 0.0,
-                       double gradient_permille = 0.0) {
-  AlignmentSegment seg;
-  seg.kind = AlignmentSegment::Kind::kCurve;
-  seg.length_m = length_m;
-  seg.radius_m = radius_m;
-  seg.direction = direction;
-  seg.transition_m = transition_m;
-  seg.cant_mm = cant_mm;
-  seg.gradient_permille = gradient_permille;
-  return seg;
-}
 
 Scenario WithAlignment(std::vector<AlignmentSegment> segments, double azimuth_deg = 90.0) {
   Scenario s;

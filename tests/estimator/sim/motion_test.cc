@@ -10,39 +10,19 @@
 
 #include <gtest/gtest.h>
 
+#include "tests/estimator/sim/scenario_builders.h"
+
 namespace raillomer::sim {
 namespace {
 
+using test::Curve;
+using test::ForMetres;
+using test::ForSeconds;
+using test::Straight;
+using test::ToSpeed;
+
 constexpr double kGravity = 9.81;
 constexpr double kRadToDeg = 180.0 / M_PI;
-
-AlignmentSegment Straight(double length_m, double gradient_permille = 0.0) {
-  AlignmentSegment seg;
-  seg.length_m = length_m;
-  seg.gradient_permille = gradient_permille;
-  return seg;
-}
-
-AlignmentSegment Curve(double length_m,
-                       double radius_m,
-                       int direction,
-                       double transition_m,
-                       double cant_mm,
-                       double gradient_permille) {
-  AlignmentSegment seg;
-  seg.kind = AlignmentSegment::Kind::kCurve;
-  seg.length_m = length_m;
-  seg.radius_m = radius_m;
-  seg.direction = direction;
-  seg.transition_m = transition_m;
-  seg.cant_mm = cant_mm;
-  seg.gradient_permille = gradient_permille;
-  return seg;
-}
-
-MotionPhase ForSeconds(double s) { return {MotionPhase::Kind::kForSeconds, s, 0.5}; }
-MotionPhase ForMetres(double m) { return {MotionPhase::Kind::kForMetres, m, 0.5}; }
-MotionPhase ToSpeed(double mps, double accel) { return {MotionPhase::Kind::kToSpeed, mps, accel}; }
 
 Eigen::Matrix3d Exp(const Eigen::Vector3d& phi) {
   const double angle = phi.norm();
@@ -95,6 +75,17 @@ StrapdownError Strapdown(const TruthMotion& truth, double t0, double duration_s,
       (truth.Pose(t1 + h).translation() - truth.Pose(t1 - h).translation()) / (2 * h);
   error.final_velocity_mps = (v_true - v).norm();
   return error;
+}
+
+/// Over 10 s from t0, at two phases of the IMU clock, the 1 kHz strapdown of the truth's own
+/// IMU stays within 3 cm, 0.01 deg and 5 mm/s of the truth.
+void ExpectStrapdownMatchesTruth(const TruthMotion& truth, double t0) {
+  for (double start : {t0, t0 + 0.0002}) {
+    const StrapdownError error = Strapdown(truth, start, 10.0, 1000.0);
+    EXPECT_LT(error.max_position_m, 0.03) << "t0 " << start;
+    EXPECT_LT(error.max_rotation_deg, 0.01) << "t0 " << start;
+    EXPECT_LT(error.final_velocity_mps, 0.005) << "t0 " << start;
+  }
 }
 
 /// A curved, graded, canted line for runs of a few hundred metres.
@@ -216,38 +207,26 @@ TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesOnACurve) {
   ASSERT_LT(truth.Chainage(2.0), 200.0);
   ASSERT_GT(truth.Chainage(12.0), 200.0 + 80.0 + 100.0);
   EXPECT_GT(AngleDeg(truth.Pose(2.0).linear(), truth.Pose(12.0).linear()), 5.0);  // not trivial
-  for (double t0 : {2.0, 2.0002}) {  // two phases of the IMU clock
-    const StrapdownError error = Strapdown(truth, t0, 10.0, 1000.0);
-    EXPECT_LT(error.max_position_m, 0.03) << "t0 " << t0;
-    EXPECT_LT(error.max_rotation_deg, 0.01) << "t0 " << t0;
-    EXPECT_LT(error.final_velocity_mps, 0.005) << "t0 " << t0;
-  }
+  ExpectStrapdownMatchesTruth(truth, 2.0);
 }
 
 TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesThroughCantAndGrade) {
   // The same run with 100 mm of cant ramped over the transition and an 8 per mille grade eased
-  // in over a 60 m vertical curve. Known simulator bug (see the report): the cant and grade
-  // ramps are linear in chainage, so roll and pitch rates step at their ends and the body, 3.8 m
-  // above the rail, gets a velocity step (~0.08 m/s lateral); TruthMotion::Inertial samples a
-  // 1 ms second difference and misses or misweights the step, so the IMU and truth disagree.
+  // in over a 60 m vertical curve. Regression: with linear ramps and a point-sampled IMU the
+  // roll and pitch rates stepped at the ramp ends and the IMU missed the body's velocity step.
   const Scenario s = CurvedRun();
   const Alignment alignment(s);
   const TruthMotion truth(s, alignment, 5);
   ASSERT_LT(truth.Chainage(3.0), 200.0 + 30.0);  // inside the vertical curve
   ASSERT_GT(truth.Chainage(13.0), 200.0 + 80.0 + 100.0);
-  for (double t0 : {3.0, 3.0002}) {
-    const StrapdownError error = Strapdown(truth, t0, 10.0, 1000.0);
-    EXPECT_LT(error.max_position_m, 0.03) << "t0 " << t0;
-    EXPECT_LT(error.max_rotation_deg, 0.01) << "t0 " << t0;
-    EXPECT_LT(error.final_velocity_mps, 0.005) << "t0 " << t0;
-  }
+  ExpectStrapdownMatchesTruth(truth, 3.0);
 }
 
 TEST(TruthMotion, BodyVelocityIsContinuous) {
   // A body on a suspension cannot change velocity in no time. Velocity from central differences
   // 1 ms apart, every millisecond: smooth motion changes by |a| * 1 ms (a few mm/s), a step by
-  // its full size. Known simulator bug (see the report): linear cant and grade ramps step the
-  // roll and pitch rates, and the body 3.8 m above the rail gets a velocity step.
+  // its full size. Regression: linear cant and grade ramps stepped the roll and pitch rates, and
+  // the body 3.8 m above the rail got a velocity step.
   const Scenario s = CurvedRun();
   const Alignment alignment(s);
   const TruthMotion truth(s, alignment, 5);
@@ -390,9 +369,8 @@ TEST(TruthMotion, RailJointsAddVerticalImpulses) {
 }
 
 TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesOverRailJoints) {
-  // Known simulator bug (see the report): the joint response exp(-zeta w tau) sin(w_d tau) starts
-  // with a vertical velocity step of k * 2 mm * w_d (7 cm/s at 15 m/s), which the 1 ms second
-  // difference in TruthMotion::Inertial misses or reads as a spike of up to 145 m/s^2.
+  // Regression: the joint response once started with a vertical velocity step (7 cm/s at
+  // 15 m/s), which a point-sampled IMU missed or read as a spike of up to 145 m/s^2.
   Scenario s;
   s.alignment = {Straight(1000.0)};
   s.start_m = 12.0;
@@ -401,11 +379,7 @@ TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesOverRailJoints) {
   s.rail_joint_spacing_m = 25.0;
   const Alignment alignment(s);
   const TruthMotion truth(s, alignment, 5);
-  for (double t0 : {3.0, 3.0002}) {
-    const StrapdownError error = Strapdown(truth, t0, 10.0, 1000.0);
-    EXPECT_LT(error.max_position_m, 0.03) << "t0 " << t0;
-    EXPECT_LT(error.final_velocity_mps, 0.005) << "t0 " << t0;
-  }
+  ExpectStrapdownMatchesTruth(truth, 3.0);
   // The vertical specific force stays within what the 6 Hz joint mode can produce
   // (k * 2 mm * w^2 = 2.8 m/s^2) plus the car-body modes (about 2 m/s^2).
   double peak = 0.0;

@@ -14,28 +14,37 @@
 
 #include "estimator/geo/utm.h"
 #include "estimator/sim/simulator.h"
+#include "tests/estimator/sim/scenario_builders.h"
 
 namespace raillomer::sim {
 namespace {
 
-AlignmentSegment Straight(double length_m) {
-  AlignmentSegment seg;
-  seg.length_m = length_m;
-  return seg;
-}
+using test::ForMetres;
+using test::ForSeconds;
+using test::Straight;
+using test::ToSpeed;
 
 /// A train standing on a 1 km straight for `seconds`, in an empty corridor (cheap to build).
 Scenario Standstill(double seconds) {
   Scenario s;
   s.alignment = {Straight(1000.0)};
   s.start_m = 100.0;
-  s.phases = {{MotionPhase::Kind::kForSeconds, seconds, 0.5}};
+  s.phases = {ForSeconds(seconds)};
   s.catenary = false;
   s.trees.per_km = 0.0;
   s.bushes.per_km = 0.0;
   s.buildings.per_km = 0.0;
   s.signal_spacing_m = 0.0;
   s.km_posts = false;
+  return s;
+}
+
+/// A train cruising at 20 m/s for 40 s on a 1.1 km straight.
+Scenario Cruising() {
+  Scenario s = Standstill(0.0);
+  s.start_speed_mps = 20.0;
+  s.phases = {ForSeconds(40.0)};
+  s.alignment = {Straight(1100.0)};
   return s;
 }
 
@@ -155,8 +164,7 @@ double ApparentSpeed(const Scenario& s,
 TEST(OdometerModel, WholePulsesAndScaleError) {
   Scenario s = Standstill(0.0);
   // 0 -> 20 m/s at 1 m/s^2 (200 m), then 300 m: 500 m in 35 s.
-  s.phases = {{MotionPhase::Kind::kToSpeed, 20.0, 1.0},
-              {MotionPhase::Kind::kForMetres, 300.0, 0.5}};
+  s.phases = {ToSpeed(20.0, 1.0), ForMetres(300.0)};
   s.creep_sigma = 0.0;
   s.odometer_scale_error = 0.03;
   s.pulses_per_rev = 100;
@@ -191,10 +199,7 @@ TEST(OdometerModel, WholePulsesAndScaleError) {
 }
 
 TEST(OdometerModel, WheelSlipRaisesTheApparentSpeed) {
-  Scenario s = Standstill(0.0);
-  s.start_speed_mps = 20.0;
-  s.phases = {{MotionPhase::Kind::kForSeconds, 40.0, 0.5}};
-  s.alignment = {Straight(1100.0)};
+  Scenario s = Cruising();
   s.creep_sigma = 0.0;
   s.odometer_scale_error = 0.004;
   Event spin;
@@ -220,10 +225,7 @@ TEST(OdometerModel, WheelSlipRaisesTheApparentSpeed) {
 }
 
 TEST(OdometerModel, CreepIsSlowAndSmall) {
-  Scenario s = Standstill(0.0);
-  s.start_speed_mps = 20.0;
-  s.phases = {{MotionPhase::Kind::kForSeconds, 40.0, 0.5}};
-  s.alignment = {Straight(1100.0)};
+  Scenario s = Cruising();
   s.creep_sigma = 0.02;
   s.odometer_scale_error = 0.0;
   const std::vector<OdometerReading> readings = RunOdometer(s, 40.0);

@@ -1,69 +1,41 @@
 // raillomer-sim end to end: the outputs of a short run, the independent bag check (python
 // rosbag, not our reader), and clear errors on bad input with nothing half-written left behind.
 
-#include <unistd.h>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
 
 #include "api/trajectory.h"
+#include "tests/support/process.h"
 
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string Env(const char* name, const char* fallback) {
-  const char* value = std::getenv(name);
-  return value ? value : fallback;
-}
-
-std::string ReadFile(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
-
-struct CommandResult {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-/// Runs a shell command, capturing stdout and stderr.
-CommandResult Shell(const std::string& command, const fs::path& dir) {
-  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-  const int status = std::system((command + " >" + out.string() + " 2>" + err.string()).c_str());
-  CommandResult run;
-  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  run.out = ReadFile(out);
-  run.err = ReadFile(err);
-  return run;
-}
+using raillomer::test::CommandResult;
+using raillomer::test::ReadText;
 
 class SimCli : public ::testing::Test {
  protected:
   void SetUp() override {
-    sim_ = Env("RAILLOMER_BIN", RAILLOMER_BIN_DIR) + "/raillomer-sim";
-    checker_ = Env("RAILLOMER_SOURCE", RAILLOMER_SOURCE_DIR) + "/tests/tools/check_bag.py";
     ASSERT_TRUE(fs::exists(sim_)) << sim_;
-    dir_ = fs::temp_directory_path() /
-           ("raillomer_sim_cli_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    ASSERT_FALSE(dir_.empty());
   }
-  void TearDown() override { fs::remove_all(dir_); }
 
-  std::string sim_, checker_;
-  fs::path dir_;
+  /// Runs a shell command with its output captured.
+  CommandResult Shell(const std::string& command) const {
+    return raillomer::test::RunCommand(command, dir_);
+  }
+
+  const std::string sim_ = (raillomer::test::BinDir() / "raillomer-sim").string();
+  const std::string checker_ = (raillomer::test::SourceDir() / "tests/tools/check_bag.py").string();
+  raillomer::test::ScratchDir scratch_{"raillomer_sim_cli_"};
+  const fs::path& dir_ = scratch_.path();
 };
 
 TEST_F(SimCli, ListsTheScenarioSuite) {
-  const CommandResult run = Shell(sim_ + " --list", dir_);
+  const CommandResult run = Shell(sim_ + " --list");
   ASSERT_EQ(run.exit_code, 0) << run.err;
   for (const char* name : {"rich_low_station_a",
                            "rich_low_yard_b",
@@ -87,7 +59,7 @@ TEST_F(SimCli, ListsTheScenarioSuite) {
 TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   const fs::path out = dir_ / "run";
   const CommandResult run =
-      Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5", dir_);
+      Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5");
   ASSERT_EQ(run.exit_code, 0) << run.err;
   for (const char* file : {"run.bag", "truth.tum", "gnss.tum", "rig.yaml"}) {
     EXPECT_TRUE(fs::exists(out / file)) << file;
@@ -106,14 +78,14 @@ TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   EXPECT_EQ(truth.poses[1].stamp_ns - truth.poses[0].stamp_ns, 10000000);
   EXPECT_GT(truth.poses.front().p_world.x(), 166000.0);  // a UTM easting, not a local frame
   EXPECT_GT(truth.poses.front().p_world.y(), 3.0e6);
-  EXPECT_EQ(ReadFile(out / "truth.tum").rfind("# utm_zone 50N\n", 0), 0u);
+  EXPECT_EQ(ReadText(out / "truth.tum").rfind("# utm_zone 50N\n", 0), 0u);
 
   raillomer::api::Trajectory gnss;
   ASSERT_TRUE(raillomer::api::ReadTum((out / "gnss.tum").string(), &gnss, &error)) << error;
   EXPECT_GE(gnss.poses.size(), 3u);
   EXPECT_LT((gnss.poses.front().p_world - truth.poses.front().p_world).norm(), 40.0);
 
-  const std::string rig = ReadFile(out / "rig.yaml");
+  const std::string rig = ReadText(out / "rig.yaml");
   for (const char* key : {"/livox/lidar_up",
                           "/livox/lidar_down",
                           "/imu/data",
@@ -128,8 +100,7 @@ TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   // The independent check: topics, types, md5 sums, definitions, rates, points per frame.
   const CommandResult check =
       Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() +
-                " --duration-s 3 --points-per-frame 24000",
-            dir_);
+            " --duration-s 3 --points-per-frame 24000");
   EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
   EXPECT_NE(check.out.find("0 failed"), std::string::npos) << check.out;
 }
@@ -138,21 +109,19 @@ TEST_F(SimCli, RunStartingAtSpeedPassesTheIndependentCheck) {
   // A run that starts at 100 km/h: no start-up transient in the IMU or odometer.
   const fs::path out = dir_ / "fast";
   const CommandResult run =
-      Shell(sim_ + " --scenario rich_high_town_a --out " + out.string() + " --duration 1.5", dir_);
+      Shell(sim_ + " --scenario rich_high_town_a --out " + out.string() + " --duration 1.5");
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  const CommandResult check =
-      Shell("/usr/bin/python3 " + checker_ + " " + (out / "run.bag").string() + " --duration-s 1.5",
-            dir_);
+  const CommandResult check = Shell("/usr/bin/python3 " + checker_ + " " +
+                                    (out / "run.bag").string() + " --duration-s 1.5");
   EXPECT_EQ(check.exit_code, 0) << check.out << check.err;
 }
 
 TEST_F(SimCli, ChangedRunWritesTheGroundTruthOfItsEdits) {
   const fs::path out = dir_ / "changed";
-  const CommandResult run =
-      Shell(sim_ + " --scenario rich_low_station_a_changed --out " + out.string() + " --duration 1",
-            dir_);
+  const CommandResult run = Shell(sim_ + " --scenario rich_low_station_a_changed --out " +
+                                  out.string() + " --duration 1");
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  const std::string changes = ReadFile(out / "changes.json");
+  const std::string changes = ReadText(out / "changes.json");
   for (const char* kind : {"fallen_tree",
                            "vegetation_growth",
                            "object_removed",
@@ -176,7 +145,7 @@ TEST_F(SimCli, MalformedScenarioNamesTheKeyAndLineAndWritesNothing) {
                              "  phases: [{to_kmh: 30}, {for_s: 10}]\n";
   const fs::path out = dir_ / "out";
   const CommandResult run =
-      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
+      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string());
   EXPECT_EQ(run.exit_code, 2);
   EXPECT_NE(run.err.find("bad.yaml:5:"), std::string::npos) << run.err;
   EXPECT_NE(run.err.find("corridor.treez"), std::string::npos) << run.err;
@@ -186,26 +155,25 @@ TEST_F(SimCli, MalformedScenarioNamesTheKeyAndLineAndWritesNothing) {
                              "alignment:\n"
                              "  - {type: curve, length_m: 900, radius_m: 800, direction: up}\n";
   const CommandResult direction =
-      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string(), dir_);
+      Shell(sim_ + " --scenario " + scenario.string() + " --out " + out.string());
   EXPECT_EQ(direction.exit_code, 2);
   EXPECT_NE(direction.err.find("bad.yaml:3:"), std::string::npos) << direction.err;
   EXPECT_NE(direction.err.find("left or right"), std::string::npos) << direction.err;
 }
 
 TEST_F(SimCli, UnknownScenarioAndTooLongDurationAreClearErrors) {
-  const CommandResult unknown =
-      Shell(sim_ + " --scenario no_such_line --out " + dir_.string(), dir_);
+  const CommandResult unknown = Shell(sim_ + " --scenario no_such_line --out " + dir_.string());
   EXPECT_EQ(unknown.exit_code, 2);
   EXPECT_NE(unknown.err.find("no_such_line"), std::string::npos);
   EXPECT_NE(unknown.err.find("rich_low_station_a"), std::string::npos);  // lists the built-ins
 
   const CommandResult too_long =
-      Shell(sim_ + " --scenario demo --out " + (dir_ / "x").string() + " --duration 500", dir_);
+      Shell(sim_ + " --scenario demo --out " + (dir_ / "x").string() + " --duration 500");
   EXPECT_EQ(too_long.exit_code, 2);
   EXPECT_NE(too_long.err.find("exceeds"), std::string::npos) << too_long.err;
   EXPECT_FALSE(fs::exists(dir_ / "x" / "run.bag"));
 
-  const CommandResult missing = Shell(sim_ + " --scenario demo", dir_);
+  const CommandResult missing = Shell(sim_ + " --scenario demo");
   EXPECT_NE(missing.exit_code, 0);
   EXPECT_NE(missing.err.find("--out"), std::string::npos);
 }

@@ -299,9 +299,8 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
 }
 
 TEST(World, FallenTreeAcrossTheTrackIntrudesTheGauge) {
-  // Known simulator bug (see the report): ApplyChanges' record() tests only mesh vertices against
-  // the gauge. The trunk is a 12 m prism whose vertices lie at its ends, 5.6 m either side of the
-  // track, so the record says the tree lying across the rails does not intrude.
+  // Regression: the record once tested only mesh vertices against the gauge, and the trunk, a
+  // 12 m prism with vertices at its ends 5.6 m either side of the track, did not count.
   const Built& changed = Builtin("rich_low_station_a_changed");
   const ChangeRecord* fallen = FindChange(*changed.world, "fallen_tree");
   ASSERT_NE(fallen, nullptr);
@@ -327,9 +326,8 @@ TEST(World, FallenTreeAcrossTheTrackIntrudesTheGauge) {
 
 TEST(World, BaseCorridorKeepsTheGaugeClear) {
   // Trees, bushes and buildings of a generated corridor stay outside the structure gauge, so a
-  // change detector's intrusions come from the edits alone. Known simulator bug (see the report):
-  // bushes at the minimum offset of 4 m reach in to ~1.5 m of the track centre (blobs shifted up
-  // to 1 m sideways, radius up to 1.4 m x 1.3 jitter).
+  // change detector's intrusions come from the edits alone. Regression: bushes at the minimum
+  // offset of 4 m once reached to ~1.5 m of the track centre.
   for (const char* name : {"rich_low_station_a", "demo"}) {
     const Built& built = Builtin(name);
     int intruding = 0, checked = 0;
