@@ -1,0 +1,1 @@
+#include "estimator/factors/imu_odometer_factor.h"

@@ -1,0 +1,26 @@
+#pragma once
+
+#include <memory>
+
+#include <ceres/sized_cost_function.h>
+
+#include "estimator/factors/pose_manifold.h"
+#include "estimator/factors/preintegration.h"
+
+namespace raillomer {
+
+/// The IMU / odometer preintegration factor, eq. (19), whitened by the preintegrated covariance.
+/// Parameter blocks: pose_i[7], speed_bias_i[9], scale_i[1], pose_j[7], speed_bias_j[9],
+/// scale_j[1]. Analytic Jacobians (pose Jacobians per the PoseManifold convention).
+class ImuOdometerFactor : public ceres::SizedCostFunction<19, 7, 9, 1, 7, 9, 1> {
+ public:
+  explicit ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  std::shared_ptr<const Preintegration> preintegration_;
+};
+
+}  // namespace raillomer

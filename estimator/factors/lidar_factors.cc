@@ -1,0 +1,1 @@
+#include "estimator/factors/lidar_factors.h"

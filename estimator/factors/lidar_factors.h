@@ -1,0 +1,73 @@
+#pragma once
+
+#include <ceres/sized_cost_function.h>
+
+#include <Eigen/Core>
+
+#include "estimator/factors/pose_manifold.h"
+
+namespace raillomer {
+
+/// Point-to-plane distance, eq. (21): r = w * (n . (R p_body + t) + d).
+/// Parameter block: pose[7] (T_world_body). `n` is a unit normal in the world frame.
+class PointToPlaneFactor : public ceres::SizedCostFunction<1, 7> {
+ public:
+  PointToPlaneFactor(const Eigen::Vector3d& p_body,
+                     const Eigen::Vector3d& normal_world,
+                     double d,
+                     double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  Eigen::Vector3d p_body_, normal_;
+  double d_, weight_;
+};
+
+/// Point-to-line distance, eq. (20), as the 3-vector r = w * (I - u u^T)(R p_body + t - a).
+/// Parameter block: pose[7]. `a` is a point on the line, `u` its unit direction (world frame).
+class PointToLineFactor : public ceres::SizedCostFunction<3, 7> {
+ public:
+  PointToLineFactor(const Eigen::Vector3d& p_body,
+                    const Eigen::Vector3d& point_world,
+                    const Eigen::Vector3d& direction_world,
+                    double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  Eigen::Vector3d p_body_, a_;
+  Eigen::Matrix3d projector_;
+  double weight_;
+};
+
+/// Rail-plane factor, eq. (28-30): the rail plane measured in body frame i, moved into body
+/// frame j by the relative pose T_i^-1 T_j, against the plane measured in frame j.
+/// r = [sqrt_w_normal * (R_ij^T n_i - n_j) (3); sqrt_w_distance * (d_i + n_i . t_ij - d_j) (1)].
+/// Parameter blocks: pose_i[7], pose_j[7].
+class RailPlaneFactor : public ceres::SizedCostFunction<4, 7, 7> {
+ public:
+  RailPlaneFactor(const Eigen::Vector3d& normal_i,
+                  double distance_i,
+                  const Eigen::Vector3d& normal_j,
+                  double distance_j,
+                  double sqrt_weight_normal,
+                  double sqrt_weight_distance);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  Eigen::Vector3d n_i_, n_j_;
+  double d_i_, d_j_, w_n_, w_d_;
+};
+
+/// Height-descriptor factor, eq. (27) turned into a displacement: the forward motion between
+/// frames i and j in body frame i, r = (e_x . R_i^T (p_j - p_i) - dx) / sigma.
+/// Parameter blocks: pose_i[7], pose_j[7].
+class LongitudinalShiftFactor : public ceres::SizedCostFunction<1, 7, 7> {
+ public:
+  LongitudinalShiftFactor(double dx_m, double sigma_m);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  double dx_, sigma_;
+};
+
+}  // namespace raillomer

@@ -1,0 +1,1 @@
+#include "estimator/factors/marginalization.h"

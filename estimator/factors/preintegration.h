@@ -1,0 +1,114 @@
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace raillomer {
+
+/// Continuous-time noise densities of the IMU and the odometer (Q of eq. 17).
+struct PreintegrationNoise {
+  double gyro_noise_density = 1.22e-4;   ///< rad/s/sqrt(Hz)
+  double accel_noise_density = 5.9e-4;   ///< m/s^2/sqrt(Hz)
+  double gyro_bias_walk = 1.0e-6;        ///< rad/s^2/sqrt(Hz)
+  double accel_bias_walk = 1.0e-5;       ///< m/s^3/sqrt(Hz)
+  double odometer_speed_density = 0.02;  ///< m/s/sqrt(Hz), white speed noise eta_sO
+  double odometer_scale_walk = 1.0e-4;   ///< 1/sqrt(s), random walk of c^O
+};
+
+/// A state of the sliding window (eq. 1) in plain form.
+struct NavState {
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();  ///< p_world_body
+  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();  ///< q_world_body
+  Eigen::Vector3d v = Eigen::Vector3d::Zero();  ///< v_world
+  Eigen::Vector3d ba = Eigen::Vector3d::Zero();
+  Eigen::Vector3d bg = Eigen::Vector3d::Zero();
+  double c = 1.0;  ///< odometer scale factor
+};
+
+/// IMU / odometer preintegration between two window states (eq. 11-18).
+///
+/// Residual order (eq. 19), 19 rows: [d_alpha(3), d_beta(3), d_theta(3), d_ba(3), d_bg(3),
+/// d_phi(3), d_c(1)]. The odometer frame O has rotation R_body_odo and lever arm p_body_odo;
+/// the odometer measures speed along its x axis. An interval with any sample lacking odometer
+/// data carries no phi information (odometer_used() is false).
+class Preintegration {
+ public:
+  Preintegration(const Eigen::Vector3d& ba,
+                 const Eigen::Vector3d& bg,
+                 double c,
+                 const Eigen::Matrix3d& R_body_odo,
+                 const Eigen::Vector3d& p_body_odo,
+                 const PreintegrationNoise& noise,
+                 double gravity_mps2);
+
+  /// One step of dt seconds with the measurements at its start and end (midpoint integration).
+  /// speed_mps is the odometer's raw speed (before the scale factor); odometer_valid false marks
+  /// a step without an odometer reading.
+  void Add(double dt,
+           const Eigen::Vector3d& gyro_radps,
+           const Eigen::Vector3d& accel_mps2,
+           double speed_mps,
+           bool odometer_valid);
+
+  /// Integrates all steps again about new linearisation points.
+  void Repropagate(const Eigen::Vector3d& ba, const Eigen::Vector3d& bg, double c);
+
+  /// Appends the raw steps of `next` (which starts where this one ends) and repropagates.
+  void Append(const Preintegration& next);
+
+  /// Eq. (19) at the given states, bias/scale corrections applied to first order (eq. 18).
+  Eigen::Matrix<double, 19, 1> Evaluate(const NavState& i, const NavState& j) const;
+
+  /// State at the end of the interval from state i (biases and scale carried over).
+  NavState Predict(const NavState& i) const;
+
+  /// Body pose at time `t_s` after the start (0..sum_dt), relative to the body at the start,
+  /// integrated from the raw steps with the linearisation biases; for deskewing.
+  Eigen::Isometry3d RelativePoseAt(double t_s, const Eigen::Vector3d& v_start_body) const;
+
+  double sum_dt() const { return sum_dt_; }
+  bool odometer_used() const { return odometer_used_; }
+  const Eigen::Vector3d& alpha() const { return alpha_; }
+  const Eigen::Vector3d& beta() const { return beta_; }
+  const Eigen::Quaterniond& gamma() const { return gamma_; }
+  const Eigen::Vector3d& phi() const { return phi_; }
+  const Eigen::Vector3d& linearized_ba() const { return ba_; }
+  const Eigen::Vector3d& linearized_bg() const { return bg_; }
+  double linearized_c() const { return c_; }
+  /// Error-state Jacobian and covariance, 19 x 19 in the residual order above (eq. 16-17).
+  const Eigen::Matrix<double, 19, 19>& jacobian() const { return jacobian_; }
+  const Eigen::Matrix<double, 19, 19>& covariance() const { return covariance_; }
+  /// Upper-triangular L with L^T L = covariance^-1 (phi rows zero when !odometer_used()).
+  Eigen::Matrix<double, 19, 19> SqrtInformation() const;
+  double gravity_mps2() const { return gravity_mps2_; }
+
+ private:
+  struct Step {
+    double dt;
+    Eigen::Vector3d gyro0, accel0, gyro1, accel1;
+    double speed0, speed1;
+    bool odometer_valid;
+  };
+  void Integrate(const Step& step);
+
+  Eigen::Vector3d ba_, bg_;
+  double c_;
+  Eigen::Matrix3d R_body_odo_;
+  Eigen::Vector3d p_body_odo_;
+  PreintegrationNoise noise_;
+  double gravity_mps2_;
+
+  double sum_dt_ = 0.0;
+  bool odometer_used_ = true;
+  Eigen::Vector3d alpha_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d beta_ = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond gamma_ = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d phi_ = Eigen::Vector3d::Zero();
+  Eigen::Matrix<double, 19, 19> jacobian_ = Eigen::Matrix<double, 19, 19>::Identity();
+  Eigen::Matrix<double, 19, 19> covariance_ = Eigen::Matrix<double, 19, 19>::Zero();
+  std::vector<Step> steps_;
+};
+
+}  // namespace raillomer

@@ -1,0 +1,1 @@
+#include "estimator/features/height_descriptor.h"

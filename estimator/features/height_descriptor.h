@@ -1,0 +1,51 @@
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace raillomer {
+
+/// Options of the height descriptor (paper IV.C, Fig. 7).
+struct HeightDescriptorOptions {
+  double x_min_m = 3.0, x_max_m = 33.0;    ///< d_x
+  double y_min_m = -20.0, y_max_m = 20.0;  ///< d_y
+  double bin_m = 0.5;                      ///< d_r
+  double max_shift_search_m = 3.0;  ///< around the predicted shift
+  double min_score = 0.2;  ///< mean cosine similarity below this: no measurement
+  bool IsValid(std::string* error) const;
+};
+
+/// A Cartesian height grid in the body frame: cell (row, col) holds the greatest height of the
+/// points that fall in it (0 when empty, heights taken relative to the lowest bound). Rows run
+/// across the track (y), columns along it (x), so a longitudinal move shifts every row.
+struct HeightDescriptor {
+  int rows = 0, cols = 0;
+  double x_min_m = 0.0, bin_m = 0.5;
+  Eigen::MatrixXf cells;  ///< rows x cols
+};
+
+HeightDescriptor ComputeHeightDescriptor(const HeightDescriptorOptions& options,
+                                         const std::vector<Eigen::Vector3f>& points_body);
+
+/// Eq. (27): mean over rows of (1 - cosine similarity) between `a` and `b` with b's columns
+/// shifted by `shift_bins` (b(x) compared with a(x + shift)); rows empty in either are skipped.
+double HeightDescriptorDistance(const HeightDescriptor& a, const HeightDescriptor& b, double shift_bins);
+
+/// Longitudinal displacement between two descriptors (frame k then k+1).
+struct LongitudinalShift {
+  bool ok = false;
+  double dx_m = 0.0;        ///< forward motion from k to k+1 (body x of frame k)
+  double distance = 1.0;    ///< eq. (27) at the optimum
+  double sigma_m = 0.0;     ///< from the curvature of the distance around the optimum
+};
+
+/// Searches the shift minimising eq. (27) within max_shift_search_m of `predicted_dx_m`, with
+/// sub-bin refinement.
+LongitudinalShift EstimateLongitudinalShift(const HeightDescriptorOptions& options,
+                                            const HeightDescriptor& previous,
+                                            const HeightDescriptor& current,
+                                            double predicted_dx_m);
+
+}  // namespace raillomer

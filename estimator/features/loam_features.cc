@@ -1,0 +1,1 @@
+#include "estimator/features/loam_features.h"

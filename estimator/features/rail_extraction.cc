@@ -1,0 +1,1 @@
+#include "estimator/features/rail_extraction.h"

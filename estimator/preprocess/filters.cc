@@ -1,0 +1,1 @@
+#include "estimator/preprocess/filters.h"

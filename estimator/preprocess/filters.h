@@ -1,0 +1,60 @@
+#pragma once
+
+#include <string>
+
+#include <Eigen/Geometry>
+
+#include "estimator/io/sensor_messages.h"
+#include "estimator/preprocess/scan.h"
+
+namespace raillomer {
+
+/// Options of the per-LiDAR preprocessing (paper IV.C, Fig. 4-5).
+struct PreprocessOptions {
+  double min_range_m = 2.0;    ///< closer points are dropped (axial error, vehicle roof)
+  double max_range_m = 200.0;  ///< farther points are dropped
+  /// Sun flicker: occupancy grid (sensor frame); a cell with fewer points loses them all.
+  double flicker_cell_size_m = 1.0;
+  int flicker_min_points_per_cell = 3;
+  /// Boundary bleeding: the hidden sector around each beam axis (Fig. 5).
+  double hidden_sector_angle_deg = 10.0;  ///< phi
+  double hidden_sector_radius_m = 1.5;    ///< d
+  /// False with a message naming the bad field.
+  bool IsValid(std::string* error) const;
+};
+
+/// How many points each stage removed.
+struct PreprocessStats {
+  size_t input = 0;
+  size_t no_return = 0;  ///< zero points (no echo)
+  size_t near_or_far = 0;
+  size_t flicker = 0;
+  size_t bleeding = 0;
+  size_t output = 0;
+};
+
+/// A Livox frame as a Scan in the sensor frame; zero (no-return) points are dropped.
+Scan ScanFromLidarFrame(const io::LidarFrame& frame, int lidar_index, double duration_s);
+
+/// Drops points closer than min_range_m or farther than max_range_m.
+void RemoveNearAndFarPoints(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
+
+/// Drops every point of an occupancy-grid cell holding fewer than flicker_min_points_per_cell.
+void RemoveSunFlicker(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
+
+/// Drops points inside the hidden sector of a neighbouring beam on the same laser line: a point
+/// whose offset from its neighbour lies within hidden_sector_angle_deg of the neighbour's beam
+/// axis and within hidden_sector_radius_m is a mixed (bleeding) return.
+void RemoveBoundaryBleeding(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
+
+/// All of the above in order.
+PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan);
+
+/// Moves every point to the body frame at the frame end (start_s + duration_s).
+///
+/// T_end_start is the body motion over the frame (body at the end <- body at the start), from
+/// the IMU/odometer increment; a point at time t is moved by the pose interpolated linearly
+/// (slerp and lerp) between identity at the end and T_end_start at the start.
+void Deskew(const Eigen::Isometry3d& T_body_lidar, const Eigen::Isometry3d& T_end_start, Scan* scan);
+
+}  // namespace raillomer
