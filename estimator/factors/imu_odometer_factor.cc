@@ -1,1 +1,147 @@
 #include "estimator/factors/imu_odometer_factor.h"
+
+#include <cmath>
+#include <utility>
+
+namespace raillomer {
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::Quaterniond;
+using Eigen::Vector3d;
+
+constexpr int kAlpha = 0;
+constexpr int kBeta = 3;
+constexpr int kTheta = 6;
+constexpr int kBa = 9;
+constexpr int kBg = 12;
+constexpr int kPhi = 15;
+constexpr int kC = 18;
+
+// Lower-right 3x3 block of Qleft(a) * Qright(b) (Hamilton, [w, x, y, z]), where a (x) q equals
+// Qleft(a) q and q (x) b equals Qright(b) q.
+Matrix3d QleftQrightVec(const Quaterniond& a, const Quaterniond& b) {
+  const Matrix3d left = a.w() * Matrix3d::Identity() + Skew(a.vec());
+  const Matrix3d right = b.w() * Matrix3d::Identity() - Skew(b.vec());
+  return -a.vec() * b.vec().transpose() + left * right;
+}
+
+// Right Jacobian of SO(3): Exp(x + d) ~= Exp(x) Exp(Jr(x) d).
+Matrix3d RightJacobian(const Vector3d& x) {
+  const double angle = x.norm();
+  const Matrix3d k = Skew(x);
+  if (angle < 1e-4) return Matrix3d::Identity() - 0.5 * k + k * k / 6.0;
+  const double a2 = angle * angle;
+  return Matrix3d::Identity() - (1.0 - std::cos(angle)) / a2 * k +
+         (angle - std::sin(angle)) / (a2 * angle) * k * k;
+}
+
+NavState ReadState(const double* pose, const double* speed_bias, const double* scale) {
+  NavState s;
+  s.p = Eigen::Map<const Vector3d>(pose);
+  s.q = Eigen::Map<const Quaterniond>(pose + 3);
+  s.v = Eigen::Map<const Vector3d>(speed_bias);
+  s.ba = Eigen::Map<const Vector3d>(speed_bias + 3);
+  s.bg = Eigen::Map<const Vector3d>(speed_bias + 6);
+  s.c = scale[0];
+  return s;
+}
+
+}  // namespace
+
+ImuOdometerFactor::ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration)
+    : preintegration_(std::move(preintegration)),
+      sqrt_information_(preintegration_->SqrtInformation()),
+      revision_(preintegration_->revision()) {}
+
+bool ImuOdometerFactor::Evaluate(double const* const* parameters,
+                                 double* residuals,
+                                 double** jacobians) const {
+  const Preintegration& pre = *preintegration_;
+  const NavState i = ReadState(parameters[0], parameters[1], parameters[2]);
+  const NavState j = ReadState(parameters[3], parameters[4], parameters[5]);
+  // The cached whitening, unless the preintegration changed since construction.
+  Eigen::Matrix<double, 19, 19> recomputed;
+  const Eigen::Matrix<double, 19, 19>* sqrt_info_ptr = &sqrt_information_;
+  if (pre.revision() != revision_) {
+    recomputed = pre.SqrtInformation();
+    sqrt_info_ptr = &recomputed;
+  }
+  const Eigen::Matrix<double, 19, 19>& sqrt_info = *sqrt_info_ptr;
+
+  // Eq. (19), whitened.
+  Eigen::Map<Eigen::Matrix<double, 19, 1>> r(residuals);
+  r = sqrt_info * pre.Evaluate(i, j);
+  if (jacobians == nullptr) return true;
+
+  const double dt = pre.sum_dt();
+  const Vector3d g_w(0.0, 0.0, pre.gravity_mps2());
+  const Matrix3d Ri_t = i.q.toRotationMatrix().transpose();
+  const Matrix3d Rj = j.q.toRotationMatrix();
+  const Vector3d& p_bo = pre.p_body_odo();
+  const Eigen::Matrix<double, 19, 19>& J = pre.jacobian();
+  // The corrected gamma of eq. (18) and the rotation error quaternion e = gamma^-1 qi^-1 qj.
+  const Vector3d dtheta_bg = J.block<3, 3>(kTheta, kBg) * (i.bg - pre.linearized_bg());
+  const Quaterniond gamma = (pre.gamma() * ExpQuaternion(dtheta_bg)).normalized();
+  const Quaterniond qij = i.q.conjugate() * j.q;
+  const Quaterniond e = gamma.conjugate() * qij;
+
+  if (jacobians[0] != nullptr) {
+    Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
+    d.block<3, 3>(kAlpha, 0) = -Ri_t;
+    d.block<3, 3>(kAlpha, 3) = Skew(Ri_t * (j.p - i.p + 0.5 * g_w * dt * dt - i.v * dt));
+    d.block<3, 3>(kBeta, 3) = Skew(Ri_t * (j.v + g_w * dt - i.v));
+    d.block<3, 3>(kTheta, 3) = -QleftQrightVec(gamma.conjugate(), qij);
+    d.block<3, 3>(kPhi, 0) = -Ri_t;
+    d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p + Rj * p_bo - i.p));
+    Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[0]);
+    out.leftCols<6>() = sqrt_info * d;
+    out.col(6).setZero();
+  }
+  if (jacobians[1] != nullptr) {
+    Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
+    d.block<3, 3>(kAlpha, 0) = -Ri_t * dt;
+    d.block<3, 6>(kAlpha, 3) = -J.block<3, 6>(kAlpha, kBa);
+    d.block<3, 3>(kBeta, 0) = -Ri_t;
+    d.block<3, 6>(kBeta, 3) = -J.block<3, 6>(kBeta, kBa);
+    // e = Exp(-Jr J dbg) (x) e to first order: the left perturbation through Qright(e).
+    const Matrix3d e_right = e.w() * Matrix3d::Identity() - Skew(e.vec());
+    d.block<3, 3>(kTheta, 6) = -e_right * RightJacobian(dtheta_bg) * J.block<3, 3>(kTheta, kBg);
+    d.block<3, 3>(kBa, 3) = -Matrix3d::Identity();
+    d.block<3, 3>(kBg, 6) = -Matrix3d::Identity();
+    d.block<3, 6>(kPhi, 3) = -J.block<3, 6>(kPhi, kBa);
+    Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[1]);
+    out = sqrt_info * d;
+  }
+  if (jacobians[2] != nullptr) {
+    Eigen::Matrix<double, 19, 1> d = -J.col(kC);
+    d(kC) = -1.0;
+    Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[2]);
+    out = sqrt_info * d;
+  }
+  if (jacobians[3] != nullptr) {
+    Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
+    d.block<3, 3>(kAlpha, 0) = Ri_t;
+    d.block<3, 3>(kTheta, 3) = e.w() * Matrix3d::Identity() + Skew(e.vec());
+    d.block<3, 3>(kPhi, 0) = Ri_t;
+    d.block<3, 3>(kPhi, 3) = -Ri_t * Rj * Skew(p_bo);
+    Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[3]);
+    out.leftCols<6>() = sqrt_info * d;
+    out.col(6).setZero();
+  }
+  if (jacobians[4] != nullptr) {
+    Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
+    d.block<3, 3>(kBeta, 0) = Ri_t;
+    d.block<3, 3>(kBa, 3).setIdentity();
+    d.block<3, 3>(kBg, 6).setIdentity();
+    Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[4]);
+    out = sqrt_info * d;
+  }
+  if (jacobians[5] != nullptr) {
+    Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[5]);
+    out = sqrt_info.col(kC);
+  }
+  return true;
+}
+
+}  // namespace raillomer

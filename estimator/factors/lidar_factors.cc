@@ -1,1 +1,148 @@
 #include "estimator/factors/lidar_factors.h"
+
+#include <Eigen/Geometry>
+
+namespace raillomer {
+namespace {
+
+using RowJacobian1x7 = Eigen::Matrix<double, 1, 7, Eigen::RowMajor>;
+using RowJacobian3x7 = Eigen::Matrix<double, 3, 7, Eigen::RowMajor>;
+using RowJacobian4x7 = Eigen::Matrix<double, 4, 7, Eigen::RowMajor>;
+
+}  // namespace
+
+PointToPlaneFactor::PointToPlaneFactor(const Eigen::Vector3d& p_body,
+                                       const Eigen::Vector3d& normal_world,
+                                       double d,
+                                       double weight)
+    : p_body_(p_body), normal_(normal_world), d_(d), weight_(weight) {}
+
+bool PointToPlaneFactor::Evaluate(double const* const* parameters,
+                                  double* residuals,
+                                  double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
+  const Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
+  const Eigen::Matrix3d rotation = q.toRotationMatrix();
+  // Eq. (21): signed distance of the world point to the plane.
+  residuals[0] = weight_ * (normal_.dot(rotation * p_body_ + t) + d_);
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    Eigen::Map<RowJacobian1x7> jacobian(jacobians[0]);
+    jacobian.leftCols<3>() = weight_ * normal_.transpose();
+    // d(R Exp(dtheta) p)/d(dtheta) = -R [p]x.
+    jacobian.block<1, 3>(0, 3) = -weight_ * normal_.transpose() * rotation * Skew(p_body_);
+    jacobian(0, 6) = 0.0;
+  }
+  return true;
+}
+
+PointToLineFactor::PointToLineFactor(const Eigen::Vector3d& p_body,
+                                     const Eigen::Vector3d& point_world,
+                                     const Eigen::Vector3d& direction_world,
+                                     double weight)
+    : p_body_(p_body), a_(point_world), weight_(weight) {
+  const Eigen::Vector3d u = direction_world.normalized();
+  projector_ = Eigen::Matrix3d::Identity() - u * u.transpose();
+}
+
+bool PointToLineFactor::Evaluate(double const* const* parameters,
+                                 double* residuals,
+                                 double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
+  const Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
+  const Eigen::Matrix3d rotation = q.toRotationMatrix();
+  // Eq. (20): the component of (p_world - a) perpendicular to the line; its norm is d_epsilon.
+  Eigen::Map<Eigen::Vector3d> r(residuals);
+  r = weight_ * projector_ * (rotation * p_body_ + t - a_);
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    Eigen::Map<RowJacobian3x7> jacobian(jacobians[0]);
+    jacobian.leftCols<3>() = weight_ * projector_;
+    jacobian.block<3, 3>(0, 3) = -weight_ * projector_ * rotation * Skew(p_body_);
+    jacobian.col(6).setZero();
+  }
+  return true;
+}
+
+RailPlaneFactor::RailPlaneFactor(const Eigen::Vector3d& normal_i,
+                                 double distance_i,
+                                 const Eigen::Vector3d& normal_j,
+                                 double distance_j,
+                                 double sqrt_weight_normal,
+                                 double sqrt_weight_distance)
+    : n_i_(normal_i),
+      n_j_(normal_j),
+      d_i_(distance_i),
+      d_j_(distance_j),
+      w_n_(sqrt_weight_normal),
+      w_d_(sqrt_weight_distance) {}
+
+bool RailPlaneFactor::Evaluate(double const* const* parameters,
+                               double* residuals,
+                               double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> t_i(parameters[0]);
+  const Eigen::Map<const Eigen::Quaterniond> q_i(parameters[0] + 3);
+  const Eigen::Map<const Eigen::Vector3d> t_j(parameters[1]);
+  const Eigen::Map<const Eigen::Quaterniond> q_j(parameters[1] + 3);
+  const Eigen::Matrix3d r_i = q_i.toRotationMatrix();
+  const Eigen::Matrix3d r_j = q_j.toRotationMatrix();
+  // Eq. (29): T_ij = T_i^-1 T_j (the LiDAR-body extrinsic is folded into the plane measurements).
+  const Eigen::Matrix3d r_ij = r_i.transpose() * r_j;
+  const Eigen::Vector3d t_ij = r_i.transpose() * (t_j - t_i);
+  // Eq. (28): n_i . x_i + d_i = 0 with x_i = R_ij x_j + t_ij gives the plane in frame j.
+  const Eigen::Vector3d n_pred = r_ij.transpose() * n_i_;
+  const double d_pred = d_i_ + n_i_.dot(t_ij);
+  // Eq. (30): r = m_j - T m_i (sign flipped; the squared norm is the same).
+  Eigen::Map<Eigen::Vector4d> r(residuals);
+  r.head<3>() = w_n_ * (n_pred - n_j_);
+  r(3) = w_d_ * (d_pred - d_j_);
+  if (jacobians == nullptr) return true;
+  if (jacobians[0] != nullptr) {
+    Eigen::Map<RowJacobian4x7> jacobian(jacobians[0]);
+    jacobian.setZero();
+    // n' = R_j^T R_i n_i; R_i -> R_i Exp(dtheta_i): dn' = -R_ij^T [n_i]x dtheta_i.
+    jacobian.block<3, 3>(0, 3) = -w_n_ * r_ij.transpose() * Skew(n_i_);
+    // d' = d_i + n_i^T R_i^T (t_j - t_i).
+    jacobian.block<1, 3>(3, 0) = -w_d_ * (r_i * n_i_).transpose();
+    jacobian.block<1, 3>(3, 3) = w_d_ * n_i_.transpose() * Skew(t_ij);
+  }
+  if (jacobians[1] != nullptr) {
+    Eigen::Map<RowJacobian4x7> jacobian(jacobians[1]);
+    jacobian.setZero();
+    // R_j -> R_j Exp(dtheta_j): dn' = [n']x dtheta_j.
+    jacobian.block<3, 3>(0, 3) = w_n_ * Skew(n_pred);
+    jacobian.block<1, 3>(3, 0) = w_d_ * (r_i * n_i_).transpose();
+  }
+  return true;
+}
+
+LongitudinalShiftFactor::LongitudinalShiftFactor(double dx_m, double sigma_m)
+    : dx_(dx_m), sigma_(sigma_m) {}
+
+bool LongitudinalShiftFactor::Evaluate(double const* const* parameters,
+                                       double* residuals,
+                                       double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> t_i(parameters[0]);
+  const Eigen::Map<const Eigen::Quaterniond> q_i(parameters[0] + 3);
+  const Eigen::Map<const Eigen::Vector3d> t_j(parameters[1]);
+  const Eigen::Matrix3d r_i = q_i.toRotationMatrix();
+  const Eigen::Vector3d t_ij = r_i.transpose() * (t_j - t_i);
+  const double inv_sigma = 1.0 / sigma_;
+  // Eq. (27) as a displacement: the forward (x) component of the motion in body frame i.
+  residuals[0] = (t_ij.x() - dx_) * inv_sigma;
+  if (jacobians == nullptr) return true;
+  const Eigen::RowVector3d forward_world = inv_sigma * r_i.col(0).transpose();
+  if (jacobians[0] != nullptr) {
+    Eigen::Map<RowJacobian1x7> jacobian(jacobians[0]);
+    jacobian.leftCols<3>() = -forward_world;
+    // e_x^T (I - [dtheta]x) t_ij = e_x^T t_ij + e_x^T [t_ij]x dtheta.
+    jacobian.block<1, 3>(0, 3) = inv_sigma * Eigen::RowVector3d::UnitX() * Skew(t_ij);
+    jacobian(0, 6) = 0.0;
+  }
+  if (jacobians[1] != nullptr) {
+    Eigen::Map<RowJacobian1x7> jacobian(jacobians[1]);
+    jacobian.setZero();
+    jacobian.leftCols<3>() = forward_world;
+  }
+  return true;
+}
+
+}  // namespace raillomer

@@ -16,7 +16,9 @@ class PointToPlaneFactor : public ceres::SizedCostFunction<1, 7> {
                      const Eigen::Vector3d& normal_world,
                      double d,
                      double weight);
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
 
  private:
   Eigen::Vector3d p_body_, normal_;
@@ -31,7 +33,9 @@ class PointToLineFactor : public ceres::SizedCostFunction<3, 7> {
                     const Eigen::Vector3d& point_world,
                     const Eigen::Vector3d& direction_world,
                     double weight);
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
 
  private:
   Eigen::Vector3d p_body_, a_;
@@ -51,7 +55,9 @@ class RailPlaneFactor : public ceres::SizedCostFunction<4, 7, 7> {
                   double distance_j,
                   double sqrt_weight_normal,
                   double sqrt_weight_distance);
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
 
  private:
   Eigen::Vector3d n_i_, n_j_;
@@ -64,7 +70,9 @@ class RailPlaneFactor : public ceres::SizedCostFunction<4, 7, 7> {
 class LongitudinalShiftFactor : public ceres::SizedCostFunction<1, 7, 7> {
  public:
   LongitudinalShiftFactor(double dx_m, double sigma_m);
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
 
  private:
   double dx_, sigma_;

@@ -13,6 +13,11 @@ namespace raillomer {
 
 /// One factor taking part in marginalisation: its cost function, optional loss, its parameter
 /// blocks, and which of them (indices into parameter_blocks) are marginalised away.
+///
+/// Pass only factors that touch a dropped block (others would be counted twice: once in the
+/// prior and once in the window). A block dropped by one term is dropped in every term. The cost
+/// functions are shared: add them to a ceres::Problem with DO_NOT_TAKE_OWNERSHIP (or give Ceres
+/// its own instances).
 struct MarginalizationTerm {
   std::shared_ptr<ceres::CostFunction> cost_function;
   std::shared_ptr<ceres::LossFunction> loss_function;  ///< may be null
@@ -28,8 +33,10 @@ struct MarginalizationTerm {
 class MarginalizationInfo {
  public:
   void AddTerm(MarginalizationTerm term);
-  /// Linearises every term, forms H and b, takes the Schur complement onto the kept blocks and
-  /// factors the result as J^T J, r0 = -(J^T)^+ b. False if nothing is kept.
+  /// Linearises every term, forms H = sum J^T J and b = sum J^T r, takes the Schur complement
+  /// onto the kept blocks and factors the result as H' = J^T J, r0 = (J^T)^+ b' (so that
+  /// J^T r0 = b'). Releases the terms on success. False if nothing is kept, a drop index is out
+  /// of range, an address has two sizes or a cost function fails to evaluate.
   bool Marginalize();
 
   /// The kept blocks in prior order; `address_map` renames them (old address -> new address)
@@ -37,8 +44,8 @@ class MarginalizationInfo {
   std::vector<double*> KeptBlocks(const std::unordered_map<double*, double*>& address_map) const;
 
   int kept_tangent_size() const { return kept_tangent_size_; }
-  const std::vector<int>& kept_sizes() const { return kept_sizes_; }        ///< ambient
-  const std::vector<int>& kept_offsets() const { return kept_offsets_; }    ///< tangent
+  const std::vector<int>& kept_sizes() const { return kept_sizes_; }      ///< ambient
+  const std::vector<int>& kept_offsets() const { return kept_offsets_; }  ///< tangent
   const std::vector<std::vector<double>>& kept_values() const { return kept_values_; }
   const Eigen::MatrixXd& linearized_jacobian() const { return linearized_jacobian_; }
   const Eigen::VectorXd& linearized_residual() const { return linearized_residual_; }
@@ -54,11 +61,14 @@ class MarginalizationInfo {
 };
 
 /// The prior as a Ceres cost: r = r0 + J (x [-] x0), pose differences through PoseManifold::Minus.
-/// Parameter blocks: MarginalizationInfo::KeptBlocks() in that order.
+/// Parameter blocks: MarginalizationInfo::KeptBlocks() in that order. The pose Jacobian uses the
+/// exact inverse right Jacobian of SO(3) at Log(q0^-1 q).
 class MarginalizationFactor : public ceres::CostFunction {
  public:
   explicit MarginalizationFactor(std::shared_ptr<const MarginalizationInfo> info);
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
 
  private:
   std::shared_ptr<const MarginalizationInfo> info_;

@@ -66,8 +66,9 @@ class PoseManifold : public ceres::Manifold {
   bool Minus(const double* y, const double* x, double* y_minus_x) const override {
     Eigen::Map<const Eigen::Vector3d> py(y), px(x);
     Eigen::Map<const Eigen::Quaterniond> qy(y + 3), qx(x + 3);
-    Eigen::Map<Eigen::Vector3d>(y_minus_x) = py - px;
-    Eigen::Map<Eigen::Vector3d>(y_minus_x + 3) = LogQuaternion(qx.conjugate() * qy);
+    Eigen::Map<Eigen::Vector3d> dp(y_minus_x), dtheta(y_minus_x + 3);
+    dp = py - px;
+    dtheta = LogQuaternion(qx.conjugate() * qy);
     return true;
   }
 

@@ -1,1 +1,390 @@
 #include "estimator/factors/preintegration.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+#include "estimator/factors/pose_manifold.h"
+
+namespace raillomer {
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::Quaterniond;
+using Eigen::Vector3d;
+using Matrix19d = Eigen::Matrix<double, 19, 19>;
+
+// Error-state (and residual) offsets.
+constexpr int kAlpha = 0;
+constexpr int kBeta = 3;
+constexpr int kTheta = 6;
+constexpr int kBa = 9;
+constexpr int kBg = 12;
+constexpr int kPhi = 15;
+constexpr int kC = 18;
+
+// White noise offsets of one step: accelerometer, gyroscope, odometer speed. The random walks
+// (biases, odometer scale) add to their own diagonal entries.
+constexpr int kNa = 0;
+constexpr int kNg = 3;
+constexpr int kNs = 6;
+
+double Square(double x) { return x * x; }
+
+// Right Jacobian of SO(3): Exp(x + d) ~= Exp(x) Exp(Jr(x) d).
+Matrix3d RightJacobian(const Vector3d& x) {
+  const double angle = x.norm();
+  const Matrix3d k = Skew(x);
+  if (angle < 1e-4) return Matrix3d::Identity() - 0.5 * k + k * k / 6.0;
+  const double a2 = angle * angle;
+  return Matrix3d::Identity() - (1.0 - std::cos(angle)) / a2 * k +
+         (angle - std::sin(angle)) / (a2 * angle) * k * k;
+}
+
+}  // namespace
+
+Preintegration::Preintegration(const Vector3d& ba,
+                               const Vector3d& bg,
+                               double c,
+                               const Matrix3d& R_body_odo,
+                               const Vector3d& p_body_odo,
+                               const PreintegrationNoise& noise,
+                               double gravity_mps2)
+    : ba_(ba),
+      bg_(bg),
+      c_(c),
+      R_body_odo_(R_body_odo),
+      p_body_odo_(p_body_odo),
+      noise_(noise),
+      gravity_mps2_(gravity_mps2) {}
+
+void Preintegration::Add(double dt,
+                         const Vector3d& gyro_radps,
+                         const Vector3d& accel_mps2,
+                         double speed_mps,
+                         bool odometer_valid) {
+  ++revision_;
+  if (!has_last_) {
+    // The very first measurement: the start of the first step.
+    has_last_ = true;
+    last_gyro_ = gyro_radps;
+    last_accel_ = accel_mps2;
+    last_speed_ = speed_mps;
+    last_odometer_valid_ = odometer_valid;
+    if (!odometer_valid) odometer_used_ = false;
+    if (dt <= 0.0) return;
+  } else if (dt <= 0.0) {
+    last_gyro_ = gyro_radps;
+    last_accel_ = accel_mps2;
+    last_speed_ = speed_mps;
+    last_odometer_valid_ = odometer_valid;
+    return;
+  }
+  Step step;
+  step.dt = dt;
+  step.gyro0 = last_gyro_;
+  step.accel0 = last_accel_;
+  step.speed0 = last_speed_;
+  step.gyro1 = gyro_radps;
+  step.accel1 = accel_mps2;
+  step.speed1 = speed_mps;
+  step.odometer_valid = last_odometer_valid_ && odometer_valid;
+  steps_.push_back(step);
+  Integrate(step);
+  last_gyro_ = gyro_radps;
+  last_accel_ = accel_mps2;
+  last_speed_ = speed_mps;
+  last_odometer_valid_ = odometer_valid;
+}
+
+Preintegration::Delta Preintegration::Propagate(const Delta& in,
+                                                double h,
+                                                const Vector3d& gyro0,
+                                                const Vector3d& accel0,
+                                                double speed0,
+                                                const Vector3d& gyro1,
+                                                const Vector3d& accel1,
+                                                double speed1,
+                                                bool odometer_valid) const {
+  // Eq. (14) with midpoint values, as in VINS-Mono's integration_base.h.
+  const Vector3d w = 0.5 * (gyro0 + gyro1) - bg_;
+  Delta out;
+  out.gamma = (in.gamma * ExpQuaternion(w * h)).normalized();
+  const Vector3d acc = 0.5 * (in.gamma * (accel0 - ba_) + out.gamma * (accel1 - ba_));
+  out.alpha = in.alpha + in.beta * h + 0.5 * acc * h * h;
+  out.beta = in.beta + acc * h;
+  out.phi = in.phi;
+  if (odometer_valid) {
+    // Eq. (13): the odometer velocity c * s along its x axis, rotated into the start body frame.
+    const Vector3d u = R_body_odo_.col(0);
+    out.phi += 0.5 * c_ * (in.gamma * (u * speed0) + out.gamma * (u * speed1)) * h;
+  }
+  return out;
+}
+
+void Preintegration::Integrate(const Step& s) {
+  const double dt = s.dt;
+  Delta start;
+  start.alpha = alpha_;
+  start.beta = beta_;
+  start.gamma = gamma_;
+  start.phi = phi_;
+  step_start_deltas_.push_back(start);
+  step_start_times_.push_back(sum_dt_);
+  const Delta end = Propagate(
+      start, dt, s.gyro0, s.accel0, s.speed0, s.gyro1, s.accel1, s.speed1, s.odometer_valid);
+
+  // Error-state transition F and noise input G of one step (eq. 15-17).
+  const Vector3d w = 0.5 * (s.gyro0 + s.gyro1) - bg_;
+  const Matrix3d dR = ExpQuaternion(w * dt).toRotationMatrix();
+  const Matrix3d jr_dt = RightJacobian(w * dt) * dt;
+  const Matrix3d R0 = start.gamma.toRotationMatrix();
+  const Matrix3d R1 = end.gamma.toRotationMatrix();
+  const Vector3d a0 = s.accel0 - ba_;
+  const Vector3d a1 = s.accel1 - ba_;
+  // d_theta1 = dR^T d_theta0 - Jr dt (d_bg + n_g); midpoint acceleration derivatives:
+  const Matrix3d R1_a1x = R1 * Skew(a1);
+  const Matrix3d acc_theta = -0.5 * (R0 * Skew(a0) + R1_a1x * dR.transpose());
+  const Matrix3d acc_bg = 0.5 * R1_a1x * jr_dt;
+  const Matrix3d acc_ba = -0.5 * (R0 + R1);
+
+  // Only the alpha, beta, theta and phi rows of F differ from the identity: Fr holds them, in
+  // that order (rows 0-8 are alpha, beta, theta; rows 9-11 phi). The noise enters those rows
+  // through Gr (accelerometer, gyroscope, odometer speed) and the random walks add directly.
+  constexpr int kRowPhi = 9;
+  Eigen::Matrix<double, 12, 19> Fr = Eigen::Matrix<double, 12, 19>::Zero();
+  Eigen::Matrix<double, 12, 7> Gr = Eigen::Matrix<double, 12, 7>::Zero();
+  const double half_dt2 = 0.5 * dt * dt;
+  Fr.block<9, 9>(0, 0).setIdentity();
+  Fr.block<3, 3>(kRowPhi, kPhi).setIdentity();
+  Fr.block<3, 3>(kAlpha, kBeta) = Matrix3d::Identity() * dt;
+  Fr.block<3, 3>(kAlpha, kTheta) = half_dt2 * acc_theta;
+  Fr.block<3, 3>(kAlpha, kBa) = half_dt2 * acc_ba;
+  Fr.block<3, 3>(kAlpha, kBg) = half_dt2 * acc_bg;
+  Fr.block<3, 3>(kBeta, kTheta) = dt * acc_theta;
+  Fr.block<3, 3>(kBeta, kBa) = dt * acc_ba;
+  Fr.block<3, 3>(kBeta, kBg) = dt * acc_bg;
+  Fr.block<3, 3>(kTheta, kTheta) = dR.transpose();
+  Fr.block<3, 3>(kTheta, kBg) = -jr_dt;
+  Gr.block<3, 3>(kAlpha, kNa) = half_dt2 * acc_ba;
+  Gr.block<3, 3>(kBeta, kNa) = dt * acc_ba;
+  Gr.block<3, 3>(kAlpha, kNg) = half_dt2 * acc_bg;
+  Gr.block<3, 3>(kBeta, kNg) = dt * acc_bg;
+  Gr.block<3, 3>(kTheta, kNg) = -jr_dt;
+  if (s.odometer_valid) {
+    const Vector3d u = R_body_odo_.col(0);
+    const Matrix3d R1_o1x = R1 * Skew(c_ * s.speed1 * u);
+    Fr.block<3, 3>(kRowPhi, kTheta) =
+        -0.5 * dt * (R0 * Skew(c_ * s.speed0 * u) + R1_o1x * dR.transpose());
+    Fr.block<3, 3>(kRowPhi, kBg) = 0.5 * dt * R1_o1x * jr_dt;
+    Fr.block<3, 1>(kRowPhi, kC) = 0.5 * dt * (R0 * u * s.speed0 + R1 * u * s.speed1);
+    Gr.block<3, 3>(kRowPhi, kNg) = Fr.block<3, 3>(kRowPhi, kBg);
+    // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
+    Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
+  }
+
+  // Continuous densities to the variances of one step: white noise averaged over dt has
+  // variance density^2 / dt, a random walk grows by density^2 * dt.
+  Eigen::Matrix<double, 7, 1> q_white;
+  q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / dt);
+  q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / dt);
+  q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
+
+  // Eq. (17): J = F J, P = F P F^T + G Q G^T, touching only the rows and columns F changes.
+  const Eigen::Matrix<double, 12, 19> new_rows = Fr * jacobian_;
+  jacobian_.topRows<9>() = new_rows.topRows<9>();
+  jacobian_.middleRows<3>(kPhi) = new_rows.bottomRows<3>();
+  Matrix19d fp = covariance_;
+  const Eigen::Matrix<double, 12, 19> fr_p = Fr * covariance_;
+  fp.topRows<9>() = fr_p.topRows<9>();
+  fp.middleRows<3>(kPhi) = fr_p.bottomRows<3>();
+  const Eigen::Matrix<double, 19, 12> fp_frt = fp * Fr.transpose();
+  covariance_ = fp;
+  covariance_.leftCols<9>() = fp_frt.leftCols<9>();
+  covariance_.middleCols<3>(kPhi) = fp_frt.rightCols<3>();
+  const Eigen::Matrix<double, 12, 12> gqg = Gr * q_white.asDiagonal() * Gr.transpose();
+  covariance_.topLeftCorner<9, 9>() += gqg.topLeftCorner<9, 9>();
+  covariance_.block<9, 3>(0, kPhi) += gqg.topRightCorner<9, 3>();
+  covariance_.block<3, 9>(kPhi, 0) += gqg.bottomLeftCorner<3, 9>();
+  covariance_.block<3, 3>(kPhi, kPhi) += gqg.bottomRightCorner<3, 3>();
+  covariance_.diagonal().segment<3>(kBa).array() += Square(noise_.accel_bias_walk) * dt;
+  covariance_.diagonal().segment<3>(kBg).array() += Square(noise_.gyro_bias_walk) * dt;
+  covariance_(kC, kC) += Square(noise_.odometer_scale_walk) * dt;
+
+  alpha_ = end.alpha;
+  beta_ = end.beta;
+  gamma_ = end.gamma;
+  phi_ = end.phi;
+  sum_dt_ += dt;
+  if (!s.odometer_valid) odometer_used_ = false;
+}
+
+void Preintegration::Repropagate(const Vector3d& ba, const Vector3d& bg, double c) {
+  ++revision_;
+  ba_ = ba;
+  bg_ = bg;
+  c_ = c;
+  sum_dt_ = 0.0;
+  alpha_.setZero();
+  beta_.setZero();
+  gamma_.setIdentity();
+  phi_.setZero();
+  jacobian_.setIdentity();
+  covariance_.setZero();
+  step_start_deltas_.clear();
+  step_start_times_.clear();
+  if (!steps_.empty()) odometer_used_ = true;
+  for (const Step& step : steps_) Integrate(step);
+}
+
+void Preintegration::Append(const Preintegration& next) {
+  steps_.insert(steps_.end(), next.steps_.begin(), next.steps_.end());
+  if (next.has_last_) {
+    has_last_ = true;
+    last_gyro_ = next.last_gyro_;
+    last_accel_ = next.last_accel_;
+    last_speed_ = next.last_speed_;
+    last_odometer_valid_ = next.last_odometer_valid_;
+  }
+  const bool used = odometer_used_ && next.odometer_used_;
+  Repropagate(ba_, bg_, c_);
+  odometer_used_ = odometer_used_ && used;
+}
+
+Preintegration::Delta Preintegration::Corrected(const Vector3d& ba,
+                                                const Vector3d& bg,
+                                                double c) const {
+  // Eq. (18).
+  const Vector3d dba = ba - ba_;
+  const Vector3d dbg = bg - bg_;
+  const double dc = c - c_;
+  Delta d;
+  d.alpha =
+      alpha_ + jacobian_.block<3, 3>(kAlpha, kBa) * dba + jacobian_.block<3, 3>(kAlpha, kBg) * dbg;
+  d.beta =
+      beta_ + jacobian_.block<3, 3>(kBeta, kBa) * dba + jacobian_.block<3, 3>(kBeta, kBg) * dbg;
+  d.gamma = (gamma_ * ExpQuaternion(jacobian_.block<3, 3>(kTheta, kBg) * dbg)).normalized();
+  d.phi = phi_ + jacobian_.block<3, 3>(kPhi, kBg) * dbg + jacobian_.block<3, 1>(kPhi, kC) * dc;
+  return d;
+}
+
+Eigen::Matrix<double, 19, 1> Preintegration::Evaluate(const NavState& i, const NavState& j) const {
+  const Delta d = Corrected(i.ba, i.bg, i.c);
+  const double dt = sum_dt_;
+  const Vector3d g_w(0.0, 0.0, gravity_mps2_);
+  const Quaterniond qi_inv = i.q.conjugate();
+  Eigen::Matrix<double, 19, 1> r;
+  // Eq. (19).
+  r.segment<3>(kAlpha) = qi_inv * (j.p - i.p + 0.5 * g_w * dt * dt - i.v * dt) - d.alpha;
+  r.segment<3>(kBeta) = qi_inv * (j.v + g_w * dt - i.v) - d.beta;
+  r.segment<3>(kTheta) = 2.0 * (d.gamma.conjugate() * (qi_inv * j.q)).vec();
+  r.segment<3>(kBa) = j.ba - i.ba;
+  r.segment<3>(kBg) = j.bg - i.bg;
+  r.segment<3>(kPhi) = qi_inv * (j.p + j.q * p_body_odo_ - i.p) - p_body_odo_ - d.phi;
+  r(kC) = j.c - i.c;
+  return r;
+}
+
+NavState Preintegration::Predict(const NavState& i) const {
+  const Delta d = Corrected(i.ba, i.bg, i.c);
+  const double dt = sum_dt_;
+  const Vector3d g_w(0.0, 0.0, gravity_mps2_);
+  NavState j = i;
+  j.p = i.p + i.v * dt - 0.5 * g_w * dt * dt + i.q * d.alpha;
+  j.v = i.v - g_w * dt + i.q * d.beta;
+  j.q = (i.q * d.gamma).normalized();
+  return j;
+}
+
+Preintegration::Delta Preintegration::DeltaAt(double t_s) const {
+  if (steps_.empty() || t_s <= 0.0) return Delta();
+  if (t_s >= sum_dt_) {
+    Delta d;
+    d.alpha = alpha_;
+    d.beta = beta_;
+    d.gamma = gamma_;
+    d.phi = phi_;
+    return d;
+  }
+  const auto it = std::upper_bound(step_start_times_.begin(), step_start_times_.end(), t_s);
+  const size_t k =
+      static_cast<size_t>(std::max<std::ptrdiff_t>(it - step_start_times_.begin() - 1, 0));
+  const Step& s = steps_[k];
+  const double h = t_s - step_start_times_[k];
+  if (h <= 0.0) return step_start_deltas_[k];
+  const double f = std::min(h / s.dt, 1.0);
+  return Propagate(step_start_deltas_[k],
+                   h,
+                   s.gyro0,
+                   s.accel0,
+                   s.speed0,
+                   s.gyro0 + f * (s.gyro1 - s.gyro0),
+                   s.accel0 + f * (s.accel1 - s.accel0),
+                   s.speed0 + f * (s.speed1 - s.speed0),
+                   s.odometer_valid);
+}
+
+Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s, const Vector3d& v_start_body) const {
+  if (!odometer_used_ || steps_.empty()) {
+    return RelativePoseAt(t_s, v_start_body, Quaterniond::Identity());
+  }
+  const Delta d = DeltaAt(t_s);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = d.gamma.toRotationMatrix();
+  // The odometer point moved by phi in the start body frame.
+  T.translation() = d.phi + p_body_odo_ - d.gamma * p_body_odo_;
+  return T;
+}
+
+Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s,
+                                                 const Vector3d& v_start_body,
+                                                 const Quaterniond& q_world_start) const {
+  const double t = std::clamp(t_s, 0.0, sum_dt_);
+  const Delta d = DeltaAt(t);
+  const Vector3d g_start = q_world_start.conjugate() * Vector3d(0.0, 0.0, gravity_mps2_);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = d.gamma.toRotationMatrix();
+  T.translation() = v_start_body * t + d.alpha - 0.5 * g_start * t * t;
+  return T;
+}
+
+Eigen::Matrix<double, 19, 19> Preintegration::SqrtInformation() const {
+  // Information of the rows that carry any: without odometer data phi is left out entirely.
+  const int n = odometer_used_ ? 19 : 16;
+  Eigen::VectorXi index(n);
+  for (int k = 0, m = 0; k < 19; ++k) {
+    if (odometer_used_ || k < kPhi || k >= kPhi + 3) index(m++) = k;
+  }
+  Eigen::MatrixXd cov(n, n);
+  for (int a = 0; a < n; ++a) {
+    for (int b = 0; b < n; ++b)
+      cov(a, b) = 0.5 * (covariance_(index(a), index(b)) + covariance_(index(b), index(a)));
+  }
+  // Invert through the correlation matrix so that the very different scales (alpha over a few
+  // milliseconds against phi over a second) do not cost precision; variances below a floor of
+  // (1e-8)^2 and near-singular directions are clamped rather than producing infinities.
+  constexpr double kVarianceFloor = 1e-16;
+  constexpr double kMinEigenvalue = 1e-12;
+  Eigen::VectorXd scale(n);
+  for (int a = 0; a < n; ++a) scale(a) = std::sqrt(std::max(cov(a, a), kVarianceFloor));
+  const Eigen::MatrixXd corr =
+      scale.cwiseInverse().asDiagonal() * cov * scale.cwiseInverse().asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(corr);
+  const Eigen::VectorXd inv_values = eig.eigenvalues().cwiseMax(kMinEigenvalue).cwiseInverse();
+  Eigen::MatrixXd info = scale.cwiseInverse().asDiagonal() * eig.eigenvectors() *
+                         inv_values.asDiagonal() * eig.eigenvectors().transpose() *
+                         scale.cwiseInverse().asDiagonal();
+  info = 0.5 * (info + info.transpose()).eval();
+  const Eigen::MatrixXd upper = Eigen::LLT<Eigen::MatrixXd>(info).matrixU();
+
+  Eigen::Matrix<double, 19, 19> L = Eigen::Matrix<double, 19, 19>::Zero();
+  for (int a = 0; a < n; ++a) {
+    for (int b = 0; b < n; ++b) L(index(a), index(b)) = upper(a, b);
+  }
+  return L;
+}
+
+}  // namespace raillomer

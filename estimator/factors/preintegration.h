@@ -1,5 +1,6 @@
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -19,9 +20,9 @@ struct PreintegrationNoise {
 
 /// A state of the sliding window (eq. 1) in plain form.
 struct NavState {
-  Eigen::Vector3d p = Eigen::Vector3d::Zero();  ///< p_world_body
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();            ///< p_world_body
   Eigen::Quaterniond q = Eigen::Quaterniond::Identity();  ///< q_world_body
-  Eigen::Vector3d v = Eigen::Vector3d::Zero();  ///< v_world
+  Eigen::Vector3d v = Eigen::Vector3d::Zero();            ///< v_world
   Eigen::Vector3d ba = Eigen::Vector3d::Zero();
   Eigen::Vector3d bg = Eigen::Vector3d::Zero();
   double c = 1.0;  ///< odometer scale factor
@@ -33,6 +34,10 @@ struct NavState {
 /// d_phi(3), d_c(1)]. The odometer frame O has rotation R_body_odo and lever arm p_body_odo;
 /// the odometer measures speed along its x axis. An interval with any sample lacking odometer
 /// data carries no phi information (odometer_used() is false).
+///
+/// The error state has the same order; rotation errors are right perturbations
+/// gamma_true = gamma * Exp(d_theta). The first Add() only records the start measurement when
+/// its dt is zero; later ones each integrate one step from the previous measurement.
 class Preintegration {
  public:
   Preintegration(const Eigen::Vector3d& ba,
@@ -46,6 +51,11 @@ class Preintegration {
   /// One step of dt seconds with the measurements at its start and end (midpoint integration).
   /// speed_mps is the odometer's raw speed (before the scale factor); odometer_valid false marks
   /// a step without an odometer reading.
+  ///
+  /// The start measurement is the one of the previous call. A first call with dt <= 0 only
+  /// records it; a first call with dt > 0 uses its own measurement at both ends. Later calls
+  /// with dt <= 0 replace the recorded measurement without integrating. A step carries odometer
+  /// data only when the readings at both of its ends are valid.
   void Add(double dt,
            const Eigen::Vector3d& gyro_radps,
            const Eigen::Vector3d& accel_mps2,
@@ -66,7 +76,19 @@ class Preintegration {
 
   /// Body pose at time `t_s` after the start (0..sum_dt), relative to the body at the start,
   /// integrated from the raw steps with the linearisation biases; for deskewing.
+  ///
+  /// Rotation: gamma(t). Translation: when odometer_used(), the odometer path with its lever
+  /// arm, phi(t) + p_body_odo - gamma(t) * p_body_odo (v_start_body is not used); otherwise
+  /// v_start_body * t + alpha(t) - 0.5 t^2 g_start, with gravity g_start = (0, 0, g) assumed
+  /// along the start body's z axis (a level start; prefer the overload below). Within a step
+  /// the measurements are interpolated linearly; t_s is clamped to [0, sum_dt].
   Eigen::Isometry3d RelativePoseAt(double t_s, const Eigen::Vector3d& v_start_body) const;
+
+  /// As above, from the IMU alone with the start attitude known: rotation gamma(t), translation
+  /// v_start_body * t + alpha(t) - 0.5 t^2 R(q_world_start)^T (0, 0, g).
+  Eigen::Isometry3d RelativePoseAt(double t_s,
+                                   const Eigen::Vector3d& v_start_body,
+                                   const Eigen::Quaterniond& q_world_start) const;
 
   double sum_dt() const { return sum_dt_; }
   bool odometer_used() const { return odometer_used_; }
@@ -83,6 +105,12 @@ class Preintegration {
   /// Upper-triangular L with L^T L = covariance^-1 (phi rows zero when !odometer_used()).
   Eigen::Matrix<double, 19, 19> SqrtInformation() const;
   double gravity_mps2() const { return gravity_mps2_; }
+  const Eigen::Matrix3d& R_body_odo() const { return R_body_odo_; }
+  const Eigen::Vector3d& p_body_odo() const { return p_body_odo_; }
+  /// Number of integrated steps.
+  int num_steps() const { return static_cast<int>(steps_.size()); }
+  /// Incremented by every Add(), Repropagate() and Append(); lets factors spot stale caches.
+  std::uint64_t revision() const { return revision_; }
 
  private:
   struct Step {
@@ -91,7 +119,28 @@ class Preintegration {
     double speed0, speed1;
     bool odometer_valid;
   };
+  /// The preintegrated quantities at one instant (eq. 14).
+  struct Delta {
+    Eigen::Vector3d alpha = Eigen::Vector3d::Zero();
+    Eigen::Vector3d beta = Eigen::Vector3d::Zero();
+    Eigen::Quaterniond gamma = Eigen::Quaterniond::Identity();
+    Eigen::Vector3d phi = Eigen::Vector3d::Zero();
+  };
   void Integrate(const Step& step);
+  /// Midpoint step of h seconds from `in` (measurements at its start and end).
+  Delta Propagate(const Delta& in,
+                  double h,
+                  const Eigen::Vector3d& gyro0,
+                  const Eigen::Vector3d& accel0,
+                  double speed0,
+                  const Eigen::Vector3d& gyro1,
+                  const Eigen::Vector3d& accel1,
+                  double speed1,
+                  bool odometer_valid) const;
+  /// The preintegrated quantities at t_s (see RelativePoseAt).
+  Delta DeltaAt(double t_s) const;
+  /// alpha, beta, gamma, phi corrected to first order for the given biases and scale (eq. 18).
+  Delta Corrected(const Eigen::Vector3d& ba, const Eigen::Vector3d& bg, double c) const;
 
   Eigen::Vector3d ba_, bg_;
   double c_;
@@ -109,6 +158,17 @@ class Preintegration {
   Eigen::Matrix<double, 19, 19> jacobian_ = Eigen::Matrix<double, 19, 19>::Identity();
   Eigen::Matrix<double, 19, 19> covariance_ = Eigen::Matrix<double, 19, 19>::Zero();
   std::vector<Step> steps_;
+  /// Preintegrated quantities at the start of each step, and the start times, for DeltaAt().
+  std::vector<Delta> step_start_deltas_;
+  std::vector<double> step_start_times_;
+
+  // The last measurement, the start of the next step.
+  bool has_last_ = false;
+  Eigen::Vector3d last_gyro_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d last_accel_ = Eigen::Vector3d::Zero();
+  double last_speed_ = 0.0;
+  bool last_odometer_valid_ = true;
+  std::uint64_t revision_ = 0;
 };
 
 }  // namespace raillomer

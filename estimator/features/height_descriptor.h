@@ -12,8 +12,14 @@ struct HeightDescriptorOptions {
   double x_min_m = 3.0, x_max_m = 33.0;    ///< d_x
   double y_min_m = -20.0, y_max_m = 20.0;  ///< d_y
   double bin_m = 0.5;                      ///< d_r
+  double z_floor_m = -4.0;    ///< heights are z - z_floor_m; points below are ignored
+  double z_ceiling_m = 20.0;  ///< points above are ignored (outliers)
   double max_shift_search_m = 3.0;  ///< around the predicted shift
   double min_score = 0.2;  ///< mean cosine similarity below this: no measurement
+  int min_occupied_cells = 20;  ///< fewer non-empty cells in either descriptor: no measurement
+  /// The runner-up local minimum must lie this fraction of the distance range above the best.
+  double min_distinctness = 0.2;
+  double min_sigma_m = 0.05;  ///< floor of the reported standard deviation
   bool IsValid(std::string* error) const;
 };
 

@@ -1,5 +1,6 @@
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -12,12 +13,16 @@ struct RailExtractionOptions {
   double body_above_rail_top_m = 3.8;  ///< rig: body (IMU) origin above the rail top
   double gauge_m = 1.435;              ///< track gauge
   double rail_head_width_m = 0.07;     ///< region-growing distance to a fitted line
-  double candidate_half_width_m = 0.3;  ///< search band around each nominal rail
+  double candidate_half_width_m = 0.5;  ///< search band around each nominal rail
   double seed_length_m = 3.0;          ///< initial seed area length (from the nearest return)
   double max_length_m = 20.0;          ///< rails are grown up to this far ahead of the seed
   double min_forward_m = 3.0;          ///< ignore points closer than this along x
+  double max_forward_m = 60.0;         ///< ignore points farther than this along x
+  double max_tilt_deg = 3.0;           ///< body roll/pitch allowance of the track-bed band
+  double min_rail_height_m = 0.1;      ///< a seed line must stand this far above the bed
   int ransac_iterations = 100;
   int min_rail_points = 30;            ///< per rail, else extraction fails
+  uint32_t random_seed = 1;            ///< RANSAC sampling (deterministic per call)
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;
 };

@@ -1,1 +1,277 @@
 #include "estimator/preprocess/filters.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace raillomer {
+
+namespace {
+
+constexpr double kDegToRad = M_PI / 180.0;
+
+/// Keeps the points whose flag is set, in order; returns how many went.
+size_t Compact(const std::vector<uint8_t>& keep, std::vector<ScanPoint>* points) {
+  size_t out = 0;
+  for (size_t i = 0; i < points->size(); ++i) {
+    if (keep[i]) (*points)[out++] = (*points)[i];
+  }
+  const size_t removed = points->size() - out;
+  points->resize(out);
+  return removed;
+}
+
+/// Positions of the points of each laser line in the scan, in acquisition order.
+std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>& points) {
+  std::vector<size_t> counts;
+  for (const ScanPoint& p : points) {
+    if (p.line >= counts.size()) counts.resize(p.line + 1, 0);
+    ++counts[p.line];
+  }
+  std::vector<std::vector<uint32_t>> lines(counts.size());
+  for (size_t l = 0; l < counts.size(); ++l) lines[l].reserve(counts[l]);
+  for (size_t i = 0; i < points.size(); ++i) lines[points[i].line].push_back(i);
+  return lines;
+}
+
+/// Points per cell of a sparse 3D grid: a counting hash set of 64-bit cell keys with open
+/// addressing (an unordered_map costs several times more on 24000 points).
+class CellCounter {
+ public:
+  explicit CellCounter(size_t expected) {
+    size_t capacity = 64;
+    while (capacity < 2 * expected) capacity *= 2;
+    keys_.assign(capacity, 0);
+    counts_.assign(capacity, 0);
+    mask_ = capacity - 1;
+  }
+
+  /// Adds one point to the cell `key`; returns the cell's slot.
+  uint32_t Add(uint64_t key) {
+    size_t slot = (key * 0x9E3779B97F4A7C15ULL) >> 32 & mask_;
+    while (counts_[slot] != 0 && keys_[slot] != key) slot = (slot + 1) & mask_;
+    keys_[slot] = key;
+    ++counts_[slot];
+    return static_cast<uint32_t>(slot);
+  }
+
+  uint32_t Count(uint32_t slot) const { return counts_[slot]; }
+
+ private:
+  std::vector<uint64_t> keys_;
+  std::vector<uint32_t> counts_;  ///< 0: empty slot
+  size_t mask_ = 0;
+};
+
+/// Key of the cell of `p` on a grid of edge `size` shifted by `offset` cells, within `shell`.
+uint64_t CellKey(const Eigen::Vector3f& p, double size, double offset, int shell) {
+  constexpr int64_t kBias = int64_t{1} << 17;  // 18 bits per axis, 10 for the shell
+  auto axis = [&](float v) {
+    const int64_t c = static_cast<int64_t>(std::floor(v / size + offset)) + kBias;
+    return static_cast<uint64_t>(std::clamp<int64_t>(c, 0, 2 * kBias - 1));
+  };
+  return static_cast<uint64_t>(shell & 0x3FF) << 54 | axis(p.x()) << 36 | axis(p.y()) << 18 |
+         axis(p.z());
+}
+
+}  // namespace
+
+bool PreprocessOptions::IsValid(std::string* error) const {
+  auto fail = [error](const std::string& message) {
+    if (error) *error = message;
+    return false;
+  };
+  if (!(min_range_m >= 0.0)) return fail("min_range_m must be >= 0");
+  if (!(max_range_m > min_range_m)) return fail("max_range_m must be > min_range_m");
+  if (!(flicker_cell_size_m > 0.0)) return fail("flicker_cell_size_m must be > 0");
+  if (flicker_min_points_per_cell < 1) return fail("flicker_min_points_per_cell must be >= 1");
+  if (!(flicker_reference_range_m >= 0.0)) return fail("flicker_reference_range_m must be >= 0");
+  if (!(hidden_sector_angle_deg > 0.0 && hidden_sector_angle_deg < 90.0)) {
+    return fail("hidden_sector_angle_deg must be in (0, 90)");
+  }
+  if (!(hidden_sector_radius_m > 0.0)) return fail("hidden_sector_radius_m must be > 0");
+  if (hidden_sector_max_chain < 1) return fail("hidden_sector_max_chain must be >= 1");
+  return true;
+}
+
+Scan ScanFromLidarFrame(const io::LidarFrame& frame, int lidar_index, double duration_s) {
+  return ScanFromLidarFrame(frame, lidar_index, duration_s, nullptr);
+}
+
+Scan ScanFromLidarFrame(const io::LidarFrame& frame,
+                        int lidar_index,
+                        double duration_s,
+                        PreprocessStats* stats) {
+  Scan scan;
+  scan.lidar_index = lidar_index;
+  scan.start_s = static_cast<double>(frame.timebase_ns) * 1e-9;
+  scan.duration_s = duration_s;
+  scan.points.reserve(frame.points.size());
+  for (const io::LivoxPoint& in : frame.points) {
+    if (in.x == 0.f && in.y == 0.f && in.z == 0.f) continue;
+    ScanPoint out;
+    out.p = Eigen::Vector3f(in.x, in.y, in.z);
+    out.time_s = static_cast<float>(in.offset_time_ns * 1e-9);
+    out.range_m = out.p.norm();
+    out.intensity = in.reflectivity;
+    out.line = in.line;
+    scan.points.push_back(out);
+  }
+  if (stats) {
+    stats->input = frame.points.size();
+    stats->no_return = frame.points.size() - scan.points.size();
+  }
+  return scan;
+}
+
+void RemoveNearAndFarPoints(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats) {
+  const float min2 = static_cast<float>(options.min_range_m * options.min_range_m);
+  const float max2 = static_cast<float>(options.max_range_m * options.max_range_m);
+  std::vector<uint8_t> keep(scan->points.size());
+  for (size_t i = 0; i < scan->points.size(); ++i) {
+    const float r2 = scan->points[i].p.squaredNorm();
+    keep[i] = r2 >= min2 && r2 <= max2;
+  }
+  const size_t removed = Compact(keep, &scan->points);
+  if (stats) stats->near_or_far += removed;
+}
+
+void RemoveSunFlicker(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats) {
+  // Paper IV.C: an occupancy grid in the sensor frame; all points of a sparse cell go. Flicker
+  // returns spread along the rays towards the sun at random ranges, so near the sensor they
+  // crowd into a few metres while true surfaces far away thin out; cells that grow with range
+  // (half-octave shells) treat both alike. A second grid, shifted by half a cell and a quarter
+  // octave, keeps surface points that a cell boundary cut off from their neighbours.
+  std::vector<ScanPoint>& points = scan->points;
+  const size_t n = points.size();
+  if (n == 0) return;
+  const bool scaled = options.flicker_reference_range_m > 0.0;
+  const double alpha = options.flicker_cell_size_m / options.flicker_reference_range_m;
+  CellCounter grids[2] = {CellCounter(n), CellCounter(n)};
+  std::vector<uint32_t> slots[2] = {std::vector<uint32_t>(n), std::vector<uint32_t>(n)};
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f& p = points[i].p;
+    const double octaves = scaled ? 2.0 * std::log2(std::max(p.norm(), 1e-3f)) : 0.0;
+    for (int g = 0; g < 2; ++g) {
+      double size = options.flicker_cell_size_m;
+      int shell = 0;
+      if (scaled) {
+        // shell = floor(2 log2 r + g / 2); the cell edge is alpha * 2^(shell / 2) ~ alpha * r.
+        shell = static_cast<int>(std::floor(octaves + 0.5 * g));
+        size = alpha * std::exp2(0.5 * shell);
+        shell += 512;
+      }
+      slots[g][i] = grids[g].Add(CellKey(p, size, 0.5 * g, shell));
+    }
+  }
+  const uint32_t min_points = static_cast<uint32_t>(options.flicker_min_points_per_cell);
+  std::vector<uint8_t> keep(n);
+  for (size_t i = 0; i < n; ++i) {
+    keep[i] = grids[0].Count(slots[0][i]) >= min_points ||
+              grids[1].Count(slots[1][i]) >= min_points ||
+              points[i].intensity >= options.flicker_exempt_intensity;
+  }
+  const size_t removed = Compact(keep, &points);
+  if (stats) stats->flicker += removed;
+}
+
+void RemoveBoundaryBleeding(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats) {
+  // Paper IV.C, Fig. 5. A mixed return lies on its beam between a foreground and a background
+  // surface: it and its neighbours along the line form a chain in which each step runs within
+  // phi of the beam axis. The chain's inner points (at least one of their steps within d) are
+  // stretched points; the chain's ends are the real surfaces. A chain longer than
+  // hidden_sector_max_chain inner points is a surface at grazing incidence and stays.
+  std::vector<ScanPoint>& points = scan->points;
+  const float cos_phi = static_cast<float>(std::cos(options.hidden_sector_angle_deg * kDegToRad));
+  const float d = static_cast<float>(options.hidden_sector_radius_m);
+  const int max_chain = options.hidden_sector_max_chain;
+  std::vector<uint8_t> keep(points.size(), 1);
+  std::vector<uint8_t> axial;
+  std::vector<float> step_m;
+  for (const std::vector<uint32_t>& line : PositionsByLine(points)) {
+    const int m = static_cast<int>(line.size());
+    if (m < 3) continue;
+    // Step j joins line[j] and line[j + 1].
+    axial.assign(m - 1, 0);
+    step_m.assign(m - 1, 0.f);
+    for (int j = 0; j + 1 < m; ++j) {
+      const Eigen::Vector3f& a = points[line[j]].p;
+      const Eigen::Vector3f& b = points[line[j + 1]].p;
+      const Eigen::Vector3f v = b - a;
+      const float length = v.norm();
+      step_m[j] = length;
+      if (length <= 0.f) continue;
+      const float ra = a.norm(), rb = b.norm();
+      if (ra <= 0.f || rb <= 0.f) continue;
+      const float along = std::max(std::fabs(v.dot(a)) / ra, std::fabs(v.dot(b)) / rb);
+      axial[j] = along >= cos_phi * length;
+    }
+    // Maximal chains of axial steps [first, last]; their inner points are line[first + 1 ..
+    // last].
+    int j = 0;
+    while (j < m - 1) {
+      if (!axial[j]) {
+        ++j;
+        continue;
+      }
+      const int first = j;
+      while (j < m - 1 && axial[j]) ++j;
+      const int last = j - 1;
+      const int inner = last - first;
+      if (inner < 1 || inner > max_chain) continue;
+      // Stretched points lie between the ends: the range changes monotonically.
+      bool monotonic = true;
+      const float sign = points[line[last + 1]].p.norm() - points[line[first]].p.norm();
+      for (int k = first; k <= last && monotonic; ++k) {
+        const float dr = points[line[k + 1]].p.norm() - points[line[k]].p.norm();
+        monotonic = dr * sign > 0.f;
+      }
+      if (!monotonic) continue;
+      for (int k = first + 1; k <= last; ++k) {
+        if (std::min(step_m[k - 1], step_m[k]) <= d) keep[line[k]] = 0;
+      }
+    }
+  }
+  const size_t removed = Compact(keep, &points);
+  if (stats) stats->bleeding += removed;
+}
+
+PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan) {
+  PreprocessStats stats;
+  stats.input = scan->points.size();
+  std::vector<uint8_t> keep(scan->points.size());
+  for (size_t i = 0; i < scan->points.size(); ++i) {
+    const Eigen::Vector3f& p = scan->points[i].p;
+    keep[i] = p.allFinite() && !p.isZero(0.f);
+  }
+  stats.no_return = Compact(keep, &scan->points);
+  RemoveNearAndFarPoints(options, scan, &stats);
+  RemoveSunFlicker(options, scan, &stats);
+  RemoveBoundaryBleeding(options, scan, &stats);
+  stats.output = scan->points.size();
+  return stats;
+}
+
+void Deskew(const Eigen::Isometry3d& T_body_lidar, const Eigen::Isometry3d& T_end_start, Scan* scan) {
+  // T_end_t = interpolation between T_end_start (weight 1, t = 0) and identity (weight 0, t =
+  // duration): slerp of the rotation about its fixed axis and lerp of the translation. Points
+  // after the nominal end extrapolate the same motion.
+  const Eigen::AngleAxisd rotation(T_end_start.linear());
+  const double angle = rotation.angle();
+  const Eigen::Vector3d axis = rotation.axis();
+  const Eigen::Vector3d translation = T_end_start.translation();
+  const Eigen::Matrix3d R_body_lidar = T_body_lidar.linear();
+  const Eigen::Vector3d t_body_lidar = T_body_lidar.translation();
+  const double rate = scan->duration_s > 0.0 ? 1.0 / scan->duration_s : 0.0;
+  for (ScanPoint& point : scan->points) {
+    const double w = scan->duration_s > 0.0 ? 1.0 - point.time_s * rate : 0.0;
+    const Eigen::Vector3d p_body = R_body_lidar * point.p.cast<double>() + t_body_lidar;
+    const double half = 0.5 * w * angle;
+    const double s = std::sin(half);
+    const Eigen::Quaterniond q(std::cos(half), s * axis.x(), s * axis.y(), s * axis.z());
+    point.p = (q * p_body + w * translation).cast<float>();
+  }
+}
+
+}  // namespace raillomer

@@ -16,9 +16,18 @@ struct PreprocessOptions {
   /// Sun flicker: occupancy grid (sensor frame); a cell with fewer points loses them all.
   double flicker_cell_size_m = 1.0;
   int flicker_min_points_per_cell = 3;
+  /// Cells grow with range in half-octave shells so that each subtends about the same angle: the
+  /// edge is flicker_cell_size_m at this range (0: one fixed-size grid, as in the paper).
+  double flicker_reference_range_m = 35.0;
+  /// Points in sparse cells at least this bright stay (flicker returns are dark; thin wires are
+  /// bright but sparse). The default, above the 0..255 scale, exempts none.
+  double flicker_exempt_intensity = 256.0;
   /// Boundary bleeding: the hidden sector around each beam axis (Fig. 5).
   double hidden_sector_angle_deg = 10.0;  ///< phi
-  double hidden_sector_radius_m = 1.5;    ///< d
+  double hidden_sector_radius_m = 20.0;   ///< d
+  /// Longer chains of points each in its neighbour's sector are a surface seen at grazing
+  /// incidence, not bleeding, and are kept.
+  int hidden_sector_max_chain = 3;
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;
 };
@@ -35,6 +44,12 @@ struct PreprocessStats {
 
 /// A Livox frame as a Scan in the sensor frame; zero (no-return) points are dropped.
 Scan ScanFromLidarFrame(const io::LidarFrame& frame, int lidar_index, double duration_s);
+/// As above; `stats` (if given) gets the frame's point count as `input` and its zero points as
+/// `no_return`, to be merged with Preprocess()'s counts.
+Scan ScanFromLidarFrame(const io::LidarFrame& frame,
+                        int lidar_index,
+                        double duration_s,
+                        PreprocessStats* stats);
 
 /// Drops points closer than min_range_m or farther than max_range_m.
 void RemoveNearAndFarPoints(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
@@ -44,10 +59,12 @@ void RemoveSunFlicker(const PreprocessOptions& options, Scan* scan, PreprocessSt
 
 /// Drops points inside the hidden sector of a neighbouring beam on the same laser line: a point
 /// whose offset from its neighbour lies within hidden_sector_angle_deg of the neighbour's beam
-/// axis and within hidden_sector_radius_m is a mixed (bleeding) return.
+/// axis and within hidden_sector_radius_m is a mixed (bleeding) return. Only points stretched
+/// between both neighbours along the beam go (chains of up to hidden_sector_max_chain points):
+/// the two real ends of a clean depth jump and long grazing-incidence runs stay.
 void RemoveBoundaryBleeding(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
 
-/// All of the above in order.
+/// All of the above in order, after dropping zero or non-finite points (counted as no_return).
 PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan);
 
 /// Moves every point to the body frame at the frame end (start_s + duration_s).

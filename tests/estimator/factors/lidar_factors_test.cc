@@ -1,1 +1,394 @@
+#include "estimator/factors/lidar_factors.h"
+
 #include <gtest/gtest.h>
+
+#include <array>
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include <ceres/ceres.h>
+
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+
+#include "estimator/factors/pose_manifold.h"
+
+namespace raillomer {
+namespace {
+
+using Pose = std::array<double, kPoseSize>;
+using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+Pose MakePose(const Eigen::Vector3d& p, const Eigen::Vector3d& rotation_vector) {
+  Pose pose;
+  Eigen::Map<Eigen::Vector3d>(pose.data()) = p;
+  Eigen::Map<Eigen::Quaterniond>(pose.data() + 3) = ExpQuaternion(rotation_vector);
+  return pose;
+}
+
+Eigen::Vector3d Position(const Pose& pose) {
+  return Eigen::Map<const Eigen::Vector3d>(pose.data());
+}
+
+Eigen::Matrix3d Rotation(const Pose& pose) {
+  return Eigen::Map<const Eigen::Quaterniond>(pose.data() + 3).toRotationMatrix();
+}
+
+/// A world point expressed in the body frame of `pose` (T_world_body).
+Eigen::Vector3d ToBody(const Pose& pose, const Eigen::Vector3d& world) {
+  return Rotation(pose).transpose() * (world - Position(pose));
+}
+
+/// Tangent Jacobian of block `index` by central differences through PoseManifold::Plus.
+Eigen::MatrixXd NumericJacobian(const ceres::CostFunction& cost,
+                                const std::vector<double*>& blocks,
+                                size_t index,
+                                double step = 1e-6) {
+  const int size = cost.parameter_block_sizes()[index];
+  const int tangent = size == kPoseSize ? kPoseTangentSize : size;
+  const int rows = cost.num_residuals();
+  Eigen::MatrixXd jacobian(rows, tangent);
+  std::vector<const double*> values(blocks.begin(), blocks.end());
+  std::vector<double> moved(size);
+  Eigen::VectorXd plus(rows), minus(rows);
+  const PoseManifold manifold;
+  for (int k = 0; k < tangent; ++k) {
+    for (double sign : {1.0, -1.0}) {
+      Eigen::VectorXd delta = Eigen::VectorXd::Zero(tangent);
+      delta(k) = sign * step;
+      if (size == kPoseSize) {
+        manifold.Plus(blocks[index], delta.data(), moved.data());
+      } else {
+        for (int e = 0; e < size; ++e) moved[e] = blocks[index][e] + delta(e);
+      }
+      values[index] = moved.data();
+      cost.Evaluate(values.data(), sign > 0 ? plus.data() : minus.data(), nullptr);
+    }
+    values[index] = blocks[index];
+    jacobian.col(k) = (plus - minus) / (2.0 * step);
+  }
+  return jacobian;
+}
+
+/// The analytic Jacobians of every block: the tangent part must match central differences and
+/// the 7th column of a pose block must be zero. Returns the tangent Jacobians.
+std::vector<Eigen::MatrixXd> ExpectJacobiansMatch(const ceres::CostFunction& cost,
+                                                  const std::vector<double*>& blocks,
+                                                  double tolerance = 1e-7) {
+  const int rows = cost.num_residuals();
+  const std::vector<int32_t>& sizes = cost.parameter_block_sizes();
+  std::vector<RowMatrix> analytic(blocks.size());
+  std::vector<double*> pointers(blocks.size());
+  for (size_t k = 0; k < blocks.size(); ++k) {
+    analytic[k] = RowMatrix::Constant(rows, sizes[k], 1e9);  // every entry must be written
+    pointers[k] = analytic[k].data();
+  }
+  Eigen::VectorXd residual(rows);
+  std::vector<const double*> values(blocks.begin(), blocks.end());
+  EXPECT_TRUE(cost.Evaluate(values.data(), residual.data(), pointers.data()));
+  std::vector<Eigen::MatrixXd> tangent_jacobians;
+  for (size_t k = 0; k < blocks.size(); ++k) {
+    const Eigen::MatrixXd numeric = NumericJacobian(cost, blocks, k);
+    const Eigen::MatrixXd tangent = analytic[k].leftCols(numeric.cols());
+    const double scale = std::max(1.0, numeric.cwiseAbs().maxCoeff());
+    EXPECT_LT((tangent - numeric).cwiseAbs().maxCoeff(), tolerance * scale)
+        << "block " << k << "\nanalytic\n"
+        << tangent << "\nnumeric\n"
+        << numeric;
+    if (sizes[k] == kPoseSize) {
+      EXPECT_EQ(analytic[k].col(6).cwiseAbs().maxCoeff(), 0.0) << "block " << k;
+    }
+    tangent_jacobians.push_back(tangent);
+  }
+  return tangent_jacobians;
+}
+
+double EvaluateScalar(const ceres::CostFunction& cost, const std::vector<double*>& blocks) {
+  std::vector<const double*> values(blocks.begin(), blocks.end());
+  double residual = 0.0;
+  cost.Evaluate(values.data(), &residual, nullptr);
+  return residual;
+}
+
+Eigen::VectorXd EvaluateVector(const ceres::CostFunction& cost,
+                               const std::vector<double*>& blocks) {
+  std::vector<const double*> values(blocks.begin(), blocks.end());
+  Eigen::VectorXd residual(cost.num_residuals());
+  cost.Evaluate(values.data(), residual.data(), nullptr);
+  return residual;
+}
+
+/// Pose error as (position m, rotation rad).
+std::pair<double, double> PoseError(const Pose& a, const Pose& b) {
+  const Eigen::Map<const Eigen::Quaterniond> qa(a.data() + 3), qb(b.data() + 3);
+  return {(Position(a) - Position(b)).norm(), LogQuaternion(qa.conjugate() * qb).norm()};
+}
+
+const Pose kTruePose = MakePose({3.0, -1.0, 0.5}, {0.1, -0.2, 0.7});
+
+TEST(PointToPlaneFactor, ResidualIsSignedDistance) {
+  Pose pose = kTruePose;
+  const Eigen::Vector3d normal = Eigen::Vector3d(1.0, 2.0, 2.0) / 3.0;
+  const double d = -4.0;
+  const Eigen::Vector3d on_plane = 4.0 * normal + Eigen::Vector3d(2.0, -1.0, 0.0);
+  ASSERT_NEAR(normal.dot(on_plane) + d, 0.0, 1e-12);
+  const PointToPlaneFactor on(ToBody(pose, on_plane), normal, d, 2.0);
+  EXPECT_NEAR(EvaluateScalar(on, {pose.data()}), 0.0, 1e-12);
+  const PointToPlaneFactor off(ToBody(pose, on_plane + 0.25 * normal), normal, d, 2.0);
+  EXPECT_NEAR(EvaluateScalar(off, {pose.data()}), 0.5, 1e-12);
+  const PointToPlaneFactor below(ToBody(pose, on_plane - 0.1 * normal), normal, d, 1.0);
+  EXPECT_NEAR(EvaluateScalar(below, {pose.data()}), -0.1, 1e-12);
+}
+
+TEST(PointToPlaneFactor, JacobianMatchesNumeric) {
+  for (const Pose& start : {kTruePose, MakePose({-20.0, 5.0, 1.0}, {2.0, 0.5, -1.0})}) {
+    Pose pose = start;
+    const Eigen::Vector3d normal = Eigen::Vector3d(0.3, -0.4, 0.8).normalized();
+    const PointToPlaneFactor factor({4.0, -2.0, 1.5}, normal, 1.7, 3.0);
+    ExpectJacobiansMatch(factor, {pose.data()});
+  }
+}
+
+TEST(PointToLineFactor, ResidualIsPerpendicularOffset) {
+  Pose pose = kTruePose;
+  const Eigen::Vector3d a(1.0, 2.0, 3.0);
+  const Eigen::Vector3d u = Eigen::Vector3d(1.0, 1.0, 0.0).normalized();
+  const Eigen::Vector3d perpendicular = Eigen::Vector3d(0.0, 0.0, 1.0);
+  const PointToLineFactor on(ToBody(pose, a + 7.0 * u), a, u, 2.0);
+  EXPECT_NEAR(EvaluateVector(on, {pose.data()}).norm(), 0.0, 1e-12);
+  const PointToLineFactor off(ToBody(pose, a - 3.0 * u + 0.4 * perpendicular), a, u, 2.0);
+  const Eigen::Vector3d r = EvaluateVector(off, {pose.data()});
+  EXPECT_NEAR(r.norm(), 0.8, 1e-12);
+  EXPECT_NEAR((r - 0.8 * perpendicular).norm(), 0.0, 1e-12);
+  // An unnormalised direction is normalised by the factor.
+  const PointToLineFactor scaled(ToBody(pose, a + 0.4 * perpendicular), a, 5.0 * u, 1.0);
+  EXPECT_NEAR(EvaluateVector(scaled, {pose.data()}).norm(), 0.4, 1e-12);
+}
+
+TEST(PointToLineFactor, JacobianMatchesNumeric) {
+  for (const Pose& start : {kTruePose, MakePose({-20.0, 5.0, 1.0}, {2.0, 0.5, -1.0})}) {
+    Pose pose = start;
+    const PointToLineFactor factor({4.0, -2.0, 1.5}, {1.0, 0.0, -1.0}, {0.2, 0.9, 0.1}, 2.5);
+    ExpectJacobiansMatch(factor, {pose.data()});
+  }
+}
+
+/// The plane n_w . x + d_w = 0 expressed in the body frame of `pose`.
+std::pair<Eigen::Vector3d, double> PlaneInBody(const Pose& pose,
+                                               const Eigen::Vector3d& n_world,
+                                               double d_world) {
+  return {Rotation(pose).transpose() * n_world, d_world + n_world.dot(Position(pose))};
+}
+
+struct RailPlaneSetup {
+  Pose pose_i = MakePose({10.0, -2.0, 0.3}, {0.02, -0.03, 0.6});
+  Pose pose_j = MakePose({18.0, 3.0, 0.5}, {-0.01, 0.04, 0.75});
+  Eigen::Vector3d n_world = Eigen::Vector3d(0.03, -0.02, 1.0).normalized();
+  double d_world = 1.2;
+};
+
+TEST(RailPlaneFactor, ConsistentPlanesGiveZeroResidual) {
+  RailPlaneSetup s;
+  const auto [n_i, d_i] = PlaneInBody(s.pose_i, s.n_world, s.d_world);
+  const auto [n_j, d_j] = PlaneInBody(s.pose_j, s.n_world, s.d_world);
+  const RailPlaneFactor factor(n_i, d_i, n_j, d_j, 10.0, 5.0);
+  EXPECT_LT(EvaluateVector(factor, {s.pose_i.data(), s.pose_j.data()}).norm(), 1e-12);
+  // Raising the plane measured in frame j by 0.1 m gives a distance residual of 5 * 0.1.
+  const RailPlaneFactor raised(n_i, d_i, n_j, d_j + 0.1, 10.0, 5.0);
+  const Eigen::Vector4d r = EvaluateVector(raised, {s.pose_i.data(), s.pose_j.data()});
+  EXPECT_NEAR(r(3), -0.5, 1e-12);
+  EXPECT_LT(r.head<3>().norm(), 1e-12);
+}
+
+TEST(RailPlaneFactor, JacobianMatchesNumeric) {
+  RailPlaneSetup s;
+  // Planes that do not agree, so the residual is not zero.
+  const RailPlaneFactor factor(Eigen::Vector3d(0.1, 0.05, 1.0).normalized(),
+                               1.3,
+                               Eigen::Vector3d(-0.05, 0.02, 1.0).normalized(),
+                               0.9,
+                               20.0,
+                               8.0);
+  ExpectJacobiansMatch(factor, {s.pose_i.data(), s.pose_j.data()});
+}
+
+TEST(RailPlaneFactor, ConstrainsRollPitchAndHeightOnly) {
+  RailPlaneSetup s;
+  const auto [n_i, d_i] = PlaneInBody(s.pose_i, s.n_world, s.d_world);
+  const auto [n_j, d_j] = PlaneInBody(s.pose_j, s.n_world, s.d_world);
+  const RailPlaneFactor factor(n_i, d_i, n_j, d_j, 10.0, 5.0);
+  const std::vector<Eigen::MatrixXd> jacobians =
+      ExpectJacobiansMatch(factor, {s.pose_i.data(), s.pose_j.data()});
+  Eigen::Matrix<double, 4, 12> full;
+  full << jacobians[0], jacobians[1];
+  // Only the relative pose matters and the plane fixes 3 of its 6 degrees of freedom.
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd_full(full);
+  EXPECT_EQ((svd_full.singularValues().array() > 1e-9).count(), 3);
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd_j(jacobians[1]);
+  EXPECT_EQ((svd_j.singularValues().array() > 1e-9).count(), 3);
+
+  // Null directions of pose j: yaw about the plane normal, translation within the plane.
+  const Eigen::MatrixXd& jac_j = jacobians[1];
+  Eigen::Matrix<double, 6, 1> yaw, along_1, along_2, roll, pitch, height;
+  const Eigen::Vector3d in_plane_1 = s.n_world.unitOrthogonal();
+  const Eigen::Vector3d in_plane_2 = s.n_world.cross(in_plane_1);
+  yaw << Eigen::Vector3d::Zero(), n_j;
+  along_1 << in_plane_1, Eigen::Vector3d::Zero();
+  along_2 << in_plane_2, Eigen::Vector3d::Zero();
+  EXPECT_LT((jac_j * yaw).norm(), 1e-12);
+  EXPECT_LT((jac_j * along_1).norm(), 1e-12);
+  EXPECT_LT((jac_j * along_2).norm(), 1e-12);
+  // Roll and pitch (body axes perpendicular to the normal) and height are observed.
+  roll << Eigen::Vector3d::Zero(), n_j.unitOrthogonal();
+  pitch << Eigen::Vector3d::Zero(), n_j.cross(n_j.unitOrthogonal());
+  height << s.n_world, Eigen::Vector3d::Zero();
+  EXPECT_NEAR((jac_j * roll).norm(), 10.0, 1e-9);
+  EXPECT_NEAR((jac_j * pitch).norm(), 10.0, 1e-9);
+  EXPECT_NEAR((jac_j * height).norm(), 5.0, 1e-9);
+}
+
+TEST(LongitudinalShiftFactor, ResidualIsForwardMotion) {
+  // Body i faces +y (yaw 90 deg); moving 2 m along world +y is 2 m forward.
+  Pose pose_i = MakePose({1.0, 1.0, 0.0}, {0.0, 0.0, M_PI / 2.0});
+  Pose pose_j = MakePose({1.0, 3.0, 0.0}, {0.0, 0.0, 1.0});
+  const LongitudinalShiftFactor factor(1.5, 0.25);
+  EXPECT_NEAR(EvaluateScalar(factor, {pose_i.data(), pose_j.data()}), 2.0, 1e-12);
+  // Sideways motion does not count.
+  Pose pose_k = MakePose({4.0, 1.0, 0.0}, {0.0, 0.0, 0.0});
+  EXPECT_NEAR(EvaluateScalar(factor, {pose_i.data(), pose_k.data()}), -6.0, 1e-12);
+}
+
+TEST(LongitudinalShiftFactor, JacobianMatchesNumeric) {
+  Pose pose_i = MakePose({10.0, -2.0, 0.3}, {0.1, -0.3, 0.6});
+  Pose pose_j = MakePose({18.0, 3.0, 0.5}, {-0.2, 0.4, 0.75});
+  const LongitudinalShiftFactor factor(7.0, 0.1);
+  ExpectJacobiansMatch(factor, {pose_i.data(), pose_j.data()});
+}
+
+/// Solves for one pose from `factors` starting at `start`; Ceres takes the factors.
+Pose SolvePose(const Pose& start, std::vector<ceres::CostFunction*> factors) {
+  Pose pose = start;
+  ceres::Problem problem;
+  problem.AddParameterBlock(pose.data(), kPoseSize, new PoseManifold);
+  for (ceres::CostFunction* factor : factors) {
+    problem.AddResidualBlock(factor, nullptr, pose.data());
+  }
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = 50;
+  options.function_tolerance = 1e-16;
+  options.gradient_tolerance = 1e-16;
+  options.parameter_tolerance = 1e-16;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  EXPECT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
+  return pose;
+}
+
+const Pose kPerturbedStart = MakePose({3.4, -1.3, 0.2}, {0.25, -0.05, 0.55});
+
+TEST(PointToPlaneFactor, RecoversPoseFromThreePlanes) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> uniform(-8.0, 8.0);
+  const std::array<Eigen::Vector3d, 3> normals = {Eigen::Vector3d(0.0, 0.0, 1.0),
+                                                  Eigen::Vector3d(0.1, 1.0, 0.0).normalized(),
+                                                  Eigen::Vector3d(1.0, -0.2, 0.3).normalized()};
+  const std::array<double, 3> distances = {0.5, -6.0, -15.0};
+  std::vector<ceres::CostFunction*> factors;
+  for (size_t k = 0; k < normals.size(); ++k) {
+    const Eigen::Vector3d e1 = normals[k].unitOrthogonal();
+    const Eigen::Vector3d e2 = normals[k].cross(e1);
+    for (int n = 0; n < 20; ++n) {
+      const Eigen::Vector3d world =
+          -distances[k] * normals[k] + uniform(rng) * e1 + uniform(rng) * e2;
+      factors.push_back(
+          new PointToPlaneFactor(ToBody(kTruePose, world), normals[k], distances[k], 1.0));
+    }
+  }
+  const Pose solved = SolvePose(kPerturbedStart, factors);
+  const auto [position_error, rotation_error] = PoseError(solved, kTruePose);
+  EXPECT_LT(position_error, 1e-6);
+  EXPECT_LT(rotation_error, 1e-6);
+}
+
+TEST(PointToLineFactor, RecoversPoseFromThreeLines) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> uniform(-6.0, 6.0);
+  const std::array<Eigen::Vector3d, 3> points = {Eigen::Vector3d(0.0, 3.0, 2.0),
+                                                 Eigen::Vector3d(10.0, -3.0, 1.0),
+                                                 Eigen::Vector3d(5.0, 0.0, 4.0)};
+  const std::array<Eigen::Vector3d, 3> directions = {Eigen::Vector3d(1.0, 0.1, 0.0).normalized(),
+                                                     Eigen::Vector3d(0.0, 0.0, 1.0),
+                                                     Eigen::Vector3d(0.2, 1.0, 0.1).normalized()};
+  std::vector<ceres::CostFunction*> factors;
+  for (size_t k = 0; k < points.size(); ++k) {
+    for (int n = 0; n < 10; ++n) {
+      const Eigen::Vector3d world = points[k] + uniform(rng) * directions[k];
+      // The line is given by another point on it, so `a` is not the sample's foot point.
+      factors.push_back(new PointToLineFactor(
+          ToBody(kTruePose, world), points[k] + 2.0 * directions[k], directions[k], 1.0));
+    }
+  }
+  const Pose solved = SolvePose(kPerturbedStart, factors);
+  const auto [position_error, rotation_error] = PoseError(solved, kTruePose);
+  EXPECT_LT(position_error, 1e-6);
+  EXPECT_LT(rotation_error, 1e-6);
+}
+
+TEST(RailPlaneFactor, RecoversRollPitchAndHeightOfSecondPose) {
+  // Pose i is held fixed and pose j starts with wrong roll, pitch and height.
+  Pose pose_i = MakePose({10.0, -2.0, 0.3}, {0.02, -0.03, 0.6});
+  const Pose truth_j = MakePose({18.0, 3.0, 0.5}, {-0.01, 0.04, 0.75});
+  Pose pose_j = MakePose({18.0, 3.0, 0.9}, {0.1, -0.08, 0.75});
+  ceres::Problem problem;
+  problem.AddParameterBlock(pose_i.data(), kPoseSize, new PoseManifold);
+  problem.AddParameterBlock(pose_j.data(), kPoseSize, new PoseManifold);
+  problem.SetParameterBlockConstant(pose_i.data());
+  const auto [n_i, d_i] = PlaneInBody(pose_i, Eigen::Vector3d(0.03, -0.02, 1.0).normalized(), 1.2);
+  const auto [n_j, d_j] = PlaneInBody(truth_j, Eigen::Vector3d(0.03, -0.02, 1.0).normalized(), 1.2);
+  problem.AddResidualBlock(
+      new RailPlaneFactor(n_i, d_i, n_j, d_j, 10.0, 10.0), nullptr, pose_i.data(), pose_j.data());
+  ceres::Solver::Options options;
+  options.function_tolerance = 1e-16;
+  options.gradient_tolerance = 1e-16;
+  options.parameter_tolerance = 1e-16;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  // Roll/pitch relative to the plane and the height above it return; yaw and in-plane position
+  // are not observed (they stay where they started).
+  const Eigen::Vector3d n_world = Eigen::Vector3d(0.03, -0.02, 1.0).normalized();
+  EXPECT_NEAR(n_world.dot(Position(pose_j) - Position(truth_j)), 0.0, 1e-9);
+  EXPECT_LT(
+      (Rotation(pose_j).transpose() * n_world - Rotation(truth_j).transpose() * n_world).norm(),
+      1e-9);
+}
+
+TEST(PointToPlaneFactor, EvaluateTiming) {
+  Pose pose = kTruePose;
+  const PointToPlaneFactor factor(
+      {4.0, -2.0, 1.5}, Eigen::Vector3d(0.3, -0.4, 0.8).normalized(), 1.7, 3.0);
+  double residual = 0.0;
+  double jacobian[7];
+  double* jacobians[1] = {jacobian};
+  const double* parameters[1] = {pose.data()};
+  constexpr int kRepeats = 200000;
+  double sum = 0.0;
+  const auto start = std::chrono::steady_clock::now();
+  for (int k = 0; k < kRepeats; ++k) {
+    pose[0] += 1e-9;
+    factor.Evaluate(parameters, &residual, jacobians);
+    sum += residual + jacobian[4];
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::printf("PointToPlaneFactor::Evaluate with Jacobian: %.1f ns (checksum %g)\n",
+              1e9 * seconds / kRepeats,
+              sum);
+  EXPECT_TRUE(std::isfinite(sum));
+}
+
+}  // namespace
+}  // namespace raillomer

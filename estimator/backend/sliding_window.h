@@ -1,0 +1,97 @@
+#pragma once
+
+#include <deque>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "estimator/factors/preintegration.h"
+
+namespace ceres {
+class CostFunction;
+class LossFunction;
+}  // namespace ceres
+
+namespace raillomer {
+
+class MarginalizationInfo;
+
+/// Options of the sliding-window smoother.
+struct SlidingWindowOptions {
+  int size = 6;                 ///< states kept (eq. 2)
+  int max_iterations = 6;       ///< Ceres iterations per Optimize()
+  bool use_imu = true;          ///< false: states are poses only, linked by nothing but priors
+  bool estimate_scale = true;   ///< false: the odometer scale stays at its initial value
+  double initial_velocity_sigma_mps = 1.0;
+  double initial_accel_bias_sigma = 0.02;   ///< m/s^2
+  double initial_gyro_bias_sigma = 2.0e-3;  ///< rad/s
+  double initial_scale_sigma = 0.02;
+  int num_threads = 2;
+};
+
+/// One factor of the window: a cost, an optional robust loss, and the blocks it reads.
+struct WindowTerm {
+  std::shared_ptr<ceres::CostFunction> cost;
+  std::shared_ptr<ceres::LossFunction> loss;
+  std::vector<double*> blocks;
+};
+
+/// What one Optimize() did.
+struct WindowSummary {
+  int iterations = 0;
+  double initial_cost = 0.0;
+  double final_cost = 0.0;
+  int residual_blocks = 0;
+  bool converged = false;
+};
+
+/// The keyframe sliding window of eq. (2): states x_i = [p, v, q, b_a, b_g, c^O] linked by
+/// IMU/odometer preintegration factors, with LiDAR, rail-plane and height-descriptor factors,
+/// and a Schur-complement prior carrying what marginalised states knew.
+class SlidingWindow {
+ public:
+  explicit SlidingWindow(const SlidingWindowOptions& options);
+  ~SlidingWindow();
+  SlidingWindow(const SlidingWindow&) = delete;
+  SlidingWindow& operator=(const SlidingWindow&) = delete;
+
+  /// Appends a state at time t_s. `preintegration` links it to the previous state (ignored for
+  /// the first state, which gets priors instead, and when !use_imu).
+  void Push(double t_s, const NavState& state, std::shared_ptr<Preintegration> preintegration);
+
+  /// Replaces the LiDAR factors of the newest state (cost functions over its pose block only).
+  void SetNewestLidarFactors(std::vector<std::shared_ptr<ceres::CostFunction>> costs,
+                             std::shared_ptr<ceres::LossFunction> loss);
+  /// Adds a factor over the poses of the two newest states (rail plane, longitudinal shift).
+  void AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cost,
+                           std::shared_ptr<ceres::LossFunction> loss);
+
+  /// Solves the window (relinearising preintegrations whose biases moved).
+  WindowSummary Optimize();
+
+  /// True once the window holds more than `size` states: then PopOldest() must be called.
+  bool Full() const;
+  /// Marginalises the oldest state into the prior and removes it; returns its final state.
+  NavState PopOldest(double* t_s);
+
+  int size() const { return static_cast<int>(nodes_.size()); }
+  NavState State(int index) const;
+  double Time(int index) const;
+  NavState Newest() const { return State(size() - 1); }
+  /// The newest state's pose block (7 doubles), e.g. to build its factors.
+  double* NewestPose();
+
+ private:
+  struct Node;
+  void AddTerms(const std::vector<WindowTerm>& terms, void* problem) const;
+  std::vector<WindowTerm> AllTerms() const;
+
+  SlidingWindowOptions options_;
+  std::deque<std::unique_ptr<Node>> nodes_;
+  std::shared_ptr<MarginalizationInfo> prior_info_;
+  WindowTerm prior_term_;
+  bool has_prior_ = false;
+};
+
+}  // namespace raillomer

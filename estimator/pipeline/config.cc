@@ -1,0 +1,272 @@
+#include "estimator/pipeline/config.h"
+
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "estimator/io/yaml_map_reader.h"
+
+namespace raillomer {
+
+namespace {
+
+using io::MapReader;
+
+Eigen::Isometry3d PoseFromYaml(const std::array<double, 3>& t, const std::array<double, 3>& rpy_deg) {
+  const double k = M_PI / 180.0;
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = (Eigen::AngleAxisd(rpy_deg[2] * k, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(rpy_deg[1] * k, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rpy_deg[0] * k, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  T.translation() = Eigen::Vector3d(t[0], t[1], t[2]);
+  return T;
+}
+
+Eigen::Vector3d Vec(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
+
+void ParseLidars(MapReader& root, RigConfig* rig) {
+  io::ForEachMap(root, "lidars", [&](MapReader& r, const YAML::Node& node) {
+    LidarRig lidar;
+    std::array<double, 3> t{0, 0, 0}, rpy{0, 0, 0};
+    std::string model;
+    int points = 0;
+    r.Read("name", &lidar.name);
+    r.Read("topic", &lidar.topic);
+    r.Read("type", &lidar.type);
+    r.Read("model", &model);
+    r.Read("lidar_id", &lidar.lidar_id);
+    r.ReadArray("translation_m", &t);
+    r.ReadArray("rpy_deg", &rpy);
+    r.Read("points_per_frame", &points);
+    r.Read("rate_hz", &lidar.rate_hz);
+    r.Read("range_noise_m", &lidar.range_noise_m);
+    if (lidar.topic.empty()) r.Fail(node, "key '" + r.Path("topic") + "' is required");
+    if (!(lidar.rate_hz > 0.0)) r.Fail(node, "key '" + r.Path("rate_hz") + "' must be > 0");
+    if (lidar.name.empty()) lidar.name = lidar.topic;
+    lidar.T_body_lidar = PoseFromYaml(t, rpy);
+    rig->lidars.push_back(lidar);
+  });
+  if (rig->lidars.empty()) root.Fail(root.Node("lidars"), "key 'lidars' must list at least one LiDAR");
+}
+
+void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationNoise* noise) {
+  if (!root.Has("estimator")) return;
+  MapReader r(root.Node("estimator"), "estimator", root.source());
+  r.Read("window_size", &o->window_size);
+  r.Read("registration_rounds", &o->registration_rounds);
+  r.Read("max_solver_iterations", &o->max_solver_iterations);
+  r.Read("map_voxel_m", &o->map_voxel_m);
+  r.Read("map_points_per_voxel", &o->map_points_per_voxel);
+  r.Read("map_radius_m", &o->map_radius_m);
+  r.Read("plane_sigma_m", &o->plane_sigma_m);
+  r.Read("edge_sigma_m", &o->edge_sigma_m);
+  r.Read("max_correspondence_m", &o->max_correspondence_m);
+  r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
+  r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
+  r.Read("failure_min_edges", &o->failure_min_edges);
+  r.Read("failure_min_planes", &o->failure_min_planes);
+  r.Read("degeneracy_threshold", &o->degeneracy_threshold);
+  r.Read("keyframe_distance_m", &o->keyframe_distance_m);
+  r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
+  r.Read("write_keyframes", &o->write_keyframes);
+  r.Read("odometer_speed_density", &noise->odometer_speed_density);
+  r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
+  if (r.Has("preprocess")) {
+    MapReader p(r.Node("preprocess"), r.Path("preprocess"), root.source());
+    p.Read("min_range_m", &o->preprocess.min_range_m);
+    p.Read("max_range_m", &o->preprocess.max_range_m);
+    p.Read("flicker_cell_size_m", &o->preprocess.flicker_cell_size_m);
+    p.Read("flicker_min_points_per_cell", &o->preprocess.flicker_min_points_per_cell);
+    p.Read("hidden_sector_angle_deg", &o->preprocess.hidden_sector_angle_deg);
+    p.Read("hidden_sector_radius_m", &o->preprocess.hidden_sector_radius_m);
+    p.Finish();
+  }
+  if (r.Has("height_descriptor")) {
+    MapReader h(r.Node("height_descriptor"), r.Path("height_descriptor"), root.source());
+    h.Read("max_shift_search_m", &o->height.max_shift_search_m);
+    h.Read("min_score", &o->height.min_score);
+    h.Finish();
+  }
+  r.Finish();
+}
+
+}  // namespace
+
+std::string AblationSwitches::Name() const {
+  if (!use_imu) return "lidar-only";
+  std::string name;
+  auto add = [&](bool on, const char* what) {
+    if (!on) name += std::string(name.empty() ? "" : ",") + what;
+  };
+  add(use_odometer, "no-odometer");
+  add(use_rail_plane, "no-rail-plane");
+  add(use_height_descriptor, "no-height-descriptor");
+  add(use_favour_factors, "no-favour-factors");
+  return name.empty() ? "full" : name;
+}
+
+bool EstimatorOptions::IsValid(std::string* error) const {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = m;
+    return false;
+  };
+  if (window_size < 2 || window_size > 30) return fail("window_size must be in [2, 30]");
+  if (registration_rounds < 1) return fail("registration_rounds must be >= 1");
+  if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
+  if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
+  if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
+  if (!(map_radius_m > 10.0)) return fail("map_radius_m must be > 10");
+  if (!(plane_sigma_m > 0.0) || !(edge_sigma_m > 0.0)) return fail("LiDAR sigmas must be > 0");
+  if (!(max_correspondence_m > 0.0)) return fail("max_correspondence_m must be > 0");
+  if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
+    return fail("rail-plane sigmas must be > 0");
+  }
+  if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
+    return fail("keyframe thresholds must be > 0");
+  }
+  std::string stage;
+  if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
+  if (!loam.IsValid(&stage)) return fail("loam: " + stage);
+  if (!rail.IsValid(&stage)) return fail("rail: " + stage);
+  if (!height.IsValid(&stage)) return fail("height_descriptor: " + stage);
+  return true;
+}
+
+std::string EstimatorConfig::Describe() const {
+  std::ostringstream s;
+  s << "rig: " << rig.rig << "\n";
+  for (const LidarRig& l : rig.lidars) {
+    const Eigen::Vector3d t = l.T_body_lidar.translation();
+    s << "lidar " << l.name << ": topic " << l.topic << ", at [" << t.transpose() << "] m, "
+      << (l.looks_down() ? "looks down" : "looks up") << ", " << l.rate_hz << " Hz\n";
+  }
+  s << "imu: " << rig.imu_topic << ", " << rig.imu_rate_hz << " Hz, gyro noise "
+    << rig.noise.gyro_noise_density << ", accel noise " << rig.noise.accel_noise_density
+    << ", gyro walk " << rig.noise.gyro_bias_walk << ", accel walk " << rig.noise.accel_bias_walk
+    << ", g " << rig.gravity_mps2 << "\n";
+  s << "odometer: " << rig.odometer_topic << " joint '" << rig.odometer_joint << "', wheel "
+    << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, speed noise "
+    << rig.noise.odometer_speed_density << ", scale walk " << rig.noise.odometer_scale_walk << "\n";
+  s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
+    << " m\n";
+  const EstimatorOptions& o = options;
+  s << "ablation: " << o.switches.Name() << "\n";
+  s << "window_size: " << o.window_size << ", registration_rounds: " << o.registration_rounds
+    << ", max_solver_iterations: " << o.max_solver_iterations << "\n";
+  s << "map: voxel " << o.map_voxel_m << " m, " << o.map_points_per_voxel << " points/voxel, radius "
+    << o.map_radius_m << " m\n";
+  s << "lidar sigmas: plane " << o.plane_sigma_m << " m, edge " << o.edge_sigma_m
+    << " m, correspondences within " << o.max_correspondence_m << " m\n";
+  s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
+    << o.rail_distance_sigma_m << " m\n";
+  s << "favour factors: failure below " << o.failure_min_edges << " edges / "
+    << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold << "\n";
+  s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
+    << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
+    << o.preprocess.flicker_min_points_per_cell << ", hidden sector "
+    << o.preprocess.hidden_sector_angle_deg << " deg / " << o.preprocess.hidden_sector_radius_m
+    << " m\n";
+  s << "height descriptor: x [" << o.height.x_min_m << ", " << o.height.x_max_m << "] y ["
+    << o.height.y_min_m << ", " << o.height.y_max_m << "] bin " << o.height.bin_m << " m\n";
+  s << "keyframes: every " << o.keyframe_distance_m << " m or " << o.keyframe_angle_deg
+    << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
+  return s.str();
+}
+
+bool ParseEstimatorConfig(const std::string& yaml_text,
+                          const std::string& source_name,
+                          EstimatorConfig* config,
+                          std::string* error) {
+  EstimatorConfig c;
+  RigConfig& rig = c.rig;
+  try {
+    const YAML::Node root_node = YAML::Load(yaml_text);
+    if (!root_node || root_node.IsNull()) throw io::YamlError(source_name + ": the config is empty");
+    MapReader root(root_node, "", source_name);
+    root.Read("rig", &rig.rig);
+    root.Read("utm_zone", &rig.utm_zone);
+    ParseLidars(root, &rig);
+    if (root.Has("imu")) {
+      MapReader r(root.Node("imu"), "imu", source_name);
+      r.Read("topic", &rig.imu_topic);
+      r.Read("rate_hz", &rig.imu_rate_hz);
+      r.Read("gyro_noise_density", &rig.noise.gyro_noise_density);
+      r.Read("gyro_bias_walk", &rig.noise.gyro_bias_walk);
+      r.Read("accel_noise_density", &rig.noise.accel_noise_density);
+      r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
+      r.Read("gravity_mps2", &rig.gravity_mps2);
+      r.Finish();
+    } else {
+      root.Fail(root_node, "key 'imu' is required");
+    }
+    if (root.Has("odometer")) {
+      MapReader r(root.Node("odometer"), "odometer", source_name);
+      std::array<double, 3> t{0, 0, 0};
+      r.Read("topic", &rig.odometer_topic);
+      r.Read("joint_name", &rig.odometer_joint);
+      r.Read("wheel_diameter_m", &rig.wheel_diameter_m);
+      r.Read("pulses_per_rev", &rig.pulses_per_rev);
+      r.Read("rate_hz", &rig.odometer_rate_hz);
+      r.ReadArray("translation_m", &t);
+      rig.p_body_odometer = Vec(t);
+      if (!(rig.wheel_diameter_m > 0.1 && rig.wheel_diameter_m < 3.0)) {
+        r.Fail(r.Node("wheel_diameter_m"), "key 'odometer.wheel_diameter_m' must be in (0.1, 3) m");
+      }
+      if (rig.pulses_per_rev < 1) {
+        r.Fail(r.Node("pulses_per_rev"), "key 'odometer.pulses_per_rev' must be >= 1");
+      }
+      r.Finish();
+    } else {
+      rig.odometer_topic.clear();
+    }
+    if (root.Has("gnss")) {
+      MapReader r(root.Node("gnss"), "gnss", source_name);
+      std::array<double, 3> antenna{0, 0, 0};
+      double rate = 1.0;
+      r.Read("topic", &rig.gnss_topic);
+      r.ReadArray("antenna_m", &antenna);
+      r.Read("rate_hz", &rate);
+      rig.p_body_antenna = Vec(antenna);
+      r.Finish();
+    }
+    if (root.Has("vehicle")) {
+      MapReader r(root.Node("vehicle"), "vehicle", source_name);
+      r.Read("body_above_rail_top_m", &rig.body_above_rail_top_m);
+      r.Read("gauge_m", &rig.gauge_m);
+      r.Finish();
+    }
+    ParseEstimatorSection(root, &c.options, &rig.noise);
+    root.Finish();
+  } catch (const io::YamlError& e) {
+    if (error) *error = e.what();
+    return false;
+  } catch (const YAML::Exception& e) {
+    if (error) {
+      *error = source_name + ":" + std::to_string(e.mark.line + 1) + ": YAML syntax: " + e.msg;
+    }
+    return false;
+  }
+  c.options.rail.body_above_rail_top_m = rig.body_above_rail_top_m;
+  c.options.rail.gauge_m = rig.gauge_m;
+  std::string why;
+  if (!c.options.IsValid(&why)) {
+    if (error) *error = source_name + ": estimator." + why;
+    return false;
+  }
+  *config = std::move(c);
+  return true;
+}
+
+bool LoadEstimatorConfig(const std::string& path, EstimatorConfig* config, std::string* error) {
+  std::ifstream in(path);
+  if (!in) {
+    if (error) *error = path + ": cannot open the config file";
+    return false;
+  }
+  std::stringstream text;
+  text << in.rdbuf();
+  return ParseEstimatorConfig(text.str(), path, config, error);
+}
+
+}  // namespace raillomer

@@ -1,0 +1,111 @@
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "estimator/factors/preintegration.h"
+#include "estimator/features/height_descriptor.h"
+#include "estimator/features/loam_features.h"
+#include "estimator/features/rail_extraction.h"
+#include "estimator/preprocess/filters.h"
+
+namespace raillomer {
+
+/// One LiDAR of the rig.
+struct LidarRig {
+  std::string name;
+  std::string topic;
+  std::string type;
+  int lidar_id = 0;
+  Eigen::Isometry3d T_body_lidar = Eigen::Isometry3d::Identity();
+  double rate_hz = 10.0;
+  double range_noise_m = 0.02;
+  /// Looks down at the track (pitched down): rails are extracted from it.
+  bool looks_down() const { return T_body_lidar.linear().col(0).z() < 0.0; }
+};
+
+/// The sensor rig, as raillomer-sim writes it to rig.yaml (see README "Rig configuration").
+struct RigConfig {
+  std::string rig;
+  std::string utm_zone;
+  std::vector<LidarRig> lidars;
+  std::string imu_topic = "/imu/data";
+  double imu_rate_hz = 200.0;
+  double gravity_mps2 = 9.81;
+  PreintegrationNoise noise;
+  std::string odometer_topic = "/odometer";
+  std::string odometer_joint = "wheel";
+  double wheel_diameter_m = 0.84;
+  int pulses_per_rev = 100;
+  double odometer_rate_hz = 50.0;
+  Eigen::Vector3d p_body_odometer = Eigen::Vector3d::Zero();  ///< odometer lever arm
+  std::string gnss_topic = "/gnss/fix";
+  Eigen::Vector3d p_body_antenna = Eigen::Vector3d::Zero();
+  double body_above_rail_top_m = 3.8;
+  double gauge_m = 1.435;
+};
+
+/// Which parts of the estimator run: the paper's ablation study (Fig. 12).
+struct AblationSwitches {
+  bool use_imu = true;                ///< false: --lidar-only (constant-velocity prediction)
+  bool use_odometer = true;           ///< false: --no-odometer (the LiDAR-inertial subset)
+  bool use_rail_plane = true;         ///< false: --no-rail-plane
+  bool use_height_descriptor = true;  ///< false: --no-height-descriptor
+  bool use_favour_factors = true;     ///< false: --no-favour-factors (eq. 23 weights all 1)
+  /// Ablation name for logs and tables, e.g. "full", "lidar-only".
+  std::string Name() const;
+};
+
+/// Every tunable of the estimator, with defaults; overridable from the `estimator:` section.
+struct EstimatorOptions {
+  PreprocessOptions preprocess;
+  LoamFeatureOptions loam;
+  RailExtractionOptions rail;
+  HeightDescriptorOptions height;
+  AblationSwitches switches;
+
+  int window_size = 6;                   ///< states in the sliding window (eq. 2)
+  int registration_rounds = 2;           ///< correspondence search + optimisation rounds
+  int max_solver_iterations = 6;         ///< Ceres iterations per round
+  double map_voxel_m = 1.0;              ///< local map voxel edge
+  int map_points_per_voxel = 10;         ///< local map cap per voxel
+  double map_radius_m = 200.0;           ///< voxels farther from the vehicle are dropped
+  double plane_sigma_m = 0.1;            ///< point-to-plane noise (before favour factors)
+  double edge_sigma_m = 0.15;            ///< point-to-line noise
+  double max_correspondence_m = 1.0;     ///< neighbour search radius
+  double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
+  double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
+  /// Failure detection (eq. 24): feature counts below these fail a LiDAR.
+  int failure_min_edges = 20;
+  int failure_min_planes = 100;
+  /// Degeneracy (eq. 25): smallest eigenvalue of the LiDAR's normalised information matrix.
+  double degeneracy_threshold = 0.02;
+  double keyframe_distance_m = 2.0;   ///< keyframes for mapping: distance since the last
+  double keyframe_angle_deg = 5.0;    ///< ... or rotation since the last
+  double imu_gap_warn_s = 0.05;       ///< IMU gaps longer than this are reported
+  bool write_keyframes = true;
+
+  /// False with a message naming the bad field.
+  bool IsValid(std::string* error) const;
+};
+
+/// The whole configuration of raillomer-estimator.
+struct EstimatorConfig {
+  RigConfig rig;
+  EstimatorOptions options;
+  /// Every value in effect, one "key: value" per line, for the start-up log.
+  std::string Describe() const;
+};
+
+/// Parses rig.yaml (and its optional `estimator:` section); false with "file:line: key" on
+/// unknown keys, wrong types or bad values.
+bool ParseEstimatorConfig(const std::string& yaml_text,
+                          const std::string& source_name,
+                          EstimatorConfig* config,
+                          std::string* error);
+/// Reads and parses a config file.
+bool LoadEstimatorConfig(const std::string& path, EstimatorConfig* config, std::string* error);
+
+}  // namespace raillomer

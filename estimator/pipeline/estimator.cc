@@ -1,0 +1,627 @@
+#include "estimator/pipeline/estimator.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <future>
+#include <sstream>
+#include <unordered_set>
+
+#include <ceres/loss_function.h>
+
+#include "estimator/backend/local_map.h"
+#include "estimator/backend/scan_matching.h"
+#include "estimator/backend/sliding_window.h"
+#include "estimator/factors/lidar_factors.h"
+#include "estimator/factors/preintegration.h"
+#include "estimator/features/loam_features.h"
+#include "estimator/features/rail_extraction.h"
+#include "estimator/preprocess/filters.h"
+
+namespace raillomer {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double Ms(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+Eigen::Isometry3d PoseOf(const NavState& s) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = s.q.normalized().toRotationMatrix();
+  T.translation() = s.p;
+  return T;
+}
+
+/// Pose at fraction s in [0, 1] between a (s = 0) and b (s = 1): slerp and lerp.
+Eigen::Isometry3d Interpolate(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, double s) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  const Eigen::Quaterniond qa(a.linear()), qb(b.linear());
+  T.linear() = qa.slerp(s, qb).toRotationMatrix();
+  T.translation() = (1.0 - s) * a.translation() + s * b.translation();
+  return T;
+}
+
+std::string Seconds(double t) {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(3);
+  s << t << " s";
+  return s.str();
+}
+
+/// Thins a cloud on a voxel grid (first point per voxel), keeping intensities alongside.
+void VoxelThin(double voxel_m, std::vector<Eigen::Vector3f>* points, std::vector<float>* intensities) {
+  std::unordered_set<uint64_t> seen;
+  seen.reserve(points->size());
+  size_t kept = 0;
+  for (size_t i = 0; i < points->size(); ++i) {
+    const Eigen::Vector3f& p = (*points)[i];
+    const uint64_t mask = (1ULL << 21) - 1;
+    const uint64_t key = ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() / voxel_m))) & mask) << 42) |
+                         ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() / voxel_m))) & mask) << 21) |
+                         (static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() / voxel_m))) & mask);
+    if (!seen.insert(key).second) continue;
+    (*points)[kept] = p;
+    (*intensities)[kept] = (*intensities)[i];
+    ++kept;
+  }
+  points->resize(kept);
+  intensities->resize(kept);
+}
+
+}  // namespace
+
+/// What the frontend made of one LiDAR's frame.
+struct Estimator::FrontendResult {
+  bool present = false;
+  FeatureSet features;
+  std::vector<Eigen::Vector3f> points_body;
+  std::vector<float> intensities;
+  PreprocessStats stats;
+};
+
+/// Per-state data the window does not hold: measurements for the next state's pair factors and
+/// what the frame's result will report.
+struct Estimator::NodeExtras {
+  int64_t stamp_ns = 0;
+  FrameResult result;
+  bool has_rail = false;
+  Eigen::Vector3d rail_normal = Eigen::Vector3d::UnitZ();
+  double rail_distance = 0.0;
+  bool has_descriptor = false;
+  HeightDescriptor descriptor;
+  std::vector<Eigen::Vector3f> cloud;
+  std::vector<float> intensities;
+};
+
+Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
+    : config_(config), sinks_(std::move(sinks)) {
+  for (size_t i = 0; i < config_.rig.lidars.size(); ++i) {
+    lidar_topics_[config_.rig.lidars[i].topic] = static_cast<int>(i);
+  }
+  const EstimatorOptions& o = config_.options;
+  SlidingWindowOptions w;
+  w.size = o.window_size;
+  w.max_iterations = o.max_solver_iterations;
+  w.use_imu = o.switches.use_imu;
+  w.estimate_scale = o.switches.use_odometer;
+  window_ = std::make_unique<SlidingWindow>(w);
+  edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
+  plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
+}
+
+Estimator::~Estimator() = default;
+
+void Estimator::Warn(const std::string& message) {
+  ++stats_.warnings;
+  if (sinks_.on_warning) sinks_.on_warning(message);
+}
+
+void Estimator::Add(const io::SensorMessage& message) {
+  const double receive_s = static_cast<double>(message.receive_ns) * 1e-9;
+  if (receive_s < stream_time_s_ - 1e-6) {
+    const std::string key = "receive-rewind";
+    if (warning_counts_[key]++ < 5) {
+      Warn("message on " + message.topic + " received " + Seconds(stream_time_s_ - receive_s) +
+           " before the previous one: the stream is out of order; using sensor stamps");
+    }
+  }
+  stream_time_s_ = std::max(stream_time_s_, receive_s);
+  if (const auto* frame = std::get_if<io::LidarFrame>(&message.data)) {
+    const auto it = lidar_topics_.find(message.topic);
+    if (it != lidar_topics_.end()) AddLidar(it->second, *frame, receive_s);
+  } else if (const auto* imu = std::get_if<io::ImuSample>(&message.data)) {
+    if (message.topic == config_.rig.imu_topic && config_.options.switches.use_imu) AddImu(*imu);
+  } else if (const auto* odo = std::get_if<io::WheelOdometry>(&message.data)) {
+    if (message.topic == config_.rig.odometer_topic && config_.options.switches.use_odometer) {
+      AddOdometer(*odo);
+    }
+  }
+  ProcessReady(false);
+}
+
+void Estimator::AddLidar(int index, const io::LidarFrame& frame, double /*receive_s*/) {
+  const double start_s = static_cast<double>(frame.timebase_ns) * 1e-9;
+  const double period = 1.0 / config_.rig.lidars[static_cast<size_t>(index)].rate_hz;
+  if (start_s <= last_frame_start_s_ + 0.25 * period) {
+    ++stats_.lidar_frames_dropped;
+    Warn("LiDAR '" + config_.rig.lidars[static_cast<size_t>(index)].name + "' frame at " +
+         Seconds(start_s) + " is not newer than the last processed frame (" +
+         Seconds(last_frame_start_s_) + "): dropped");
+    return;
+  }
+  if (frame.points.empty()) {
+    ++stats_.lidar_frames_dropped;
+    Warn("LiDAR '" + config_.rig.lidars[static_cast<size_t>(index)].name + "' frame at " +
+         Seconds(start_s) + " has no points: dropped");
+    return;
+  }
+  // Group with a pending frame of the other LiDAR that starts at about the same time.
+  for (auto& [key, pending] : pending_) {
+    if (std::abs(pending.start_s - start_s) < 0.25 * period) {
+      if (pending.frames.count(index)) {
+        ++stats_.lidar_frames_dropped;
+        Warn("LiDAR '" + config_.rig.lidars[static_cast<size_t>(index)].name +
+             "' sent two frames for " + Seconds(start_s) + ": the second is dropped");
+        return;
+      }
+      pending.frames[index] = frame;
+      return;
+    }
+  }
+  PendingFrame pending;
+  pending.start_s = start_s;
+  pending.frames[index] = frame;
+  pending_[static_cast<int64_t>(frame.timebase_ns)] = std::move(pending);
+}
+
+void Estimator::AddImu(const io::ImuSample& sample) {
+  const double t = static_cast<double>(sample.stamp_ns) * 1e-9;
+  if (t <= last_imu_t_) {
+    ++stats_.imu_rejected;
+    if (warning_counts_["imu-rewind"]++ < 5) {
+      Warn("IMU sample at " + Seconds(t) + " is not newer than the previous (" +
+           Seconds(last_imu_t_) + "): dropped");
+    }
+    return;
+  }
+  if (!sample.angular_velocity_radps.allFinite() || !sample.linear_acceleration_mps2.allFinite()) {
+    ++stats_.imu_rejected;
+    Warn("IMU sample at " + Seconds(t) + " holds a non-finite value: dropped");
+    return;
+  }
+  if (last_imu_t_ > -1e299 && t - last_imu_t_ > std::max(config_.options.imu_gap_warn_s,
+                                                          3.0 / config_.rig.imu_rate_hz)) {
+    ++stats_.imu_gaps;
+    Warn("IMU gap of " + Seconds(t - last_imu_t_) + " before " + Seconds(t) +
+         ": bridged by interpolation, the LiDARs and the odometer");
+  }
+  last_imu_t_ = t;
+  ++stats_.imu_samples;
+  imu_.push_back({t, sample.angular_velocity_radps, sample.linear_acceleration_mps2});
+}
+
+void Estimator::AddOdometer(const io::WheelOdometry& reading) {
+  const double t = static_cast<double>(reading.stamp_ns) * 1e-9;
+  if (t <= last_odo_t_ || !std::isfinite(reading.position_rad)) {
+    ++stats_.odometer_rejected;
+    if (warning_counts_["odo-rewind"]++ < 5) {
+      Warn("odometer reading at " + Seconds(t) + " is older than the previous or not finite: dropped");
+    }
+    return;
+  }
+  last_odo_t_ = t;
+  ++stats_.odometer_samples;
+  odo_.push_back({t, reading.position_rad * 0.5 * config_.rig.wheel_diameter_m});
+}
+
+void Estimator::ProcessReady(bool flush) {
+  const size_t lidar_count = config_.rig.lidars.size();
+  while (!pending_.empty()) {
+    const PendingFrame& pending = pending_.begin()->second;
+    const double period = 1.0 / config_.rig.lidars[0].rate_hz;
+    const double end_s = pending.start_s + period;
+    const bool complete = pending.frames.size() == lidar_count;
+    const bool imu_ready = !config_.options.switches.use_imu || last_imu_t_ >= end_s;
+    const bool odo_ready = !config_.options.switches.use_odometer ||
+                           config_.rig.odometer_topic.empty() || last_odo_t_ >= end_s;
+    const bool waited = stream_time_s_ >= end_s + 0.05;
+    if (!(flush || waited || (complete && imu_ready && odo_ready) || pending_.size() > 20)) break;
+    PendingFrame frame = std::move(pending_.begin()->second);
+    pending_.erase(pending_.begin());
+    ProcessFrame(frame);
+  }
+}
+
+double Estimator::OdometerDistanceAt(double t, bool* ok) const {
+  *ok = false;
+  if (odo_.size() < 2 || t < odo_.front().t || t > odo_.back().t) return 0.0;
+  auto it = std::lower_bound(odo_.begin(), odo_.end(), t,
+                             [](const OdoRecord& r, double value) { return r.t < value; });
+  if (it == odo_.begin()) {
+    *ok = true;
+    return it->distance_m;
+  }
+  const OdoRecord& b = *it;
+  const OdoRecord& a = *(it - 1);
+  if (b.t - a.t > 0.25) return 0.0;  // an odometer gap: no reading
+  *ok = true;
+  const double s = (t - a.t) / (b.t - a.t);
+  return a.distance_m + s * (b.distance_m - a.distance_m);
+}
+
+std::shared_ptr<Preintegration> Estimator::Preintegrate(double t0,
+                                                       double t1,
+                                                       const NavState& start,
+                                                       bool use_odometer,
+                                                       bool* odometer_ok) {
+  const RigConfig& rig = config_.rig;
+  auto pre = std::make_shared<Preintegration>(start.ba, start.bg, start.c, Eigen::Matrix3d::Identity(),
+                                              rig.p_body_odometer, rig.noise, rig.gravity_mps2);
+  // IMU samples at t0, every record inside (t0, t1), and t1; interpolated at the ends, held
+  // across the ends of the buffer.
+  auto sample_at = [&](double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) {
+    auto it = std::lower_bound(imu_.begin(), imu_.end(), t,
+                               [](const ImuRecord& r, double value) { return r.t < value; });
+    if (it == imu_.end()) {
+      *gyro = imu_.back().gyro;
+      *accel = imu_.back().accel;
+    } else if (it == imu_.begin()) {
+      *gyro = it->gyro;
+      *accel = it->accel;
+    } else {
+      const ImuRecord& a = *(it - 1);
+      const double s = (t - a.t) / (it->t - a.t);
+      *gyro = (1 - s) * a.gyro + s * it->gyro;
+      *accel = (1 - s) * a.accel + s * it->accel;
+    }
+  };
+  std::vector<double> times{t0};
+  for (const ImuRecord& r : imu_) {
+    if (r.t > t0 + 1e-6 && r.t < t1 - 1e-6) times.push_back(r.t);
+  }
+  times.push_back(t1);
+  bool d0_ok = false, d1_ok = false;
+  const bool use_odo = use_odometer && config_.options.switches.use_odometer && !rig.odometer_topic.empty();
+  const double d0 = use_odo ? OdometerDistanceAt(t0, &d0_ok) : 0.0;
+  const double d1 = use_odo ? OdometerDistanceAt(t1, &d1_ok) : 0.0;
+  *odometer_ok = use_odo && d0_ok && d1_ok;
+  Eigen::Vector3d g0, a0, g1, a1;
+  sample_at(times[0], &g0, &a0);
+  double prev_d = d0;
+  for (size_t i = 1; i < times.size(); ++i) {
+    sample_at(times[i], &g1, &a1);
+    const double dt = times[i] - times[i - 1];
+    double speed = 0.0;
+    bool ok = false;
+    if (*odometer_ok) {
+      const double d = i + 1 == times.size() ? d1 : OdometerDistanceAt(times[i], &ok);
+      ok = ok || i + 1 == times.size();
+      if (ok && dt > 0.0) {
+        speed = (d - prev_d) / dt;
+        prev_d = d;
+      }
+    }
+    if (dt > 0.0) pre->Add(dt, g0, a0, speed, ok && *odometer_ok);
+    g0 = g1;
+    a0 = a1;
+  }
+  return pre;
+}
+
+bool Estimator::Initialize(double t_end) {
+  NavState s;
+  if (config_.options.switches.use_imu) {
+    // Roll and pitch from the mean specific force of the last 0.5 s (the train runs smoothly).
+    Eigen::Vector3d f = Eigen::Vector3d::Zero();
+    Eigen::Vector3d w = Eigen::Vector3d::Zero();
+    int n = 0;
+    for (const ImuRecord& r : imu_) {
+      if (r.t > t_end - 0.5 && r.t <= t_end + 1e-6) {
+        f += r.accel;
+        w += r.gyro;
+        ++n;
+      }
+    }
+    if (n < 5) {
+      if (warning_counts_["init-imu"]++ < 3) Warn("no IMU data yet at " + Seconds(t_end) + ": waiting to start");
+      return false;
+    }
+    f /= n;
+    s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
+    // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
+    const Eigen::Vector3d x = s.q * Eigen::Vector3d::UnitX();
+    const double yaw = std::atan2(x.y(), x.x());
+    s.q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * s.q;
+  }
+  bool ok0 = false, ok1 = false;
+  const double d1 = OdometerDistanceAt(t_end, &ok1);
+  const double d0 = OdometerDistanceAt(t_end - 0.2, &ok0);
+  if (ok0 && ok1) s.v = s.q * Eigen::Vector3d((d1 - d0) / 0.2, 0.0, 0.0);
+  window_->Push(t_end, s, nullptr);
+  initialized_ = true;
+  last_node_t_ = t_end;
+  return true;
+}
+
+void Estimator::ProcessFrame(const PendingFrame& pending) {
+  const Clock::time_point t_begin = Clock::now();
+  const EstimatorOptions& o = config_.options;
+  const RigConfig& rig = config_.rig;
+  const double period = 1.0 / rig.lidars[0].rate_hz;
+  const double t_end = pending.start_s + period;
+  const int64_t stamp_ns = static_cast<int64_t>(pending.frames.begin()->second.timebase_ns) +
+                           static_cast<int64_t>(std::llround(period * 1e9));
+  last_frame_start_s_ = pending.start_s;
+  if (pending.frames.size() < rig.lidars.size()) {
+    for (size_t i = 0; i < rig.lidars.size(); ++i) {
+      if (!pending.frames.count(static_cast<int>(i)) && warning_counts_["missing-" + rig.lidars[i].name]++ % 50 == 0) {
+        Warn("LiDAR '" + rig.lidars[i].name + "' has no frame for " + Seconds(pending.start_s) +
+             ": continuing with the others");
+      }
+    }
+  }
+
+  const bool first = !initialized_;
+  if (first && !Initialize(t_end)) return;
+
+  // Prediction: IMU/odometer preintegration, or constant velocity without the IMU.
+  const NavState prev = window_->Newest();
+  NavState pred = prev;
+  std::shared_ptr<Preintegration> pre;
+  bool odometer_ok = false;
+  if (!first) {
+    if (o.switches.use_imu) {
+      pre = Preintegrate(last_node_t_, t_end, prev, true, &odometer_ok);
+      pred = pre->Predict(prev);
+      if (odometer_ok) {
+        // A slipping or sliding wheel disagrees with the inertial prediction: drop its reading.
+        const double dx_pred = (prev.q.conjugate() * (pred.p - prev.p)).x();
+        const double dx_odo = prev.c * pre->phi().x();
+        if (std::abs(dx_odo - dx_pred) > 0.05 * std::abs(dx_pred) + 0.05) {
+          ++stats_.odometer_outliers;
+          if (warning_counts_["slip"]++ % 50 == 0) {
+            Warn("odometer disagrees with the IMU at " + Seconds(t_end) + " (" +
+                 std::to_string(dx_odo) + " m vs " + std::to_string(dx_pred) +
+                 " m): wheel slip or slide, reading not used");
+          }
+          pre = Preintegrate(last_node_t_, t_end, prev, false, &odometer_ok);
+          pred = pre->Predict(prev);
+        }
+      }
+    } else if (window_->size() >= 2) {
+      const NavState older = window_->State(window_->size() - 2);
+      const double dt_prev = last_node_t_ - window_->Time(window_->size() - 2);
+      const Eigen::Isometry3d delta = PoseOf(older).inverse() * PoseOf(prev);
+      const double s = dt_prev > 0.0 ? (t_end - last_node_t_) / dt_prev : 1.0;
+      const Eigen::Isometry3d step = Interpolate(Eigen::Isometry3d::Identity(), delta, std::min(s, 3.0));
+      const Eigen::Isometry3d T = PoseOf(prev) * step;
+      pred.p = T.translation();
+      pred.q = Eigen::Quaterniond(T.linear());
+    }
+  }
+  const Eigen::Isometry3d T_prev = PoseOf(prev);
+  const Eigen::Isometry3d T_pred = PoseOf(pred);
+
+  // Frontend, one LiDAR per thread.
+  std::vector<FrontendResult> fronts(rig.lidars.size());
+  const bool keep_cloud = o.write_keyframes || static_cast<bool>(sinks_.on_keyframe);
+  auto frontend = [&](int index) {
+    const io::LidarFrame& frame = pending.frames.at(index);
+    const LidarRig& lidar = rig.lidars[static_cast<size_t>(index)];
+    FrontendResult& out = fronts[static_cast<size_t>(index)];
+    out.present = true;
+    const double lidar_period = 1.0 / lidar.rate_hz;
+    Scan scan = ScanFromLidarFrame(frame, index, lidar_period);
+    out.stats = Preprocess(o.preprocess, &scan);
+    // Body motion over the frame: the pose at its start interpolated between the previous
+    // state and the prediction at the frame end.
+    const double start = static_cast<double>(frame.timebase_ns) * 1e-9;
+    Eigen::Isometry3d T_end_start = Eigen::Isometry3d::Identity();
+    if (!first && t_end > last_node_t_) {
+      const double s = std::clamp((start - last_node_t_) / (t_end - last_node_t_), -1.0, 1.0);
+      T_end_start = T_pred.inverse() * Interpolate(T_prev, T_pred, s);
+    } else if (first) {
+      T_end_start.translation() = -prev.v.norm() * lidar_period * Eigen::Vector3d::UnitX();
+    }
+    Deskew(lidar.T_body_lidar, T_end_start, &scan);
+    out.features = ExtractLoamFeatures(o.loam, scan);
+    out.points_body.reserve(scan.points.size());
+    for (const ScanPoint& p : scan.points) out.points_body.push_back(p.p);
+    if (keep_cloud) {
+      out.intensities.reserve(scan.points.size());
+      for (const ScanPoint& p : scan.points) out.intensities.push_back(p.intensity);
+    }
+  };
+  std::vector<std::future<void>> jobs;
+  for (const auto& [index, frame] : pending.frames) {
+    jobs.push_back(std::async(std::launch::async, frontend, index));
+  }
+  for (auto& job : jobs) job.get();
+
+  auto extras = std::make_unique<NodeExtras>();
+  extras->stamp_ns = stamp_ns;
+  FrameResult& result = extras->result;
+  result.stamp_ns = stamp_ns;
+  result.lidars.resize(rig.lidars.size());
+  result.odometer_used = odometer_ok;
+
+  // Rail plane from the down LiDAR, height descriptor from the up LiDAR.
+  const bool links = o.switches.use_imu;
+  for (size_t i = 0; i < rig.lidars.size(); ++i) {
+    if (!fronts[i].present) continue;
+    if (rig.lidars[i].looks_down() && o.switches.use_rail_plane && links && !extras->has_rail) {
+      const RailExtraction rails = ExtractRails(o.rail, fronts[i].points_body);
+      if (rails.ok) {
+        extras->has_rail = true;
+        extras->rail_normal = rails.normal;
+        extras->rail_distance = rails.distance;
+      }
+    }
+    if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links && !extras->has_descriptor) {
+      extras->descriptor = ComputeHeightDescriptor(o.height, fronts[i].points_body);
+      extras->has_descriptor = true;
+    }
+  }
+  if (keep_cloud) {
+    for (FrontendResult& f : fronts) {
+      extras->cloud.insert(extras->cloud.end(), f.points_body.begin(), f.points_body.end());
+      extras->intensities.insert(extras->intensities.end(), f.intensities.begin(), f.intensities.end());
+    }
+  }
+  const Clock::time_point t_frontend = Clock::now();
+  result.frontend_ms = Ms(t_begin, t_frontend);
+
+  // Backend: the new state, its pair factors, then rounds of matching and optimisation.
+  if (!first) {
+    window_->Push(t_end, pred, pre);
+    NodeExtras* before = extras_.empty() ? nullptr : extras_.back().get();
+    if (before && before->has_rail && extras->has_rail) {
+      window_->AddNewestPairFactor(
+          std::make_shared<RailPlaneFactor>(before->rail_normal, before->rail_distance, extras->rail_normal,
+                                            extras->rail_distance, 1.0 / o.rail_normal_sigma_rad,
+                                            1.0 / o.rail_distance_sigma_m),
+          std::make_shared<ceres::HuberLoss>(3.0));
+      result.rail_plane = true;
+    }
+    if (before && before->has_descriptor && extras->has_descriptor) {
+      const double dx_pred = (T_prev.inverse() * T_pred).translation().x();
+      const LongitudinalShift shift =
+          EstimateLongitudinalShift(o.height, before->descriptor, extras->descriptor, dx_pred);
+      if (shift.ok) {
+        window_->AddNewestPairFactor(
+            std::make_shared<LongitudinalShiftFactor>(shift.dx_m, std::max(shift.sigma_m, 0.05)),
+            std::make_shared<ceres::HuberLoss>(2.0));
+        result.height_shift = true;
+      }
+    }
+  }
+
+  MatchOptions match;
+  match.max_distance_m = o.max_correspondence_m;
+  const bool have_map = !plane_map_->empty();
+  for (int round = 0; round < o.registration_rounds && have_map && !first; ++round) {
+    const NavState current = window_->Newest();
+    const Eigen::Isometry3d T_current = PoseOf(current);
+    std::vector<std::shared_ptr<ceres::CostFunction>> costs;
+    for (size_t i = 0; i < fronts.size(); ++i) {
+      if (!fronts[i].present) continue;
+      LidarDiagnostics& diag = result.lidars[i];
+      const LidarMatches matches = MatchFeatures(match, fronts[i].features, T_current, *edge_map_, *plane_map_);
+      const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
+      diag.matches = matches.size();
+      diag.degeneracy = lidar_only.degeneracy;
+      // Favour factors, eq. (24-26).
+      const bool edges_ok = static_cast<int>(fronts[i].features.edges.size()) > o.failure_min_edges;
+      const bool planes_ok = static_cast<int>(fronts[i].features.planes.size()) > o.failure_min_planes;
+      diag.xi_failure = edges_ok && planes_ok ? 1.0 : (!edges_ok && !planes_ok ? 100.0 : 50.0);
+      diag.xi_degeneracy = lidar_only.degeneracy <= o.degeneracy_threshold ? 10.0 : 1.0;
+      const double p_lidar = (T_prev.inverse() * lidar_only.T_world_body).translation().norm();
+      const double p_inertial = (T_prev.inverse() * T_pred).translation().norm();
+      // Eq. (26) as a symmetric ratio: a LiDAR whose increment disagrees either way loses weight.
+      const double ratio = (p_lidar + 0.05) / (p_inertial + 0.05);
+      diag.xi_pose = std::clamp(std::max(ratio, 1.0 / ratio), 1.0, 10.0);
+      if (!o.switches.use_favour_factors || !o.switches.use_imu) {
+        diag.xi_failure = diag.xi_degeneracy = diag.xi_pose = 1.0;
+      }
+      const double favour = 1.0 / std::sqrt(diag.xi_failure * diag.xi_degeneracy * diag.xi_pose);
+      const double w_plane = favour / o.plane_sigma_m;
+      const double w_edge = favour / o.edge_sigma_m;
+      for (const PlaneMatch& m : matches.planes) {
+        costs.push_back(std::make_shared<PointToPlaneFactor>(m.p_body, m.normal, m.d, w_plane));
+      }
+      for (const LineMatch& m : matches.lines) {
+        costs.push_back(std::make_shared<PointToLineFactor>(m.p_body, m.point, m.direction, w_edge));
+      }
+    }
+    window_->SetNewestLidarFactors(std::move(costs), std::make_shared<ceres::HuberLoss>(1.0));
+    const WindowSummary summary = window_->Optimize();
+    result.solver_iterations += summary.iterations;
+  }
+  if (!have_map && !first && o.switches.use_imu) window_->Optimize();
+
+  for (size_t i = 0; i < fronts.size(); ++i) {
+    result.lidars[i].present = fronts[i].present;
+    result.lidars[i].points = fronts[i].points_body.size();
+    result.lidars[i].edges = fronts[i].features.edges.size();
+    result.lidars[i].planes = fronts[i].features.planes.size();
+  }
+
+  // The local map takes the newest frame at its optimised pose.
+  const NavState newest = window_->Newest();
+  const Eigen::Isometry3d T_newest = PoseOf(newest);
+  std::vector<Eigen::Vector3d> edges_world, planes_world;
+  for (const FrontendResult& f : fronts) {
+    for (const Eigen::Vector3f& p : f.features.edges) edges_world.push_back(T_newest * p.cast<double>());
+    for (const Eigen::Vector3f& p : f.features.planes) planes_world.push_back(T_newest * p.cast<double>());
+  }
+  edge_map_->Add(edges_world);
+  plane_map_->Add(planes_world);
+  if (stats_.frames % 10 == 0) {
+    edge_map_->RemoveFar(newest.p, o.map_radius_m);
+    plane_map_->RemoveFar(newest.p, o.map_radius_m);
+  }
+  last_node_t_ = t_end;
+  ++stats_.frames;
+  result.backend_ms = Ms(t_frontend, Clock::now());
+  result.T_world_body = T_newest;
+  result.v_world = newest.v;
+  result.odometer_scale = newest.c;
+  latest_ = result;
+  extras_.push_back(std::move(extras));
+  while (window_->Full()) {
+    const Clock::time_point t_pop = Clock::now();
+    EmitOldest();
+    // Marginalisation is part of this frame's backend time.
+    extras_.back()->result.backend_ms += Ms(t_pop, Clock::now());
+  }
+  TrimBuffers(last_node_t_ - 1.0);
+}
+
+void Estimator::EmitOldest() {
+  double t = 0.0;
+  const NavState s = window_->PopOldest(&t);
+  std::unique_ptr<NodeExtras> extras = std::move(extras_.front());
+  extras_.pop_front();
+  FrameResult& result = extras->result;
+  result.T_world_body = PoseOf(s);
+  result.v_world = s.v;
+  result.odometer_scale = s.c;
+  if (have_output_) stats_.distance_m += (s.p - last_output_position_).norm();
+  last_output_position_ = s.p;
+  have_output_ = true;
+  if (sinks_.on_frame) sinks_.on_frame(result);
+
+  const Eigen::Isometry3d delta = last_keyframe_pose_.inverse() * result.T_world_body;
+  const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() * 180.0 / M_PI;
+  if (!have_keyframe_ || delta.translation().norm() >= config_.options.keyframe_distance_m ||
+      angle_deg >= config_.options.keyframe_angle_deg) {
+    have_keyframe_ = true;
+    last_keyframe_pose_ = result.T_world_body;
+    if (sinks_.on_keyframe && !extras->cloud.empty()) {
+      Keyframe k;
+      k.stamp_ns = result.stamp_ns;
+      k.T_world_body = result.T_world_body;
+      k.points_body = std::move(extras->cloud);
+      k.intensities = std::move(extras->intensities);
+      VoxelThin(0.1, &k.points_body, &k.intensities);
+      sinks_.on_keyframe(k);
+    }
+  }
+}
+
+void Estimator::TrimBuffers(double t) {
+  while (imu_.size() > 2 && imu_[1].t < t) imu_.pop_front();
+  while (odo_.size() > 2 && odo_[1].t < t) odo_.pop_front();
+}
+
+void Estimator::Finish() {
+  ProcessReady(true);
+  // Flush the window: every remaining state is final now.
+  while (window_->size() > 0 && !extras_.empty()) EmitOldest();
+}
+
+}  // namespace raillomer

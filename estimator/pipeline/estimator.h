@@ -1,0 +1,152 @@
+#pragma once
+
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "estimator/features/height_descriptor.h"
+#include "estimator/io/sensor_messages.h"
+#include "estimator/pipeline/config.h"
+
+namespace raillomer {
+
+class SlidingWindow;
+class LocalMap;
+class Preintegration;
+
+/// Diagnostics of one LiDAR in one frame.
+struct LidarDiagnostics {
+  bool present = false;
+  size_t points = 0;  ///< after preprocessing
+  size_t edges = 0, planes = 0;
+  size_t matches = 0;
+  double degeneracy = 0.0;
+  double xi_failure = 1.0, xi_degeneracy = 1.0, xi_pose = 1.0;  ///< eq. (24-26)
+};
+
+/// The estimate and timing of one processed frame (both LiDARs on one time base).
+struct FrameResult {
+  int64_t stamp_ns = 0;  ///< frame end (the reference time of the deskewed points)
+  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
+  double odometer_scale = 1.0;
+  double frontend_ms = 0.0;  ///< preprocessing, deskewing, features, rails, descriptor
+  double backend_ms = 0.0;   ///< matching, optimisation, marginalisation, map update
+  std::vector<LidarDiagnostics> lidars;
+  bool rail_plane = false;      ///< a rail plane was extracted
+  bool height_shift = false;    ///< a height-descriptor displacement was used
+  bool odometer_used = false;   ///< the odometer entered this interval's factor
+  int solver_iterations = 0;
+};
+
+/// A keyframe for mapping: its final (marginalised) pose and its deskewed cloud (body frame).
+struct Keyframe {
+  int64_t stamp_ns = 0;
+  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+  std::vector<Eigen::Vector3f> points_body;
+  std::vector<float> intensities;
+};
+
+/// Where the estimator's products go; every callback may be empty.
+struct EstimatorSinks {
+  /// A frame's final pose, once it leaves the sliding window (in time order, every frame).
+  std::function<void(const FrameResult&)> on_frame;
+  std::function<void(const Keyframe&)> on_keyframe;
+  /// A problem with the input (gap, rewind, missing sensor): a human-readable line.
+  std::function<void(const std::string&)> on_warning;
+};
+
+/// Counters over the whole run.
+struct EstimatorStats {
+  uint64_t frames = 0;
+  uint64_t lidar_frames_dropped = 0;  ///< out of order, duplicates, unusable
+  uint64_t imu_samples = 0, imu_rejected = 0, imu_gaps = 0;
+  uint64_t odometer_samples = 0, odometer_rejected = 0, odometer_outliers = 0;
+  uint64_t warnings = 0;
+  double distance_m = 0.0;
+};
+
+/// raillomer-estimator's core: feeds on a time-ordered stream of sensor messages and estimates
+/// the train's state with the sliding-window factor graph of paper section IV. No I/O, no
+/// threads of its own beyond running the two LiDARs' frontends side by side.
+class Estimator {
+ public:
+  Estimator(const EstimatorConfig& config, EstimatorSinks sinks);
+  ~Estimator();
+  Estimator(const Estimator&) = delete;
+  Estimator& operator=(const Estimator&) = delete;
+
+  /// Takes one message (receive-time order); processes every frame whose data is complete.
+  void Add(const io::SensorMessage& message);
+  /// Processes what is pending and flushes the window (every frame reaches on_frame).
+  void Finish();
+
+  const EstimatorStats& stats() const { return stats_; }
+  /// The newest estimate (after the last processed frame), if any.
+  std::optional<FrameResult> Latest() const { return latest_; }
+
+ private:
+  struct ImuRecord {
+    double t;
+    Eigen::Vector3d gyro, accel;
+  };
+  struct OdoRecord {
+    double t;
+    double distance_m;
+  };
+  struct PendingFrame {
+    double start_s = 0.0;
+    std::map<int, io::LidarFrame> frames;  ///< by LiDAR index
+  };
+  struct FrontendResult;
+  struct NodeExtras;
+
+  void Warn(const std::string& message);
+  void AddLidar(int index, const io::LidarFrame& frame, double receive_s);
+  void AddImu(const io::ImuSample& sample);
+  void AddOdometer(const io::WheelOdometry& reading);
+  void ProcessReady(bool flush);
+  void ProcessFrame(const PendingFrame& pending);
+  bool Initialize(double t_end);
+  /// IMU (and, when use_odometer, odometer) preintegration over [t0, t1] from `start`'s biases.
+  std::shared_ptr<Preintegration> Preintegrate(double t0,
+                                              double t1,
+                                              const NavState& start,
+                                              bool use_odometer,
+                                              bool* odometer_ok);
+  double OdometerDistanceAt(double t, bool* ok) const;
+  void EmitOldest();
+  void TrimBuffers(double t);
+
+  EstimatorConfig config_;
+  EstimatorSinks sinks_;
+  EstimatorStats stats_;
+  std::map<std::string, int> lidar_topics_;
+
+  std::deque<ImuRecord> imu_;
+  std::deque<OdoRecord> odo_;
+  std::map<int64_t, PendingFrame> pending_;  ///< by frame start (ns)
+  double stream_time_s_ = -1e300;
+  double last_frame_start_s_ = -1e300;
+  double last_imu_t_ = -1e300, last_odo_t_ = -1e300;
+
+  std::unique_ptr<SlidingWindow> window_;
+  std::unique_ptr<LocalMap> edge_map_, plane_map_;
+  std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
+  bool initialized_ = false;
+  double last_node_t_ = 0.0;
+  Eigen::Isometry3d last_keyframe_pose_ = Eigen::Isometry3d::Identity();
+  bool have_keyframe_ = false;
+  Eigen::Vector3d last_output_position_ = Eigen::Vector3d::Zero();
+  bool have_output_ = false;
+  std::optional<FrameResult> latest_;
+  std::map<std::string, uint64_t> warning_counts_;
+};
+
+}  // namespace raillomer

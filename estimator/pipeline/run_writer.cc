@@ -1,0 +1,164 @@
+#include "estimator/pipeline/run_writer.h"
+
+#include <algorithm>
+#include <cstring>
+#include <filesystem>
+
+#include "api/atomic_file.h"
+#include "api/trajectory.h"
+
+namespace raillomer {
+
+namespace {
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
+  return v[k];
+}
+
+std::string PoseLine(int64_t stamp_ns, const Eigen::Isometry3d& T) {
+  api::StampedPose pose;
+  pose.stamp_ns = stamp_ns;
+  pose.p_world = T.translation();
+  pose.q_world_body = Eigen::Quaterniond(T.linear()).normalized();
+  return api::FormatTumLine(pose) + "\n";
+}
+
+}  // namespace
+
+RunWriter::~RunWriter() {
+  for (std::FILE* f : {trajectory_, timing_, keyframes_}) {
+    if (f) std::fclose(f);
+  }
+}
+
+bool RunWriter::Open(const std::string& out_dir, bool write_keyframes, const std::string& header, std::string* error) {
+  out_dir_ = out_dir;
+  write_keyframes_ = write_keyframes;
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir, ec);
+  if (ec) {
+    *error = "cannot create the output folder " + out_dir + ": " + ec.message();
+    return false;
+  }
+  if (write_keyframes) {
+    std::filesystem::create_directories(out_dir + "/keyframes", ec);
+    if (ec) {
+      *error = "cannot create " + out_dir + "/keyframes: " + ec.message();
+      return false;
+    }
+  }
+  auto open = [&](const std::string& name, std::FILE** f) {
+    *f = std::fopen((out_dir + "/" + name).c_str(), "w");
+    if (!*f) *error = "cannot write " + out_dir + "/" + name;
+    return *f != nullptr;
+  };
+  if (!open("trajectory.tum", &trajectory_) || !open("timing.csv", &timing_)) return false;
+  if (write_keyframes && !open("keyframes.tum", &keyframes_)) return false;
+  std::fprintf(trajectory_, "%s", header.c_str());
+  std::fflush(trajectory_);
+  std::fprintf(timing_,
+               "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
+               "height_shift,odometer_scale,speed_mps");
+  for (const char* lidar : {"up", "down"}) {
+    std::fprintf(timing_, ",%s_points,%s_edges,%s_planes,%s_matches,%s_degeneracy,%s_xi_f,%s_xi_d,%s_xi_p",
+                 lidar, lidar, lidar, lidar, lidar, lidar, lidar, lidar);
+  }
+  std::fprintf(timing_, "\n");
+  return true;
+}
+
+void RunWriter::WriteFrame(const FrameResult& f) {
+  const std::string line = PoseLine(f.stamp_ns, f.T_world_body);
+  std::fputs(line.c_str(), trajectory_);
+  std::fflush(trajectory_);
+  const double total = f.frontend_ms + f.backend_ms;
+  frame_ms_.push_back(total);
+  frontend_ms_.push_back(f.frontend_ms);
+  backend_ms_.push_back(f.backend_ms);
+  std::fprintf(timing_, "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.5f,%.3f", api::FormatStampSeconds(f.stamp_ns).c_str(),
+               f.frontend_ms, f.backend_ms, total, f.solver_iterations, f.odometer_used ? 1 : 0,
+               f.rail_plane ? 1 : 0, f.height_shift ? 1 : 0, f.odometer_scale, f.v_world.norm());
+  for (size_t i = 0; i < 2; ++i) {
+    if (i < f.lidars.size()) {
+      const LidarDiagnostics& d = f.lidars[i];
+      std::fprintf(timing_, ",%zu,%zu,%zu,%zu,%.4f,%.0f,%.0f,%.2f", d.points, d.edges, d.planes, d.matches,
+                   d.degeneracy, d.xi_failure, d.xi_degeneracy, d.xi_pose);
+    } else {
+      std::fprintf(timing_, ",0,0,0,0,0,1,1,1");
+    }
+  }
+  std::fprintf(timing_, "\n");
+  if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
+}
+
+void RunWriter::WriteKeyframe(const Keyframe& k) {
+  if (!write_keyframes_) return;
+  const std::string stamp = api::FormatStampSeconds(k.stamp_ns);
+  const std::string name = out_dir_ + "/keyframes/" + stamp + ".pcd";
+  const Eigen::Quaterniond q(k.T_world_body.linear());
+  const Eigen::Vector3d t = k.T_world_body.translation();
+  std::string pcd;
+  char head[512];
+  std::snprintf(head, sizeof(head),
+                "# .PCD v0.7 - RailLoMer keyframe %s, body frame, deskewed\n"
+                "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+                "WIDTH %zu\nHEIGHT 1\nVIEWPOINT %.4f %.4f %.4f %.9f %.9f %.9f %.9f\nPOINTS %zu\nDATA binary\n",
+                stamp.c_str(), k.points_body.size(), t.x(), t.y(), t.z(), q.w(), q.x(), q.y(), q.z(),
+                k.points_body.size());
+  pcd = head;
+  const size_t offset = pcd.size();
+  pcd.resize(offset + 16 * k.points_body.size());
+  for (size_t i = 0; i < k.points_body.size(); ++i) {
+    const float v[4] = {k.points_body[i].x(), k.points_body[i].y(), k.points_body[i].z(),
+                        i < k.intensities.size() ? k.intensities[i] : 0.f};
+    std::memcpy(&pcd[offset + 16 * i], v, sizeof(v));
+  }
+  std::string error;
+  if (!api::WriteFileAtomically(name, pcd, &error)) {
+    failed_ = true;
+    failure_ = error;
+    return;
+  }
+  std::fputs(PoseLine(k.stamp_ns, k.T_world_body).c_str(), keyframes_);
+  std::fflush(keyframes_);
+  ++keyframe_count_;
+}
+
+double RunWriter::MedianFrameMs() const { return Percentile(frame_ms_, 0.5); }
+double RunWriter::PercentileFrameMs(double q) const { return Percentile(frame_ms_, q); }
+
+bool RunWriter::Close(const EstimatorStats& s, double data_duration_s, double wall_s, const std::string& extra_json, std::string* error) {
+  for (std::FILE** f : {&trajectory_, &timing_, &keyframes_}) {
+    if (*f) std::fclose(*f);
+    *f = nullptr;
+  }
+  char text[2048];
+  std::snprintf(text, sizeof(text),
+                "{\n  \"frames\": %zu,\n  \"keyframes\": %zu,\n  \"distance_m\": %.3f,\n"
+                "  \"data_duration_s\": %.3f,\n  \"wall_s\": %.3f,\n  \"real_time_factor\": %.3f,\n"
+                "  \"frame_ms\": {\"median\": %.3f, \"p95\": %.3f, \"max\": %.3f},\n"
+                "  \"frontend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
+                "  \"backend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
+                "  \"warnings\": %llu,\n  \"lidar_frames_dropped\": %llu,\n  \"imu_gaps\": %llu,\n"
+                "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  \"odometer_rejected\": %llu%s%s\n}\n",
+                frame_ms_.size(), keyframe_count_, s.distance_m, data_duration_s, wall_s,
+                wall_s > 0 ? data_duration_s / wall_s : 0.0, Percentile(frame_ms_, 0.5),
+                Percentile(frame_ms_, 0.95), Percentile(frame_ms_, 1.0), Percentile(frontend_ms_, 0.5),
+                Percentile(frontend_ms_, 0.95), Percentile(backend_ms_, 0.5), Percentile(backend_ms_, 0.95),
+                static_cast<unsigned long long>(s.warnings), static_cast<unsigned long long>(s.lidar_frames_dropped),
+                static_cast<unsigned long long>(s.imu_gaps), static_cast<unsigned long long>(s.imu_rejected),
+                static_cast<unsigned long long>(s.odometer_outliers),
+                static_cast<unsigned long long>(s.odometer_rejected), extra_json.empty() ? "" : ",\n  ",
+                extra_json.c_str());
+  if (!api::WriteFileAtomically(out_dir_ + "/summary.json", text, error)) return false;
+  if (failed_) {
+    *error = failure_;
+    return false;
+  }
+  return true;
+}
+
+}  // namespace raillomer

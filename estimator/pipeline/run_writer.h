@@ -1,0 +1,47 @@
+#pragma once
+
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "estimator/pipeline/estimator.h"
+
+namespace raillomer {
+
+/// Writes an estimator run to a folder as it goes, so that whatever was written stays valid if
+/// the run stops early:
+///   trajectory.tum  body pose at every LiDAR frame (TUM, flushed every frame)
+///   timing.csv      per-frame frontend / backend milliseconds and diagnostics
+///   keyframes.tum   keyframe poses; keyframes/<stamp>.pcd their deskewed clouds (body frame,
+///                   binary PCD, the pose also in VIEWPOINT)
+///   summary.json    counts, timing percentiles and the real-time factor (at Close)
+class RunWriter {
+ public:
+  ~RunWriter();
+  /// Creates the folder and the files; false with a message naming the path on failure.
+  bool Open(const std::string& out_dir, bool write_keyframes, const std::string& header, std::string* error);
+  void WriteFrame(const FrameResult& frame);
+  void WriteKeyframe(const Keyframe& keyframe);
+  /// Writes summary.json; `extra_json` members (without braces) are added to it.
+  bool Close(const EstimatorStats& stats, double data_duration_s, double wall_s, const std::string& extra_json, std::string* error);
+
+  size_t frames() const { return frame_ms_.size(); }
+  /// Median and 95th percentile of frontend + backend time per frame.
+  double MedianFrameMs() const;
+  double PercentileFrameMs(double q) const;
+  bool failed() const { return failed_; }
+  const std::string& failure() const { return failure_; }
+
+ private:
+  std::string out_dir_;
+  std::FILE* trajectory_ = nullptr;
+  std::FILE* timing_ = nullptr;
+  std::FILE* keyframes_ = nullptr;
+  bool write_keyframes_ = false;
+  std::vector<double> frame_ms_, frontend_ms_, backend_ms_;
+  size_t keyframe_count_ = 0;
+  bool failed_ = false;
+  std::string failure_;
+};
+
+}  // namespace raillomer

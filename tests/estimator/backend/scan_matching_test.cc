@@ -1,0 +1,102 @@
+#include "estimator/backend/scan_matching.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "estimator/factors/pose_manifold.h"
+
+namespace raillomer {
+namespace {
+
+Eigen::Isometry3d Pose(double x, double y, double z, double roll, double pitch, double yaw) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  T.translation() = Eigen::Vector3d(x, y, z);
+  return T;
+}
+
+/// World: ground z = 0, walls y = +-6, a cross wall x = 40, and vertical poles (edges).
+struct World {
+  std::vector<Eigen::Vector3d> planes, edges;
+};
+
+World MakeWorld(bool with_cross_wall, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  World w;
+  for (int i = 0; i < 6000; ++i) {
+    const double x = -10.0 + 60.0 * u(rng);
+    w.planes.emplace_back(x, -6.0 + 12.0 * u(rng), 0.0);
+    w.planes.emplace_back(x, 6.0, 6.0 * u(rng));
+    w.planes.emplace_back(x, -6.0, 6.0 * u(rng));
+    if (with_cross_wall) w.planes.emplace_back(40.0, -6.0 + 12.0 * u(rng), 6.0 * u(rng));
+  }
+  for (double x = 0.0; x < 50.0; x += 7.0) {
+    for (int i = 0; i < 60; ++i) w.edges.emplace_back(x, 5.0, 6.0 * u(rng));
+  }
+  return w;
+}
+
+FeatureSet ScanFrom(const World& w, const Eigen::Isometry3d& T_world_body, int stride) {
+  FeatureSet f;
+  const Eigen::Isometry3d T_body_world = T_world_body.inverse();
+  for (size_t i = 0; i < w.planes.size(); i += static_cast<size_t>(stride)) {
+    f.planes.push_back((T_body_world * w.planes[i]).cast<float>());
+  }
+  for (size_t i = 0; i < w.edges.size(); i += 3) f.edges.push_back((T_body_world * w.edges[i]).cast<float>());
+  return f;
+}
+
+TEST(ScanMatching, RecoversAKnownPose) {
+  const World w = MakeWorld(true, 3);
+  LocalMap edges(1.0, 20), planes(1.0, 20);
+  edges.Add(w.edges);
+  planes.Add(w.planes);
+  const Eigen::Isometry3d truth = Pose(12.0, 0.4, 0.2, 0.01, -0.02, 0.05);
+  const FeatureSet scan = ScanFrom(w, truth, 7);
+  Eigen::Isometry3d guess = truth * Pose(0.3, -0.2, 0.1, 0.005, 0.004, -0.01);
+  LidarOnlySolution solution;
+  for (int round = 0; round < 4; ++round) {
+    const LidarMatches m = MatchFeatures(MatchOptions{}, scan, guess, edges, planes);
+    ASSERT_GT(m.planes.size(), 500u);
+    ASSERT_GT(m.lines.size(), 20u);
+    solution = SolveLidarOnly(m, guess, 10);
+    guess = solution.T_world_body;
+  }
+  const Eigen::Isometry3d error = truth.inverse() * solution.T_world_body;
+  EXPECT_LT(error.translation().norm(), 0.01);
+  EXPECT_LT(Eigen::AngleAxisd(error.linear()).angle(), 1e-3);
+  EXPECT_GT(solution.degeneracy, 0.02);
+}
+
+TEST(ScanMatching, FlagsALongCorridorAsDegenerate) {
+  // No cross wall: nothing fixes the position along x.
+  const World w = MakeWorld(false, 4);
+  World planes_only = w;
+  planes_only.edges.clear();
+  LocalMap edges(1.0, 20), planes(1.0, 20);
+  planes.Add(planes_only.planes);
+  const Eigen::Isometry3d truth = Pose(12.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+  const FeatureSet scan = ScanFrom(planes_only, truth, 7);
+  const LidarMatches m = MatchFeatures(MatchOptions{}, scan, truth, edges, planes);
+  const LidarOnlySolution solution = SolveLidarOnly(m, truth, 5);
+  EXPECT_LT(solution.degeneracy, 0.01);  // vs > 0.02 with the cross wall
+  EXPECT_GT(std::abs(solution.weakest_direction.x()), 0.99);
+}
+
+TEST(ScanMatching, NoMatchesAgainstAnEmptyMap) {
+  LocalMap edges(1.0, 20), planes(1.0, 20);
+  FeatureSet scan;
+  scan.planes.push_back(Eigen::Vector3f(1, 2, 3));
+  const LidarMatches m = MatchFeatures(MatchOptions{}, scan, Eigen::Isometry3d::Identity(), edges, planes);
+  EXPECT_EQ(m.size(), 0u);
+  const LidarOnlySolution s = SolveLidarOnly(m, Eigen::Isometry3d::Identity(), 5);
+  EXPECT_FALSE(s.converged);
+  EXPECT_EQ(s.degeneracy, 0.0);
+}
+
+}  // namespace
+}  // namespace raillomer

@@ -1,0 +1,88 @@
+#include "estimator/pipeline/config.h"
+
+#include <gtest/gtest.h>
+
+#include "estimator/sim/scenario.h"
+#include "estimator/sim/simulator.h"
+
+namespace raillomer {
+namespace {
+
+std::string DemoRigYaml() {
+  sim::Scenario scenario;
+  std::string error;
+  EXPECT_TRUE(sim::LoadScenario("demo", &scenario, &error)) << error;
+  sim::SimOptions options;
+  options.lidar = false;
+  options.duration_s = 1.0;
+  auto simulator = sim::Simulator::Create(scenario, options, &error);
+  EXPECT_TRUE(simulator) << error;
+  return simulator->RigYaml();
+}
+
+TEST(EstimatorConfig, ReadsTheSimulatorsRig) {
+  EstimatorConfig config;
+  std::string error;
+  ASSERT_TRUE(ParseEstimatorConfig(DemoRigYaml(), "rig.yaml", &config, &error)) << error;
+  ASSERT_EQ(config.rig.lidars.size(), 2u);
+  EXPECT_EQ(config.rig.lidars[0].topic, "/livox/lidar_up");
+  EXPECT_FALSE(config.rig.lidars[0].looks_down());
+  EXPECT_TRUE(config.rig.lidars[1].looks_down());
+  // Pitch 12.7 deg down: the x axis of the down LiDAR points below the horizon by that angle.
+  const Eigen::Vector3d x = config.rig.lidars[1].T_body_lidar.linear().col(0);
+  EXPECT_NEAR(std::asin(-x.z()) * 180.0 / M_PI, 12.7, 1e-9);
+  EXPECT_NEAR(config.rig.lidars[1].T_body_lidar.translation().z(), 0.15, 1e-12);
+  EXPECT_DOUBLE_EQ(config.rig.wheel_diameter_m, 0.84);
+  EXPECT_EQ(config.rig.pulses_per_rev, 100);
+  EXPECT_DOUBLE_EQ(config.rig.body_above_rail_top_m, 3.8);
+  EXPECT_DOUBLE_EQ(config.options.rail.body_above_rail_top_m, 3.8);
+  EXPECT_NE(config.Describe().find("window_size"), std::string::npos);
+}
+
+TEST(EstimatorConfig, RejectsUnknownKeysWithTheirLine) {
+  EstimatorConfig config;
+  std::string error;
+  const std::string yaml = DemoRigYaml() + "estimator:\n  window_size: 8\n  windw_size: 3\n";
+  EXPECT_FALSE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("unknown key 'estimator.windw_size'"), std::string::npos) << error;
+  EXPECT_NE(error.find("rig.yaml:"), std::string::npos) << error;
+}
+
+TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
+  EstimatorConfig config;
+  std::string error;
+  EXPECT_FALSE(ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  window_size: 1\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("window_size"), std::string::npos) << error;
+  EXPECT_FALSE(ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  map_voxel_m: big\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("wrong type"), std::string::npos) << error;
+  EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("lidars"), std::string::npos) << error;
+  EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("YAML syntax"), std::string::npos) << error;
+}
+
+TEST(EstimatorConfig, OverridesTunables) {
+  EstimatorConfig config;
+  std::string error;
+  const std::string yaml = DemoRigYaml() +
+                           "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  preprocess:\n"
+                           "    min_range_m: 3.5\n";
+  ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
+  EXPECT_EQ(config.options.window_size, 8);
+  EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
+  EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
+}
+
+TEST(AblationSwitches, NamesTheVariant) {
+  AblationSwitches s;
+  EXPECT_EQ(s.Name(), "full");
+  s.use_odometer = false;
+  EXPECT_EQ(s.Name(), "no-odometer");
+  s.use_rail_plane = false;
+  EXPECT_EQ(s.Name(), "no-odometer,no-rail-plane");
+  s.use_imu = false;
+  EXPECT_EQ(s.Name(), "lidar-only");
+}
+
+}  // namespace
+}  // namespace raillomer
