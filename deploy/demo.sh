@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job end to end on the embedded default: simulate the 30 s demo run (two LiDARs, IMU,
-# odometer, GNSS) into runs/demo, then score the GNSS receiver's fixes against the ground truth.
+# odometer, GNSS) into runs/demo, run the estimator on the recorded bag, then score the estimate
+# and the GNSS receiver's fixes against the ground truth.
 # Usage: bash deploy/demo.sh [scenario] [out_dir]   (as root on Debian 12)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -8,8 +9,12 @@ scenario="${1:-demo}"
 out="${2:-runs/$scenario}"
 bash deploy/install-deps.sh
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release
-cmake --build build -j2 --target raillomer-sim raillomer-eval
+cmake --build build -j2 --target raillomer-sim raillomer-eval raillomer-estimator
 ./build/bin/raillomer-sim --scenario "$scenario" --out "$out"
+./build/bin/raillomer-estimator --bag "$out/run.bag" --config "$out/rig.yaml" --out "$out/estimate"
+./build/bin/raillomer-eval --estimate "$out/estimate/trajectory.tum" --truth "$out/truth.tum" \
+  --align se3 --json "$out/estimate_eval.json" --plot "$out/estimate_eval.svg"
 ./build/bin/raillomer-eval --estimate "$out/gnss.tum" --truth "$out/truth.tum" --align none \
   --json "$out/gnss_eval.json" --plot "$out/gnss_eval.svg"
-echo "demo: outputs in $out (run.bag, truth.tum, gnss.tum, rig.yaml, gnss_eval.json, gnss_eval.svg)"
+echo "demo: outputs in $out (run.bag, truth.tum, gnss.tum, rig.yaml, estimate/, estimate_eval.json,"
+echo "      estimate_eval.svg, gnss_eval.json, gnss_eval.svg)"

@@ -11,26 +11,29 @@ namespace raillomer {
 
 namespace {
 
-/// A Gaussian prior on a pose: r = [p - p0; Log(q0^-1 q)] / sigma (Jacobian of Log taken as I).
+/// A Gaussian prior on a pose: r = [p - p0; Log(q0^-1 q)] / sigma (Jacobian of Log taken as I),
+/// with its own sigma for roll and pitch (observable through gravity) and for yaw (not).
 class PosePriorFactor : public ceres::SizedCostFunction<6, 7> {
  public:
-  PosePriorFactor(const double* pose, double sigma_p, double sigma_theta)
+  PosePriorFactor(const double* pose, double sigma_p, double sigma_roll_pitch, double sigma_yaw)
       : p0_(pose[0], pose[1], pose[2]),
         q0_(pose[6], pose[3], pose[4], pose[5]),
         wp_(1.0 / sigma_p),
-        wq_(1.0 / sigma_theta) {}
+        wq_(1.0 / sigma_roll_pitch, 1.0 / sigma_roll_pitch, 1.0 / sigma_yaw) {}
 
-  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override {
     Eigen::Map<const Eigen::Vector3d> p(parameters[0]);
     Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
     Eigen::Map<Eigen::Matrix<double, 6, 1>> r(residuals);
     r.head<3>() = wp_ * (p - p0_);
-    r.tail<3>() = wq_ * LogQuaternion(q0_.conjugate() * q);
+    r.tail<3>() = wq_.cwiseProduct(LogQuaternion(q0_.conjugate() * q));
     if (jacobians && jacobians[0]) {
       Eigen::Map<Eigen::Matrix<double, 6, 7, Eigen::RowMajor>> j(jacobians[0]);
       j.setZero();
       j.block<3, 3>(0, 0) = wp_ * Eigen::Matrix3d::Identity();
-      j.block<3, 3>(3, 3) = wq_ * Eigen::Matrix3d::Identity();
+      j.block<3, 3>(3, 3) = wq_.asDiagonal();
     }
     return true;
   }
@@ -38,7 +41,8 @@ class PosePriorFactor : public ceres::SizedCostFunction<6, 7> {
  private:
   Eigen::Vector3d p0_;
   Eigen::Quaterniond q0_;
-  double wp_, wq_;
+  double wp_;
+  Eigen::Vector3d wq_;
 };
 
 void ToBlocks(const NavState& s, double* pose, double* speed_bias, double* scale) {
@@ -56,7 +60,9 @@ void ToBlocks(const NavState& s, double* pose, double* speed_bias, double* scale
   scale[0] = s.c;
 }
 
-std::shared_ptr<ceres::CostFunction> DiagonalPrior(const double* values, int n, const Eigen::VectorXd& sigma) {
+std::shared_ptr<ceres::CostFunction> DiagonalPrior(const double* values,
+                                                   int n,
+                                                   const Eigen::VectorXd& sigma) {
   Eigen::MatrixXd A = sigma.cwiseInverse().asDiagonal();
   Eigen::VectorXd b = Eigen::Map<const Eigen::VectorXd>(values, n);
   return std::make_shared<ceres::NormalPrior>(A, b);
@@ -71,36 +77,45 @@ struct SlidingWindow::Node {
   double scale[kScaleSize];
   std::shared_ptr<Preintegration> preintegration;  ///< from the previous state to this one
   std::vector<WindowTerm> lidar;                   ///< unary, on pose
-  std::vector<WindowTerm> links;  ///< with the previous state: IMU and pair factors
+  std::vector<WindowTerm> links;   ///< with the previous state: IMU and pair factors
   std::vector<WindowTerm> priors;  ///< initial priors of the first state
 };
 
 SlidingWindow::SlidingWindow(const SlidingWindowOptions& options) : options_(options) {}
 SlidingWindow::~SlidingWindow() = default;
 
-void SlidingWindow::Push(double t_s, const NavState& state, std::shared_ptr<Preintegration> preintegration) {
+void SlidingWindow::Push(double t_s,
+                         const NavState& state,
+                         std::shared_ptr<Preintegration> preintegration) {
   auto node = std::make_unique<Node>();
   node->t_s = t_s;
   ToBlocks(state, node->pose, node->speed_bias, node->scale);
   if (nodes_.empty() && !has_prior_) {
     // The first state anchors the frame: its pose is held, velocity and biases loosely.
-    node->priors.push_back({std::make_shared<PosePriorFactor>(node->pose, 1e-4, 1e-5), nullptr, {node->pose}});
+    node->priors.push_back(
+        {std::make_shared<PosePriorFactor>(node->pose, 1e-4, options_.use_imu ? 0.02 : 1e-5, 1e-5),
+         nullptr,
+         {node->pose}});
     if (options_.use_imu) {
       Eigen::VectorXd sigma(9);
       sigma << Eigen::Vector3d::Constant(options_.initial_velocity_sigma_mps),
           Eigen::Vector3d::Constant(options_.initial_accel_bias_sigma),
           Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
-      node->priors.push_back({DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
-      node->priors.push_back({DiagonalPrior(node->scale, 1, Eigen::VectorXd::Constant(1, options_.initial_scale_sigma)),
-                              nullptr,
-                              {node->scale}});
+      node->priors.push_back(
+          {DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
+      node->priors.push_back(
+          {DiagonalPrior(
+               node->scale, 1, Eigen::VectorXd::Constant(1, options_.initial_scale_sigma)),
+           nullptr,
+           {node->scale}});
     }
   } else if (options_.use_imu && preintegration && !nodes_.empty()) {
     Node& prev = *nodes_.back();
     node->preintegration = preintegration;
-    node->links.push_back({std::make_shared<ImuOdometerFactor>(preintegration),
-                           nullptr,
-                           {prev.pose, prev.speed_bias, prev.scale, node->pose, node->speed_bias, node->scale}});
+    node->links.push_back(
+        {std::make_shared<ImuOdometerFactor>(preintegration),
+         nullptr,
+         {prev.pose, prev.speed_bias, prev.scale, node->pose, node->speed_bias, node->scale}});
   }
   nodes_.push_back(std::move(node));
 }
@@ -167,7 +182,8 @@ WindowSummary SlidingWindow::Optimize() {
   }
   if (!options_.use_imu) {
     // Without the IMU the states are independent: only the newest is solved.
-    for (size_t i = 0; i + 1 < nodes_.size(); ++i) problem.SetParameterBlockConstant(nodes_[i]->pose);
+    for (size_t i = 0; i + 1 < nodes_.size(); ++i)
+      problem.SetParameterBlockConstant(nodes_[i]->pose);
   }
   for (const WindowTerm& t : AllTerms()) {
     problem.AddResidualBlock(t.cost.get(), t.loss.get(), t.blocks);
@@ -222,7 +238,8 @@ NavState SlidingWindow::PopOldest(double* t_s) {
   } else if (nodes_.size() >= 2) {
     // Poses only: the next state becomes the anchor.
     Node& next = *nodes_[1];
-    next.priors.push_back({std::make_shared<PosePriorFactor>(next.pose, 1e-4, 1e-5), nullptr, {next.pose}});
+    next.priors.push_back(
+        {std::make_shared<PosePriorFactor>(next.pose, 1e-4, 1e-5, 1e-5), nullptr, {next.pose}});
   }
   nodes_.pop_front();
   if (!nodes_.empty()) nodes_.front()->links.clear();

@@ -19,13 +19,13 @@ class MarginalizationInfo;
 
 /// Options of the sliding-window smoother.
 struct SlidingWindowOptions {
-  int size = 6;                 ///< states kept (eq. 2)
-  int max_iterations = 6;       ///< Ceres iterations per Optimize()
-  bool use_imu = true;          ///< false: states are poses only, linked by nothing but priors
-  bool estimate_scale = true;   ///< false: the odometer scale stays at its initial value
+  int size = 6;                ///< states kept (eq. 2)
+  int max_iterations = 6;      ///< Ceres iterations per Optimize()
+  bool use_imu = true;         ///< false: states are poses only, linked by nothing but priors
+  bool estimate_scale = true;  ///< false: the odometer scale stays at its initial value
   double initial_velocity_sigma_mps = 1.0;
-  double initial_accel_bias_sigma = 0.02;   ///< m/s^2
-  double initial_gyro_bias_sigma = 2.0e-3;  ///< rad/s
+  double initial_accel_bias_sigma = 2.0e-3;  ///< m/s^2, about 10x an MTi-680G turn-on bias
+  double initial_gyro_bias_sigma = 2.0e-4;   ///< rad/s, about 5x an MTi-680G turn-on bias
   double initial_scale_sigma = 0.02;
   int num_threads = 2;
 };

@@ -34,9 +34,7 @@ std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>&
   return lines;
 }
 
-float Range(const ScanPoint& point) {
-  return point.range_m > 0.f ? point.range_m : point.p.norm();
-}
+float Range(const ScanPoint& point) { return point.range_m > 0.f ? point.range_m : point.p.norm(); }
 
 /// Chord 2 sin(angle / 2) between the beams of two returns `distance` apart at ranges ra, rb
 /// from one origin: distance^2 = (ra - rb)^2 + ra rb chord^2.
@@ -113,7 +111,8 @@ FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& sc
   const int plane_suppression = std::max(1, k / 2);
   const float gap_angle = static_cast<float>(2.0 * std::sin(0.5 * options.gap_angle_deg * kDeg));
   const float occlusion_ratio = static_cast<float>(options.occlusion_depth_ratio);
-  const float grazing_stretch = static_cast<float>(1.0 / std::cos(options.max_incidence_deg * kDeg));
+  const float grazing_stretch =
+      static_cast<float>(1.0 / std::cos(options.max_incidence_deg * kDeg));
   const float edge_min = static_cast<float>(options.edge_curvature_min);
   const float plane_max = static_cast<float>(options.plane_curvature_max);
 
@@ -166,7 +165,8 @@ FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& sc
       // The beams of the window must run on along the line, not turn back (the end of a sweep
       // of the scan pattern): the chord of the window falls short of its path.
       const int a = j - k, b = j + k;
-      const float span = BeamChord((points[line[b]].p - points[line[a]].p).norm(), range[a], range[b]);
+      const float span =
+          BeamChord((points[line[b]].p - points[line[a]].p).norm(), range[a], range[b]);
       if (span < kStraightWindow * (path[b] - path[a])) {
         blocked[j] = 1;
         continue;
@@ -190,7 +190,9 @@ FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& sc
       const int end = k + usable * (s + 1) / options.sectors_per_line;
       sector.clear();
       for (int j = begin; j < end; ++j) {
-        if (!blocked[j] && curvature[j] > edge_min) sector.push_back({uint32_t(j), curvature[j]});
+        if (!blocked[j] && curvature[j] > edge_min) {
+          sector.push_back({static_cast<uint32_t>(j), curvature[j]});
+        }
       }
       std::sort(sector.begin(), sector.end(), [](const Candidate& a, const Candidate& b) {
         return a.curvature > b.curvature;
@@ -206,7 +208,9 @@ FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& sc
       }
       sector.clear();
       for (int j = begin; j < end; ++j) {
-        if (!blocked[j] && curvature[j] < plane_max) sector.push_back({uint32_t(j), curvature[j]});
+        if (!blocked[j] && curvature[j] < plane_max) {
+          sector.push_back({static_cast<uint32_t>(j), curvature[j]});
+        }
       }
       std::sort(sector.begin(), sector.end(), [](const Candidate& a, const Candidate& b) {
         return a.curvature < b.curvature;
@@ -223,14 +227,14 @@ FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& sc
     }
   }
   FeatureSet features;
-  features.edges = VoxelThin(edges, points, options.edge_voxel_m, [](const Candidate& a,
-                                                                    const Candidate& b) {
-    return a.curvature > b.curvature;
-  });
-  features.planes = VoxelThin(planes, points, options.plane_voxel_m, [](const Candidate& a,
-                                                                      const Candidate& b) {
-    return a.curvature < b.curvature;
-  });
+  features.edges =
+      VoxelThin(edges, points, options.edge_voxel_m, [](const Candidate& a, const Candidate& b) {
+        return a.curvature > b.curvature;
+      });
+  features.planes =
+      VoxelThin(planes, points, options.plane_voxel_m, [](const Candidate& a, const Candidate& b) {
+        return a.curvature < b.curvature;
+      });
   return features;
 }
 

@@ -34,7 +34,9 @@ struct LoamFeatureOptions {
 };
 
 /// Edge and planar feature points of a deskewed scan (body frame), by curvature along each laser
-/// line; points next to occlusions or seen at grazing incidence are not selected.
+/// line; points next to occlusions or gaps, seen at grazing incidence, or whose window turns back
+/// with the scan pattern are not selected. Uses each point's measured range_m (kept by Deskew)
+/// to recover the angle between neighbouring beams.
 FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& scan);
 
 }  // namespace raillomer

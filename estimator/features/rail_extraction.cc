@@ -33,97 +33,57 @@ struct Point {
   float x, y, z;
 };
 
-/// One rail as y(x) = a + b u + c u^2, z(x) = d + e u with u = x - x0, fitted by least squares.
-/// The normal equations are accumulated so that the model can be refitted as the rail grows.
-class RailModel {
+/// A rail seed as a line y = a + b u, z = d + e u with u = x - x0; least squares on the points
+/// added.
+class SeedLine {
  public:
-  explicit RailModel(double x0) : x0_(x0) {}
+  explicit SeedLine(double x0) : x0_(x0) {}
 
   void Add(const Point& p) {
-    const double u = p.x - x0_, u2 = u * u;
-    s_[0] += 1.0;
-    s_[1] += u;
-    s_[2] += u2;
-    s_[3] += u2 * u;
-    s_[4] += u2 * u2;
-    sy_[0] += p.y;
-    sy_[1] += u * p.y;
-    sy_[2] += u2 * p.y;
-    sz_[0] += p.z;
-    sz_[1] += u * p.z;
+    const double u = p.x - x0_;
+    A_ += Eigen::Vector2d(1.0, u) * Eigen::RowVector2d(1.0, u);
+    y_ += Eigen::Vector2d(1.0, u) * p.y;
+    z_ += Eigen::Vector2d(1.0, u) * p.z;
     u_min_ = std::min(u_min_, u);
     u_max_ = std::max(u_max_, u);
   }
 
-  /// Refits from the accumulated sums; false if the points do not determine a line.
+  /// Refits from the points added; false if they do not determine a line.
   bool Fit() {
-    const double n = s_[0];
-    if (n < 2.0 || u_max_ - u_min_ < 0.3) return false;
-    Eigen::Matrix2d A2;
-    A2 << s_[0], s_[1], s_[1], s_[2];
-    const double det = A2.determinant();
-    if (std::fabs(det) < 1e-9) return false;
-    const Eigen::Vector2d z = A2.inverse() * Eigen::Vector2d(sz_[0], sz_[1]);
-    d_ = z[0];
-    e_ = z[1];
-    const Eigen::Vector2d y = A2.inverse() * Eigen::Vector2d(sy_[0], sy_[1]);
-    a_ = y[0];
-    b_ = y[1];
-    c_ = 0.0;
-    if (u_max_ - u_min_ >= kQuadraticMinSpanM && n >= 10.0) {
-      Eigen::Matrix3d A3;
-      A3 << s_[0], s_[1], s_[2], s_[1], s_[2], s_[3], s_[2], s_[3], s_[4];
-      const Eigen::Vector3d q = A3.ldlt().solve(Eigen::Vector3d(sy_[0], sy_[1], sy_[2]));
-      const double c_max = 0.5 / kMinCurveRadiusM;
-      if (q.allFinite() && std::fabs(q[2]) <= c_max) {
-        a_ = q[0];
-        b_ = q[1];
-        c_ = q[2];
-      } else if (q.allFinite()) {
-        // Bounded curvature: fit the line to y - c u^2 with c at its bound.
-        c_ = std::copysign(c_max, q[2]);
-        const Eigen::Vector2d l =
-            A2.inverse() * Eigen::Vector2d(sy_[0] - c_ * s_[2], sy_[1] - c_ * s_[3]);
-        a_ = l[0];
-        b_ = l[1];
-      }
-    }
+    if (A_(0, 0) < 2.0 || u_max_ - u_min_ < 0.3) return false;
+    const Eigen::Matrix2d inverse = A_.inverse();
+    const Eigen::Vector2d y = inverse * y_, z = inverse * z_;
+    if (!y.allFinite() || !z.allFinite()) return false;
+    Set(y[0], y[1], z[0], z[1]);
     return true;
   }
 
-  void SetLine(double a, double b, double d, double e) {
+  void Set(double a, double b, double d, double e) {
     a_ = a;
     b_ = b;
-    c_ = 0.0;
     d_ = d;
     e_ = e;
   }
 
-  double Y(double x) const {
-    const double u = x - x0_;
-    return a_ + b_ * u + c_ * u * u;
-  }
+  double Y(double x) const { return a_ + b_ * (x - x0_); }
   double Z(double x) const { return d_ + e_ * (x - x0_); }
-  double Slope(double x) const { return b_ + 2.0 * c_ * (x - x0_); }
+  double y_slope() const { return b_; }
   double z_slope() const { return e_; }
-  int count() const { return static_cast<int>(s_[0]); }
 
-  /// Distance of p to the rail's centre line, perpendicular to the local direction.
+  /// Distance of p to the line.
   double Distance(const Point& p) const {
-    const double dy = p.y - Y(p.x), dz = p.z - Z(p.x);
-    const Eigen::Vector3d dir = Eigen::Vector3d(1.0, Slope(p.x), e_).normalized();
-    const Eigen::Vector3d v(0.0, dy, dz);
+    const Eigen::Vector3d dir = Eigen::Vector3d(1.0, b_, e_).normalized();
+    const Eigen::Vector3d v(0.0, p.y - Y(p.x), p.z - Z(p.x));
     return (v - v.dot(dir) * dir).norm();
   }
 
  private:
   double x0_;
-  std::array<double, 5> s_{};
-  std::array<double, 3> sy_{};
-  std::array<double, 2> sz_{};
+  Eigen::Matrix2d A_ = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d y_ = Eigen::Vector2d::Zero(), z_ = Eigen::Vector2d::Zero();
   double u_min_ = std::numeric_limits<double>::infinity();
   double u_max_ = -std::numeric_limits<double>::infinity();
-  double a_ = 0.0, b_ = 0.0, c_ = 0.0, d_ = 0.0, e_ = 0.0;
+  double a_ = 0.0, b_ = 0.0, d_ = 0.0, e_ = 0.0;
 };
 
 /// The track as seen while growing: a common centre line y = a + b u + c u^2 (u = x - x0) with
@@ -191,8 +151,8 @@ class TrackModel {
     }
     if (!solved) {
       const double c = q[3];
-      const Eigen::Vector3d l = A.topLeftCorner<3, 3>().ldlt().solve(rhs.head<3>() -
-                                                                     c * A.block<3, 1>(0, 3));
+      const Eigen::Vector3d l =
+          A.topLeftCorner<3, 3>().ldlt().solve(rhs.head<3>() - c * A.block<3, 1>(0, 3));
       if (!l.allFinite()) return false;
       q.head<3>() = l;
     }
@@ -379,15 +339,16 @@ Seeds FindSeeds(const RailExtractionOptions& options,
   // around it (not a line through flat ballast).
   for (int r = 0; r < 2; ++r) {
     const double across =
-        r == best_side ? 0.0 : (best_side == 0 ? -2.0 : 2.0) * rail_y * std::sqrt(1.0 + best_b * best_b);
-    RailModel guess(seeds.x0);
-    guess.SetLine(best_a + across, best_b, best_d, best_e);
-    RailModel refit(seeds.x0);
+        r == best_side ? 0.0
+                       : (best_side == 0 ? -2.0 : 2.0) * rail_y * std::sqrt(1.0 + best_b * best_b);
+    SeedLine guess(seeds.x0);
+    guess.Set(best_a + across, best_b, best_d, best_e);
+    SeedLine refit(seeds.x0);
     int inliers = 0;
     for (const Point& p : candidates[r]) {
       const double dy = p.y - guess.Y(p.x), dz = p.z - guess.Z(p.x);
-      if (dy * dy < w2 && std::fabs(dz) < (r == best_side ? options.rail_head_width_m
-                                                          : cross_level_tolerance)) {
+      if (dy * dy < w2 &&
+          std::fabs(dz) < (r == best_side ? options.rail_head_width_m : cross_level_tolerance)) {
         refit.Add(p);
         ++inliers;
       }
@@ -399,7 +360,7 @@ Seeds FindSeeds(const RailExtractionOptions& options,
     }
     if (!refit.Fit()) refit = guess;
     // A second pass with the rail's own height.
-    RailModel line(seeds.x0);
+    SeedLine line(seeds.x0);
     inliers = 0;
     for (const Point& p : candidates[r]) {
       if (refit.Distance(p) < options.rail_head_width_m) {
@@ -431,7 +392,7 @@ Seeds FindSeeds(const RailExtractionOptions& options,
       }
     }
     seeds.a[r] = line.Y(seeds.x0);
-    seeds.b[r] = line.Slope(seeds.x0);
+    seeds.b[r] = line.y_slope();
     seeds.d[r] = line.Z(seeds.x0);
     seeds.e[r] = line.z_slope();
   }
@@ -497,9 +458,9 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
   slices.x_min = options.min_forward_m;
   const int n_slices =
       static_cast<int>(std::ceil((options.max_forward_m - options.min_forward_m) / kSliceM));
-  const double corridor_y = rail_y + options.candidate_half_width_m +
-                            0.5 * options.max_forward_m * options.max_forward_m /
-                                (2.0 * kMinCurveRadiusM);
+  const double corridor_y =
+      rail_y + options.candidate_half_width_m +
+      0.5 * options.max_forward_m * options.max_forward_m / (2.0 * kMinCurveRadiusM);
   std::vector<int> slice_of(points_body.size(), -1);
   std::vector<int> counts(n_slices + 1, 0);
   for (size_t i = 0; i < points_body.size(); ++i) {
@@ -594,7 +555,8 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
     }
   }
 
-  // Rail plane m = [n_p; d_p] through both rails: RANSAC, then least squares on the inliers.
+  // Rail plane m = [n_p; d_p] (the ground plane of eqs. (28)-(30)) through both rails: RANSAC,
+  // then least squares on the inliers.
   std::array<std::vector<Eigen::Vector3d>, 2> rail;
   for (int r = 0; r < 2; ++r) {
     rail[r].reserve(grown[r].size());

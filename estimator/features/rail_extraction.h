@@ -10,19 +10,19 @@ namespace raillomer {
 
 /// Options of the rail-track extraction (paper IV.C, Fig. 8), for the down-looking LiDAR.
 struct RailExtractionOptions {
-  double body_above_rail_top_m = 3.8;  ///< rig: body (IMU) origin above the rail top
-  double gauge_m = 1.435;              ///< track gauge
-  double rail_head_width_m = 0.07;     ///< region-growing distance to a fitted line
+  double body_above_rail_top_m = 3.8;   ///< rig: body (IMU) origin above the rail top
+  double gauge_m = 1.435;               ///< track gauge
+  double rail_head_width_m = 0.07;      ///< region-growing distance to a fitted line
   double candidate_half_width_m = 0.5;  ///< search band around each nominal rail
-  double seed_length_m = 3.0;          ///< initial seed area length (from the nearest return)
-  double max_length_m = 20.0;          ///< rails are grown up to this far ahead of the seed
-  double min_forward_m = 3.0;          ///< ignore points closer than this along x
-  double max_forward_m = 60.0;         ///< ignore points farther than this along x
-  double max_tilt_deg = 3.0;           ///< body roll/pitch allowance of the track-bed band
-  double min_rail_height_m = 0.1;      ///< a seed line must stand this far above the bed
-  int ransac_iterations = 100;
-  int min_rail_points = 30;            ///< per rail, else extraction fails
-  uint32_t random_seed = 1;            ///< RANSAC sampling (deterministic per call)
+  double seed_length_m = 3.0;           ///< initial seed area length (from the nearest return)
+  double max_length_m = 20.0;           ///< rails are grown to this length from the seed start
+  double min_forward_m = 3.0;           ///< ignore points closer than this along x
+  double max_forward_m = 60.0;          ///< ignore points farther than this along x
+  double max_tilt_deg = 3.0;            ///< body roll/pitch allowance of the track-bed band
+  double min_rail_height_m = 0.1;       ///< a seed line must stand this far above the bed
+  int ransac_iterations = 100;          ///< of the seed line pair and of the rail plane
+  int min_rail_points = 30;             ///< per rail, else extraction fails
+  uint32_t random_seed = 1;             ///< RANSAC sampling (deterministic per call)
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;
 };
@@ -44,7 +44,9 @@ struct RailExtraction {
 /// Finds the track bed from the mounting geometry, takes local-maximum-height candidates near
 /// each rail, fits a RANSAC line per rail, grows each within rail_head_width_m up to
 /// max_length_m, and fits the rail plane to both rails. `points_body` are the down LiDAR's
-/// deskewed points in the body frame.
+/// deskewed points in the body frame. The seed lines are found as a pair one gauge apart, the
+/// rails grow as a parallel pair that may bend (curves), and the plane is fitted to the rail
+/// tops. Fails (ok false, `failure` says why) without two rails, e.g. no track in view.
 RailExtraction ExtractRails(const RailExtractionOptions& options,
                             const std::vector<Eigen::Vector3f>& points_body);
 

@@ -12,7 +12,8 @@ namespace {
 
 using io::MapReader;
 
-Eigen::Isometry3d PoseFromYaml(const std::array<double, 3>& t, const std::array<double, 3>& rpy_deg) {
+Eigen::Isometry3d PoseFromYaml(const std::array<double, 3>& t,
+                               const std::array<double, 3>& rpy_deg) {
   const double k = M_PI / 180.0;
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = (Eigen::AngleAxisd(rpy_deg[2] * k, Eigen::Vector3d::UnitZ()) *
@@ -47,7 +48,8 @@ void ParseLidars(MapReader& root, RigConfig* rig) {
     lidar.T_body_lidar = PoseFromYaml(t, rpy);
     rig->lidars.push_back(lidar);
   });
-  if (rig->lidars.empty()) root.Fail(root.Node("lidars"), "key 'lidars' must list at least one LiDAR");
+  if (rig->lidars.empty())
+    root.Fail(root.Node("lidars"), "key 'lidars' must list at least one LiDAR");
 }
 
 void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationNoise* noise) {
@@ -70,6 +72,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
+  r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
   r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
   if (r.Has("preprocess")) {
@@ -113,6 +116,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   };
   if (window_size < 2 || window_size > 30) return fail("window_size must be in [2, 30]");
   if (registration_rounds < 1) return fail("registration_rounds must be >= 1");
+  if (!(init_gravity_s >= 0.1 && init_gravity_s <= 10.0))
+    return fail("init_gravity_s must be in [0.1, 10] s");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
@@ -154,8 +159,8 @@ std::string EstimatorConfig::Describe() const {
   s << "ablation: " << o.switches.Name() << "\n";
   s << "window_size: " << o.window_size << ", registration_rounds: " << o.registration_rounds
     << ", max_solver_iterations: " << o.max_solver_iterations << "\n";
-  s << "map: voxel " << o.map_voxel_m << " m, " << o.map_points_per_voxel << " points/voxel, radius "
-    << o.map_radius_m << " m\n";
+  s << "map: voxel " << o.map_voxel_m << " m, " << o.map_points_per_voxel
+    << " points/voxel, radius " << o.map_radius_m << " m\n";
   s << "lidar sigmas: plane " << o.plane_sigma_m << " m, edge " << o.edge_sigma_m
     << " m, correspondences within " << o.max_correspondence_m << " m\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
@@ -171,6 +176,7 @@ std::string EstimatorConfig::Describe() const {
     << o.height.y_min_m << ", " << o.height.y_max_m << "] bin " << o.height.bin_m << " m\n";
   s << "keyframes: every " << o.keyframe_distance_m << " m or " << o.keyframe_angle_deg
     << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
+  s << "initial levelling: " << o.init_gravity_s << " s of IMU data\n";
   return s.str();
 }
 
@@ -182,7 +188,8 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
   RigConfig& rig = c.rig;
   try {
     const YAML::Node root_node = YAML::Load(yaml_text);
-    if (!root_node || root_node.IsNull()) throw io::YamlError(source_name + ": the config is empty");
+    if (!root_node || root_node.IsNull())
+      throw io::YamlError(source_name + ": the config is empty");
     MapReader root(root_node, "", source_name);
     root.Read("rig", &rig.rig);
     root.Read("utm_zone", &rig.utm_zone);

@@ -82,9 +82,10 @@ struct EstimatorOptions {
   int failure_min_planes = 100;
   /// Degeneracy (eq. 25): smallest eigenvalue of the LiDAR's normalised information matrix.
   double degeneracy_threshold = 0.02;
-  double keyframe_distance_m = 2.0;   ///< keyframes for mapping: distance since the last
-  double keyframe_angle_deg = 5.0;    ///< ... or rotation since the last
-  double imu_gap_warn_s = 0.05;       ///< IMU gaps longer than this are reported
+  double keyframe_distance_m = 2.0;  ///< keyframes for mapping: distance since the last
+  double keyframe_angle_deg = 5.0;   ///< ... or rotation since the last
+  double imu_gap_warn_s = 0.05;      ///< IMU gaps longer than this are reported
+  double init_gravity_s = 1.0;       ///< IMU data averaged for the initial roll and pitch
   bool write_keyframes = true;
 
   /// False with a message naming the bad field.

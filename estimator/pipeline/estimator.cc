@@ -53,16 +53,19 @@ std::string Seconds(double t) {
 }
 
 /// Thins a cloud on a voxel grid (first point per voxel), keeping intensities alongside.
-void VoxelThin(double voxel_m, std::vector<Eigen::Vector3f>* points, std::vector<float>* intensities) {
+void VoxelThin(double voxel_m,
+               std::vector<Eigen::Vector3f>* points,
+               std::vector<float>* intensities) {
   std::unordered_set<uint64_t> seen;
   seen.reserve(points->size());
   size_t kept = 0;
   for (size_t i = 0; i < points->size(); ++i) {
     const Eigen::Vector3f& p = (*points)[i];
     const uint64_t mask = (1ULL << 21) - 1;
-    const uint64_t key = ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() / voxel_m))) & mask) << 42) |
-                         ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() / voxel_m))) & mask) << 21) |
-                         (static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() / voxel_m))) & mask);
+    const uint64_t key =
+        ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() / voxel_m))) & mask) << 42) |
+        ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() / voxel_m))) & mask) << 21) |
+        (static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() / voxel_m))) & mask);
     if (!seen.insert(key).second) continue;
     (*points)[kept] = p;
     (*intensities)[kept] = (*intensities)[i];
@@ -193,8 +196,8 @@ void Estimator::AddImu(const io::ImuSample& sample) {
     Warn("IMU sample at " + Seconds(t) + " holds a non-finite value: dropped");
     return;
   }
-  if (last_imu_t_ > -1e299 && t - last_imu_t_ > std::max(config_.options.imu_gap_warn_s,
-                                                          3.0 / config_.rig.imu_rate_hz)) {
+  if (last_imu_t_ > -1e299 &&
+      t - last_imu_t_ > std::max(config_.options.imu_gap_warn_s, 3.0 / config_.rig.imu_rate_hz)) {
     ++stats_.imu_gaps;
     Warn("IMU gap of " + Seconds(t - last_imu_t_) + " before " + Seconds(t) +
          ": bridged by interpolation, the LiDARs and the odometer");
@@ -209,7 +212,8 @@ void Estimator::AddOdometer(const io::WheelOdometry& reading) {
   if (t <= last_odo_t_ || !std::isfinite(reading.position_rad)) {
     ++stats_.odometer_rejected;
     if (warning_counts_["odo-rewind"]++ < 5) {
-      Warn("odometer reading at " + Seconds(t) + " is older than the previous or not finite: dropped");
+      Warn("odometer reading at " + Seconds(t) +
+           " is older than the previous or not finite: dropped");
     }
     return;
   }
@@ -239,8 +243,8 @@ void Estimator::ProcessReady(bool flush) {
 double Estimator::OdometerDistanceAt(double t, bool* ok) const {
   *ok = false;
   if (odo_.size() < 2 || t < odo_.front().t || t > odo_.back().t) return 0.0;
-  auto it = std::lower_bound(odo_.begin(), odo_.end(), t,
-                             [](const OdoRecord& r, double value) { return r.t < value; });
+  auto it = std::lower_bound(
+      odo_.begin(), odo_.end(), t, [](const OdoRecord& r, double value) { return r.t < value; });
   if (it == odo_.begin()) {
     *ok = true;
     return it->distance_m;
@@ -253,19 +257,21 @@ double Estimator::OdometerDistanceAt(double t, bool* ok) const {
   return a.distance_m + s * (b.distance_m - a.distance_m);
 }
 
-std::shared_ptr<Preintegration> Estimator::Preintegrate(double t0,
-                                                       double t1,
-                                                       const NavState& start,
-                                                       bool use_odometer,
-                                                       bool* odometer_ok) {
+std::shared_ptr<Preintegration> Estimator::Preintegrate(
+    double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) {
   const RigConfig& rig = config_.rig;
-  auto pre = std::make_shared<Preintegration>(start.ba, start.bg, start.c, Eigen::Matrix3d::Identity(),
-                                              rig.p_body_odometer, rig.noise, rig.gravity_mps2);
+  auto pre = std::make_shared<Preintegration>(start.ba,
+                                              start.bg,
+                                              start.c,
+                                              Eigen::Matrix3d::Identity(),
+                                              rig.p_body_odometer,
+                                              rig.noise,
+                                              rig.gravity_mps2);
   // IMU samples at t0, every record inside (t0, t1), and t1; interpolated at the ends, held
   // across the ends of the buffer.
   auto sample_at = [&](double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) {
-    auto it = std::lower_bound(imu_.begin(), imu_.end(), t,
-                               [](const ImuRecord& r, double value) { return r.t < value; });
+    auto it = std::lower_bound(
+        imu_.begin(), imu_.end(), t, [](const ImuRecord& r, double value) { return r.t < value; });
     if (it == imu_.end()) {
       *gyro = imu_.back().gyro;
       *accel = imu_.back().accel;
@@ -285,7 +291,8 @@ std::shared_ptr<Preintegration> Estimator::Preintegrate(double t0,
   }
   times.push_back(t1);
   bool d0_ok = false, d1_ok = false;
-  const bool use_odo = use_odometer && config_.options.switches.use_odometer && !rig.odometer_topic.empty();
+  const bool use_odo =
+      use_odometer && config_.options.switches.use_odometer && !rig.odometer_topic.empty();
   const double d0 = use_odo ? OdometerDistanceAt(t0, &d0_ok) : 0.0;
   const double d1 = use_odo ? OdometerDistanceAt(t1, &d1_ok) : 0.0;
   *odometer_ok = use_odo && d0_ok && d1_ok;
@@ -315,20 +322,39 @@ std::shared_ptr<Preintegration> Estimator::Preintegrate(double t0,
 bool Estimator::Initialize(double t_end) {
   NavState s;
   if (config_.options.switches.use_imu) {
-    // Roll and pitch from the mean specific force of the last 0.5 s (the train runs smoothly).
+    // Roll and pitch from the mean specific force over the first init_gravity_s of IMU data,
+    // less the train's own acceleration: along track from the odometer, centripetal from the
+    // yaw rate. Shorter averages leave car-body vibration in the tilt, and a tilt error at
+    // speed reads as a turn (lateral gravity = v * yaw rate) that no later LiDAR map undoes.
+    const double span = config_.options.init_gravity_s;
+    if (imu_.empty() || imu_.back().t - imu_.front().t < span - 1e-3 ||
+        t_end - imu_.front().t < span - 1e-3) {
+      if (warning_counts_["init-imu"]++ == 0) {
+        Warn("initialising: levelling on the first " + Seconds(span) +
+             " of IMU data; no poses before that");
+      }
+      return false;
+    }
     Eigen::Vector3d f = Eigen::Vector3d::Zero();
     Eigen::Vector3d w = Eigen::Vector3d::Zero();
     int n = 0;
     for (const ImuRecord& r : imu_) {
-      if (r.t > t_end - 0.5 && r.t <= t_end + 1e-6) {
+      if (r.t > t_end - span && r.t <= t_end + 1e-6) {
         f += r.accel;
         w += r.gyro;
         ++n;
       }
     }
-    if (n < 5) {
-      if (warning_counts_["init-imu"]++ < 3) Warn("no IMU data yet at " + Seconds(t_end) + ": waiting to start");
-      return false;
+    if (n < 5) return false;
+    bool ok_a = false, ok_b = false, ok_c = false;
+    const double d_a = OdometerDistanceAt(t_end - span, &ok_a);
+    const double d_b = OdometerDistanceAt(t_end - 0.5 * span, &ok_b);
+    const double d_c = OdometerDistanceAt(t_end, &ok_c);
+    if (ok_a && ok_b && ok_c) {
+      const double v1 = (d_b - d_a) / (0.5 * span), v2 = (d_c - d_b) / (0.5 * span);
+      const double accel = (v2 - v1) / (0.5 * span);
+      const double speed = 0.5 * (v1 + v2);
+      f -= n * Eigen::Vector3d(accel, speed * w.z() / n, 0.0);
     }
     f /= n;
     s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
@@ -337,10 +363,16 @@ bool Estimator::Initialize(double t_end) {
     const double yaw = std::atan2(x.y(), x.x());
     s.q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * s.q;
   }
-  bool ok0 = false, ok1 = false;
-  const double d1 = OdometerDistanceAt(t_end, &ok1);
-  const double d0 = OdometerDistanceAt(t_end - 0.2, &ok0);
-  if (ok0 && ok1) s.v = s.q * Eigen::Vector3d((d1 - d0) / 0.2, 0.0, 0.0);
+  // Initial speed from the odometer over up to the last 0.2 s (the train may start at speed).
+  if (!odo_.empty()) {
+    const double t0 = std::max(odo_.front().t, t_end - 0.2);
+    bool ok0 = false, ok1 = false;
+    const double d1 = OdometerDistanceAt(t_end, &ok1);
+    const double d0 = OdometerDistanceAt(t0, &ok0);
+    if (ok0 && ok1 && t_end - t0 > 0.03)
+      s.v = s.q * Eigen::Vector3d((d1 - d0) / (t_end - t0), 0.0, 0.0);
+  }
+  init_time_s_ = t_end;
   window_->Push(t_end, s, nullptr);
   initialized_ = true;
   last_node_t_ = t_end;
@@ -358,7 +390,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   last_frame_start_s_ = pending.start_s;
   if (pending.frames.size() < rig.lidars.size()) {
     for (size_t i = 0; i < rig.lidars.size(); ++i) {
-      if (!pending.frames.count(static_cast<int>(i)) && warning_counts_["missing-" + rig.lidars[i].name]++ % 50 == 0) {
+      if (!pending.frames.count(static_cast<int>(i)) &&
+          warning_counts_["missing-" + rig.lidars[i].name]++ % 50 == 0) {
         Warn("LiDAR '" + rig.lidars[i].name + "' has no frame for " + Seconds(pending.start_s) +
              ": continuing with the others");
       }
@@ -377,7 +410,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     if (o.switches.use_imu) {
       pre = Preintegrate(last_node_t_, t_end, prev, true, &odometer_ok);
       pred = pre->Predict(prev);
-      if (odometer_ok) {
+      if (odometer_ok && t_end - init_time_s_ > 1.0) {
         // A slipping or sliding wheel disagrees with the inertial prediction: drop its reading.
         const double dx_pred = (prev.q.conjugate() * (pred.p - prev.p)).x();
         const double dx_odo = prev.c * pre->phi().x();
@@ -397,7 +430,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       const double dt_prev = last_node_t_ - window_->Time(window_->size() - 2);
       const Eigen::Isometry3d delta = PoseOf(older).inverse() * PoseOf(prev);
       const double s = dt_prev > 0.0 ? (t_end - last_node_t_) / dt_prev : 1.0;
-      const Eigen::Isometry3d step = Interpolate(Eigen::Isometry3d::Identity(), delta, std::min(s, 3.0));
+      const Eigen::Isometry3d step =
+          Interpolate(Eigen::Isometry3d::Identity(), delta, std::min(s, 3.0));
       const Eigen::Isometry3d T = PoseOf(prev) * step;
       pred.p = T.translation();
       pred.q = Eigen::Quaterniond(T.linear());
@@ -461,7 +495,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         extras->rail_distance = rails.distance;
       }
     }
-    if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links && !extras->has_descriptor) {
+    if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links &&
+        !extras->has_descriptor) {
       extras->descriptor = ComputeHeightDescriptor(o.height, fronts[i].points_body);
       extras->has_descriptor = true;
     }
@@ -469,7 +504,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   if (keep_cloud) {
     for (FrontendResult& f : fronts) {
       extras->cloud.insert(extras->cloud.end(), f.points_body.begin(), f.points_body.end());
-      extras->intensities.insert(extras->intensities.end(), f.intensities.begin(), f.intensities.end());
+      extras->intensities.insert(
+          extras->intensities.end(), f.intensities.begin(), f.intensities.end());
     }
   }
   const Clock::time_point t_frontend = Clock::now();
@@ -480,11 +516,13 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     window_->Push(t_end, pred, pre);
     NodeExtras* before = extras_.empty() ? nullptr : extras_.back().get();
     if (before && before->has_rail && extras->has_rail) {
-      window_->AddNewestPairFactor(
-          std::make_shared<RailPlaneFactor>(before->rail_normal, before->rail_distance, extras->rail_normal,
-                                            extras->rail_distance, 1.0 / o.rail_normal_sigma_rad,
-                                            1.0 / o.rail_distance_sigma_m),
-          std::make_shared<ceres::HuberLoss>(3.0));
+      window_->AddNewestPairFactor(std::make_shared<RailPlaneFactor>(before->rail_normal,
+                                                                     before->rail_distance,
+                                                                     extras->rail_normal,
+                                                                     extras->rail_distance,
+                                                                     1.0 / o.rail_normal_sigma_rad,
+                                                                     1.0 / o.rail_distance_sigma_m),
+                                   std::make_shared<ceres::HuberLoss>(3.0));
       result.rail_plane = true;
     }
     if (before && before->has_descriptor && extras->has_descriptor) {
@@ -510,13 +548,15 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
-      const LidarMatches matches = MatchFeatures(match, fronts[i].features, T_current, *edge_map_, *plane_map_);
+      const LidarMatches matches =
+          MatchFeatures(match, fronts[i].features, T_current, *edge_map_, *plane_map_);
       const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
       diag.matches = matches.size();
       diag.degeneracy = lidar_only.degeneracy;
       // Favour factors, eq. (24-26).
       const bool edges_ok = static_cast<int>(fronts[i].features.edges.size()) > o.failure_min_edges;
-      const bool planes_ok = static_cast<int>(fronts[i].features.planes.size()) > o.failure_min_planes;
+      const bool planes_ok =
+          static_cast<int>(fronts[i].features.planes.size()) > o.failure_min_planes;
       diag.xi_failure = edges_ok && planes_ok ? 1.0 : (!edges_ok && !planes_ok ? 100.0 : 50.0);
       diag.xi_degeneracy = lidar_only.degeneracy <= o.degeneracy_threshold ? 10.0 : 1.0;
       const double p_lidar = (T_prev.inverse() * lidar_only.T_world_body).translation().norm();
@@ -534,7 +574,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         costs.push_back(std::make_shared<PointToPlaneFactor>(m.p_body, m.normal, m.d, w_plane));
       }
       for (const LineMatch& m : matches.lines) {
-        costs.push_back(std::make_shared<PointToLineFactor>(m.p_body, m.point, m.direction, w_edge));
+        costs.push_back(
+            std::make_shared<PointToLineFactor>(m.p_body, m.point, m.direction, w_edge));
       }
     }
     window_->SetNewestLidarFactors(std::move(costs), std::make_shared<ceres::HuberLoss>(1.0));
@@ -555,8 +596,10 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   const Eigen::Isometry3d T_newest = PoseOf(newest);
   std::vector<Eigen::Vector3d> edges_world, planes_world;
   for (const FrontendResult& f : fronts) {
-    for (const Eigen::Vector3f& p : f.features.edges) edges_world.push_back(T_newest * p.cast<double>());
-    for (const Eigen::Vector3f& p : f.features.planes) planes_world.push_back(T_newest * p.cast<double>());
+    for (const Eigen::Vector3f& p : f.features.edges)
+      edges_world.push_back(T_newest * p.cast<double>());
+    for (const Eigen::Vector3f& p : f.features.planes)
+      planes_world.push_back(T_newest * p.cast<double>());
   }
   edge_map_->Add(edges_world);
   plane_map_->Add(planes_world);
@@ -590,6 +633,8 @@ void Estimator::EmitOldest() {
   result.T_world_body = PoseOf(s);
   result.v_world = s.v;
   result.odometer_scale = s.c;
+  result.gyro_bias = s.bg;
+  result.accel_bias = s.ba;
   if (have_output_) stats_.distance_m += (s.p - last_output_position_).norm();
   last_output_position_ = s.p;
   have_output_ = true;

@@ -36,12 +36,14 @@ struct FrameResult {
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
   Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
   double odometer_scale = 1.0;
+  Eigen::Vector3d gyro_bias = Eigen::Vector3d::Zero();
+  Eigen::Vector3d accel_bias = Eigen::Vector3d::Zero();
   double frontend_ms = 0.0;  ///< preprocessing, deskewing, features, rails, descriptor
   double backend_ms = 0.0;   ///< matching, optimisation, marginalisation, map update
   std::vector<LidarDiagnostics> lidars;
-  bool rail_plane = false;      ///< a rail plane was extracted
-  bool height_shift = false;    ///< a height-descriptor displacement was used
-  bool odometer_used = false;   ///< the odometer entered this interval's factor
+  bool rail_plane = false;     ///< a rail plane was extracted
+  bool height_shift = false;   ///< a height-descriptor displacement was used
+  bool odometer_used = false;  ///< the odometer entered this interval's factor
   int solver_iterations = 0;
 };
 
@@ -115,11 +117,8 @@ class Estimator {
   void ProcessFrame(const PendingFrame& pending);
   bool Initialize(double t_end);
   /// IMU (and, when use_odometer, odometer) preintegration over [t0, t1] from `start`'s biases.
-  std::shared_ptr<Preintegration> Preintegrate(double t0,
-                                              double t1,
-                                              const NavState& start,
-                                              bool use_odometer,
-                                              bool* odometer_ok);
+  std::shared_ptr<Preintegration> Preintegrate(
+      double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok);
   double OdometerDistanceAt(double t, bool* ok) const;
   void EmitOldest();
   void TrimBuffers(double t);
@@ -141,6 +140,7 @@ class Estimator {
   std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
   bool initialized_ = false;
   double last_node_t_ = 0.0;
+  double init_time_s_ = 0.0;
   Eigen::Isometry3d last_keyframe_pose_ = Eigen::Isometry3d::Identity();
   bool have_keyframe_ = false;
   Eigen::Vector3d last_output_position_ = Eigen::Vector3d::Zero();

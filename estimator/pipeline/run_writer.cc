@@ -13,7 +13,8 @@ namespace {
 
 double Percentile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
+  const size_t k =
+      std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
   std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
   return v[k];
 }
@@ -34,7 +35,10 @@ RunWriter::~RunWriter() {
   }
 }
 
-bool RunWriter::Open(const std::string& out_dir, bool write_keyframes, const std::string& header, std::string* error) {
+bool RunWriter::Open(const std::string& out_dir,
+                     bool write_keyframes,
+                     const std::string& header,
+                     std::string* error) {
   out_dir_ = out_dir;
   write_keyframes_ = write_keyframes;
   std::error_code ec;
@@ -59,12 +63,22 @@ bool RunWriter::Open(const std::string& out_dir, bool write_keyframes, const std
   if (write_keyframes && !open("keyframes.tum", &keyframes_)) return false;
   std::fprintf(trajectory_, "%s", header.c_str());
   std::fflush(trajectory_);
-  std::fprintf(timing_,
-               "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
-               "height_shift,odometer_scale,speed_mps");
+  std::fprintf(
+      timing_,
+      "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
+      "height_shift,odometer_scale,speed_mps,gyro_bias_x,gyro_bias_y,gyro_bias_z,accel_bias_x,"
+      "accel_bias_y,accel_bias_z");
   for (const char* lidar : {"up", "down"}) {
-    std::fprintf(timing_, ",%s_points,%s_edges,%s_planes,%s_matches,%s_degeneracy,%s_xi_f,%s_xi_d,%s_xi_p",
-                 lidar, lidar, lidar, lidar, lidar, lidar, lidar, lidar);
+    std::fprintf(timing_,
+                 ",%s_points,%s_edges,%s_planes,%s_matches,%s_degeneracy,%s_xi_f,%s_xi_d,%s_xi_p",
+                 lidar,
+                 lidar,
+                 lidar,
+                 lidar,
+                 lidar,
+                 lidar,
+                 lidar,
+                 lidar);
   }
   std::fprintf(timing_, "\n");
   return true;
@@ -78,14 +92,39 @@ void RunWriter::WriteFrame(const FrameResult& f) {
   frame_ms_.push_back(total);
   frontend_ms_.push_back(f.frontend_ms);
   backend_ms_.push_back(f.backend_ms);
-  std::fprintf(timing_, "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.5f,%.3f", api::FormatStampSeconds(f.stamp_ns).c_str(),
-               f.frontend_ms, f.backend_ms, total, f.solver_iterations, f.odometer_used ? 1 : 0,
-               f.rail_plane ? 1 : 0, f.height_shift ? 1 : 0, f.odometer_scale, f.v_world.norm());
+  std::fprintf(timing_,
+               "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.5f,%.3f",
+               api::FormatStampSeconds(f.stamp_ns).c_str(),
+               f.frontend_ms,
+               f.backend_ms,
+               total,
+               f.solver_iterations,
+               f.odometer_used ? 1 : 0,
+               f.rail_plane ? 1 : 0,
+               f.height_shift ? 1 : 0,
+               f.odometer_scale,
+               f.v_world.norm());
+  std::fprintf(timing_,
+               ",%.3e,%.3e,%.3e,%.3e,%.3e,%.3e",
+               f.gyro_bias.x(),
+               f.gyro_bias.y(),
+               f.gyro_bias.z(),
+               f.accel_bias.x(),
+               f.accel_bias.y(),
+               f.accel_bias.z());
   for (size_t i = 0; i < 2; ++i) {
     if (i < f.lidars.size()) {
       const LidarDiagnostics& d = f.lidars[i];
-      std::fprintf(timing_, ",%zu,%zu,%zu,%zu,%.4f,%.0f,%.0f,%.2f", d.points, d.edges, d.planes, d.matches,
-                   d.degeneracy, d.xi_failure, d.xi_degeneracy, d.xi_pose);
+      std::fprintf(timing_,
+                   ",%zu,%zu,%zu,%zu,%.4f,%.0f,%.0f,%.2f",
+                   d.points,
+                   d.edges,
+                   d.planes,
+                   d.matches,
+                   d.degeneracy,
+                   d.xi_failure,
+                   d.xi_degeneracy,
+                   d.xi_pose);
     } else {
       std::fprintf(timing_, ",0,0,0,0,0,1,1,1");
     }
@@ -102,17 +141,29 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
   const Eigen::Vector3d t = k.T_world_body.translation();
   std::string pcd;
   char head[512];
-  std::snprintf(head, sizeof(head),
+  std::snprintf(head,
+                sizeof(head),
                 "# .PCD v0.7 - RailLoMer keyframe %s, body frame, deskewed\n"
                 "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
-                "WIDTH %zu\nHEIGHT 1\nVIEWPOINT %.4f %.4f %.4f %.9f %.9f %.9f %.9f\nPOINTS %zu\nDATA binary\n",
-                stamp.c_str(), k.points_body.size(), t.x(), t.y(), t.z(), q.w(), q.x(), q.y(), q.z(),
+                "WIDTH %zu\nHEIGHT 1\nVIEWPOINT %.4f %.4f %.4f %.9f %.9f %.9f %.9f\nPOINTS "
+                "%zu\nDATA binary\n",
+                stamp.c_str(),
+                k.points_body.size(),
+                t.x(),
+                t.y(),
+                t.z(),
+                q.w(),
+                q.x(),
+                q.y(),
+                q.z(),
                 k.points_body.size());
   pcd = head;
   const size_t offset = pcd.size();
   pcd.resize(offset + 16 * k.points_body.size());
   for (size_t i = 0; i < k.points_body.size(); ++i) {
-    const float v[4] = {k.points_body[i].x(), k.points_body[i].y(), k.points_body[i].z(),
+    const float v[4] = {k.points_body[i].x(),
+                        k.points_body[i].y(),
+                        k.points_body[i].z(),
                         i < k.intensities.size() ? k.intensities[i] : 0.f};
     std::memcpy(&pcd[offset + 16 * i], v, sizeof(v));
   }
@@ -130,28 +181,46 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
 double RunWriter::MedianFrameMs() const { return Percentile(frame_ms_, 0.5); }
 double RunWriter::PercentileFrameMs(double q) const { return Percentile(frame_ms_, q); }
 
-bool RunWriter::Close(const EstimatorStats& s, double data_duration_s, double wall_s, const std::string& extra_json, std::string* error) {
+bool RunWriter::Close(const EstimatorStats& s,
+                      double data_duration_s,
+                      double wall_s,
+                      const std::string& extra_json,
+                      std::string* error) {
   for (std::FILE** f : {&trajectory_, &timing_, &keyframes_}) {
     if (*f) std::fclose(*f);
     *f = nullptr;
   }
   char text[2048];
-  std::snprintf(text, sizeof(text),
+  std::snprintf(text,
+                sizeof(text),
                 "{\n  \"frames\": %zu,\n  \"keyframes\": %zu,\n  \"distance_m\": %.3f,\n"
                 "  \"data_duration_s\": %.3f,\n  \"wall_s\": %.3f,\n  \"real_time_factor\": %.3f,\n"
                 "  \"frame_ms\": {\"median\": %.3f, \"p95\": %.3f, \"max\": %.3f},\n"
                 "  \"frontend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
                 "  \"backend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
                 "  \"warnings\": %llu,\n  \"lidar_frames_dropped\": %llu,\n  \"imu_gaps\": %llu,\n"
-                "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  \"odometer_rejected\": %llu%s%s\n}\n",
-                frame_ms_.size(), keyframe_count_, s.distance_m, data_duration_s, wall_s,
-                wall_s > 0 ? data_duration_s / wall_s : 0.0, Percentile(frame_ms_, 0.5),
-                Percentile(frame_ms_, 0.95), Percentile(frame_ms_, 1.0), Percentile(frontend_ms_, 0.5),
-                Percentile(frontend_ms_, 0.95), Percentile(backend_ms_, 0.5), Percentile(backend_ms_, 0.95),
-                static_cast<unsigned long long>(s.warnings), static_cast<unsigned long long>(s.lidar_frames_dropped),
-                static_cast<unsigned long long>(s.imu_gaps), static_cast<unsigned long long>(s.imu_rejected),
+                "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  "
+                "\"odometer_rejected\": %llu%s%s\n}\n",
+                frame_ms_.size(),
+                keyframe_count_,
+                s.distance_m,
+                data_duration_s,
+                wall_s,
+                wall_s > 0 ? data_duration_s / wall_s : 0.0,
+                Percentile(frame_ms_, 0.5),
+                Percentile(frame_ms_, 0.95),
+                Percentile(frame_ms_, 1.0),
+                Percentile(frontend_ms_, 0.5),
+                Percentile(frontend_ms_, 0.95),
+                Percentile(backend_ms_, 0.5),
+                Percentile(backend_ms_, 0.95),
+                static_cast<unsigned long long>(s.warnings),
+                static_cast<unsigned long long>(s.lidar_frames_dropped),
+                static_cast<unsigned long long>(s.imu_gaps),
+                static_cast<unsigned long long>(s.imu_rejected),
                 static_cast<unsigned long long>(s.odometer_outliers),
-                static_cast<unsigned long long>(s.odometer_rejected), extra_json.empty() ? "" : ",\n  ",
+                static_cast<unsigned long long>(s.odometer_rejected),
+                extra_json.empty() ? "" : ",\n  ",
                 extra_json.c_str());
   if (!api::WriteFileAtomically(out_dir_ + "/summary.json", text, error)) return false;
   if (failed_) {

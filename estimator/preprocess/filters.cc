@@ -35,43 +35,51 @@ std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>&
   return lines;
 }
 
-/// Points per cell of a sparse 3D grid: a counting hash set of 64-bit cell keys with open
-/// addressing (an unordered_map costs several times more on 24000 points).
+/// Points per cell of a sparse 3D grid: a counting hash set of 46-bit cell keys with open
+/// addressing, key and count packed in one word so that the table stays small in the cache.
 class CellCounter {
  public:
-  explicit CellCounter(size_t expected) {
+  explicit CellCounter(size_t points) {
     size_t capacity = 64;
-    while (capacity < 2 * expected) capacity *= 2;
-    keys_.assign(capacity, 0);
-    counts_.assign(capacity, 0);
+    while (capacity < points + points / 2 + 1) capacity *= 2;  // never full
+    slots_.assign(capacity, 0);
     mask_ = capacity - 1;
   }
 
-  /// Adds one point to the cell `key`; returns the cell's slot.
+  /// Adds one point to the cell `key` (< 2^48); returns the cell's slot.
   uint32_t Add(uint64_t key) {
-    size_t slot = (key * 0x9E3779B97F4A7C15ULL) >> 32 & mask_;
-    while (counts_[slot] != 0 && keys_[slot] != key) slot = (slot + 1) & mask_;
-    keys_[slot] = key;
-    ++counts_[slot];
+    size_t slot = (key * 0x9E3779B97F4A7C15ULL) >> 40 & mask_;
+    while (true) {
+      uint64_t& entry = slots_[slot];
+      if (entry == 0) {
+        entry = key << 16 | 1;
+        break;
+      }
+      if (entry >> 16 == key) {
+        if ((entry & 0xFFFF) != 0xFFFF) ++entry;  // the count saturates
+        break;
+      }
+      slot = (slot + 1) & mask_;
+    }
     return static_cast<uint32_t>(slot);
   }
 
-  uint32_t Count(uint32_t slot) const { return counts_[slot]; }
+  uint32_t Count(uint32_t slot) const { return static_cast<uint32_t>(slots_[slot] & 0xFFFF); }
 
  private:
-  std::vector<uint64_t> keys_;
-  std::vector<uint32_t> counts_;  ///< 0: empty slot
+  std::vector<uint64_t> slots_;  ///< key << 16 | count; 0: empty
   size_t mask_ = 0;
 };
 
-/// Key of the cell of `p` on a grid of edge `size` shifted by `offset` cells, within `shell`.
-uint64_t CellKey(const Eigen::Vector3f& p, double size, double offset, int shell) {
-  constexpr int64_t kBias = int64_t{1} << 17;  // 18 bits per axis, 10 for the shell
+/// Key of the cell of `p` on a grid of cells 1 / `inverse_size` wide shifted by `offset` cells,
+/// within range shell `shell` (0..127).
+uint64_t CellKey(const Eigen::Vector3f& p, float inverse_size, float offset, int shell) {
+  constexpr int64_t kBias = int64_t{1} << 12;  // 13 bits per axis, 7 for the shell
   auto axis = [&](float v) {
-    const int64_t c = static_cast<int64_t>(std::floor(v / size + offset)) + kBias;
+    const int64_t c = static_cast<int64_t>(std::floor(v * inverse_size + offset)) + kBias;
     return static_cast<uint64_t>(std::clamp<int64_t>(c, 0, 2 * kBias - 1));
   };
-  return static_cast<uint64_t>(shell & 0x3FF) << 54 | axis(p.x()) << 36 | axis(p.y()) << 18 |
+  return static_cast<uint64_t>(shell & 0x7F) << 39 | axis(p.x()) << 26 | axis(p.y()) << 13 |
          axis(p.z());
 }
 
@@ -147,22 +155,29 @@ void RemoveSunFlicker(const PreprocessOptions& options, Scan* scan, PreprocessSt
   const size_t n = points.size();
   if (n == 0) return;
   const bool scaled = options.flicker_reference_range_m > 0.0;
+  // Shell s (r in [2^(s/2), 2^((s+1)/2)) for grid 0, a quarter octave lower for grid 1) has
+  // cells alpha 2^(s/2) wide, about alpha r.
+  constexpr int kShells = 128, kShellBias = kShells / 2;
+  float inverse_size[kShells];
   const double alpha = options.flicker_cell_size_m / options.flicker_reference_range_m;
+  for (int s = 0; s < kShells; ++s) {
+    inverse_size[s] = static_cast<float>(1.0 / (alpha * std::exp2(0.5 * (s - kShellBias))));
+  }
+  const float fixed_inverse_size = static_cast<float>(1.0 / options.flicker_cell_size_m);
   CellCounter grids[2] = {CellCounter(n), CellCounter(n)};
   std::vector<uint32_t> slots[2] = {std::vector<uint32_t>(n), std::vector<uint32_t>(n)};
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Vector3f& p = points[i].p;
-    const double octaves = scaled ? 2.0 * std::log2(std::max(p.norm(), 1e-3f)) : 0.0;
+    const float octaves = scaled ? 2.f * std::log2(std::max(p.norm(), 1e-3f)) : 0.f;
     for (int g = 0; g < 2; ++g) {
-      double size = options.flicker_cell_size_m;
       int shell = 0;
+      float inverse = fixed_inverse_size;
       if (scaled) {
-        // shell = floor(2 log2 r + g / 2); the cell edge is alpha * 2^(shell / 2) ~ alpha * r.
-        shell = static_cast<int>(std::floor(octaves + 0.5 * g));
-        size = alpha * std::exp2(0.5 * shell);
-        shell += 512;
+        shell = std::clamp(
+            static_cast<int>(std::floor(octaves + 0.5f * g)) + kShellBias, 0, kShells - 1);
+        inverse = inverse_size[shell];
       }
-      slots[g][i] = grids[g].Add(CellKey(p, size, 0.5 * g, shell));
+      slots[g][i] = grids[g].Add(CellKey(p, inverse, 0.5f * g, shell));
     }
   }
   const uint32_t min_points = static_cast<uint32_t>(options.flicker_min_points_per_cell);
@@ -253,10 +268,12 @@ PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan) {
   return stats;
 }
 
-void Deskew(const Eigen::Isometry3d& T_body_lidar, const Eigen::Isometry3d& T_end_start, Scan* scan) {
-  // T_end_t = interpolation between T_end_start (weight 1, t = 0) and identity (weight 0, t =
-  // duration): slerp of the rotation about its fixed axis and lerp of the translation. Points
-  // after the nominal end extrapolate the same motion.
+void Deskew(const Eigen::Isometry3d& T_body_lidar,
+            const Eigen::Isometry3d& T_end_start,
+            Scan* scan) {
+  // Paper IV.C, the IMU/odometer increment with linear interpolation: T_end_t runs from
+  // T_end_start (weight 1, t = 0) to identity (weight 0, t = duration), the rotation turning
+  // about its fixed axis at a constant rate (slerp) and the translation lerped.
   const Eigen::AngleAxisd rotation(T_end_start.linear());
   const double angle = rotation.angle();
   const Eigen::Vector3d axis = rotation.axis();

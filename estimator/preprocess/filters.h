@@ -64,14 +64,19 @@ void RemoveSunFlicker(const PreprocessOptions& options, Scan* scan, PreprocessSt
 /// the two real ends of a clean depth jump and long grazing-incidence runs stay.
 void RemoveBoundaryBleeding(const PreprocessOptions& options, Scan* scan, PreprocessStats* stats);
 
-/// All of the above in order, after dropping zero or non-finite points (counted as no_return).
+/// All of the above in order (sensor frame: before Deskew), after dropping zero or non-finite
+/// points (counted as no_return).
 PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan);
 
 /// Moves every point to the body frame at the frame end (start_s + duration_s).
 ///
 /// T_end_start is the body motion over the frame (body at the end <- body at the start), from
 /// the IMU/odometer increment; a point at time t is moved by the pose interpolated linearly
-/// (slerp and lerp) between identity at the end and T_end_start at the start.
-void Deskew(const Eigen::Isometry3d& T_body_lidar, const Eigen::Isometry3d& T_end_start, Scan* scan);
+/// (slerp and lerp) between identity at the end and T_end_start at the start (paper IV.C). Points
+/// stamped after duration_s extrapolate the same motion; with duration_s <= 0 only the extrinsic
+/// is applied. range_m, line and time_s keep their values.
+void Deskew(const Eigen::Isometry3d& T_body_lidar,
+            const Eigen::Isometry3d& T_end_start,
+            Scan* scan);
 
 }  // namespace raillomer

@@ -1,7 +1,6 @@
 #include "estimator/factors/imu_odometer_factor.h"
 
 #include <array>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -229,30 +228,6 @@ TEST(ImuOdometerFactorTest, NoticesARepropagatedPreintegration) {
   const Eigen::Matrix<double, 19, 1> expected =
       pre->SqrtInformation() * pre->Evaluate(ToState(blocks, 0), ToState(blocks, 1));
   EXPECT_LT((r - expected).norm(), 1e-9 * expected.norm());
-}
-
-TEST(ImuOdometerFactorTest, EvaluateCost) {
-  const auto pre = MakePreintegration();
-  const ImuOdometerFactor factor(pre);
-  const auto blocks = MakeParameters(*pre);
-  Eigen::Matrix<double, 19, 1> residual;
-  std::array<Eigen::Matrix<double, 19, Eigen::Dynamic, Eigen::RowMajor>, 6> storage;
-  double* jacobians[6];
-  const double* parameters[6];
-  for (int b = 0; b < 6; ++b) {
-    storage[b].setZero(19, kBlockSizes[b]);
-    jacobians[b] = storage[b].data();
-    parameters[b] = blocks[b].data();
-  }
-  const int n = 2000;
-  const auto start = std::chrono::steady_clock::now();
-  for (int k = 0; k < n; ++k) factor.Evaluate(parameters, residual.data(), jacobians);
-  const double us =
-      std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count() /
-      n;
-  std::printf("ImuOdometerFactor::Evaluate with all Jacobians: %.2f us\n", us);
-  EXPECT_TRUE(residual.allFinite());
-  EXPECT_LT(us, 500.0);
 }
 
 }  // namespace

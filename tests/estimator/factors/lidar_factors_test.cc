@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 
 #include <array>
-#include <chrono>
 #include <cstdio>
 #include <memory>
 #include <random>
@@ -364,30 +363,6 @@ TEST(RailPlaneFactor, RecoversRollPitchAndHeightOfSecondPose) {
   EXPECT_LT(
       (Rotation(pose_j).transpose() * n_world - Rotation(truth_j).transpose() * n_world).norm(),
       1e-9);
-}
-
-TEST(PointToPlaneFactor, EvaluateTiming) {
-  Pose pose = kTruePose;
-  const PointToPlaneFactor factor(
-      {4.0, -2.0, 1.5}, Eigen::Vector3d(0.3, -0.4, 0.8).normalized(), 1.7, 3.0);
-  double residual = 0.0;
-  double jacobian[7];
-  double* jacobians[1] = {jacobian};
-  const double* parameters[1] = {pose.data()};
-  constexpr int kRepeats = 200000;
-  double sum = 0.0;
-  const auto start = std::chrono::steady_clock::now();
-  for (int k = 0; k < kRepeats; ++k) {
-    pose[0] += 1e-9;
-    factor.Evaluate(parameters, &residual, jacobians);
-    sum += residual + jacobian[4];
-  }
-  const double seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::printf("PointToPlaneFactor::Evaluate with Jacobian: %.1f ns (checksum %g)\n",
-              1e9 * seconds / kRepeats,
-              sum);
-  EXPECT_TRUE(std::isfinite(sum));
 }
 
 }  // namespace

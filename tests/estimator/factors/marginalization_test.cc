@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <array>
-#include <chrono>
 #include <cstdio>
 #include <memory>
 #include <random>
@@ -767,72 +766,6 @@ TEST(MarginalizationInfo, KeptBlocksAreRenamedThroughTheAddressMap) {
   Eigen::VectorXd r(16);
   ASSERT_TRUE(factor.Evaluate(values.data(), r.data(), nullptr));
   EXPECT_LT((r - info->linearized_residual()).norm(), 1e-12);
-}
-
-TEST(MarginalizationInfo, Timing) {
-  // ~4000 point-to-plane terms on the dropped pose, an IMU-like term to the next state, a rail
-  // plane, a longitudinal shift and priors: a typical marginalisation of the oldest keyframe.
-  std::array<Pose, 2> poses = {MakePose({0.0, 0.0, 0.0}, {0.01, 0.02, 0.1}),
-                               MakePose({10.0, 0.5, 0.1}, {0.0, 0.01, 0.2})};
-  std::array<SpeedBias, 2> sb = {SpeedBias{10.0}, SpeedBias{10.0}};
-  std::array<Scale, 2> scales = {Scale{1.0}, Scale{1.0}};
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> uniform(-20.0, 20.0);
-  std::vector<MarginalizationTerm> terms;
-  const auto huber = std::make_shared<ceres::HuberLoss>(0.1);
-  for (int n = 0; n < 4000; ++n) {
-    const Eigen::Vector3d normal =
-        Eigen::Vector3d(uniform(rng), uniform(rng), uniform(rng)).normalized();
-    terms.push_back(
-        {std::make_shared<PointToPlaneFactor>(
-             Eigen::Vector3d(uniform(rng), uniform(rng), uniform(rng)), normal, 0.3, 10.0),
-         huber,
-         {poses[0].data()},
-         {0}});
-  }
-  terms.push_back({std::make_shared<ImuLikeCost>(new ImuLike{Eigen::Vector3d(10.0, 0.0, 0.0),
-                                                             Eigen::Vector3d::Zero(),
-                                                             Eigen::Quaterniond::Identity(),
-                                                             10.0,
-                                                             1.0}),
-                   nullptr,
-                   {poses[0].data(),
-                    sb[0].data(),
-                    scales[0].data(),
-                    poses[1].data(),
-                    sb[1].data(),
-                    scales[1].data()},
-                   {0, 1, 2}});
-  terms.push_back({std::make_shared<RailPlaneFactor>(
-                       Eigen::Vector3d::UnitZ(), 1.5, Eigen::Vector3d::UnitZ(), 1.5, 100.0, 100.0),
-                   nullptr,
-                   {poses[0].data(), poses[1].data()},
-                   {0}});
-  terms.push_back({std::make_shared<LongitudinalShiftFactor>(10.0, 0.05),
-                   nullptr,
-                   {poses[0].data(), poses[1].data()},
-                   {0}});
-  terms.push_back({std::make_shared<SpeedBiasPriorCost>(
-                       new EuclideanPrior<9>{Eigen::Matrix<double, 9, 1>::Zero(), 1.0}),
-                   nullptr,
-                   {sb[0].data()},
-                   {0}});
-  terms.push_back({std::make_shared<ScalePriorCost>(
-                       new EuclideanPrior<1>{Eigen::Matrix<double, 1, 1>(1.0), 0.01}),
-                   nullptr,
-                   {scales[0].data()},
-                   {0}});
-  constexpr int kRepeats = 5;
-  double seconds = 0.0;
-  for (int repeat = 0; repeat < kRepeats; ++repeat) {
-    MarginalizationInfo info;
-    for (const MarginalizationTerm& term : terms) info.AddTerm(term);
-    const auto start = std::chrono::steady_clock::now();
-    ASSERT_TRUE(info.Marginalize());
-    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    EXPECT_EQ(info.kept_tangent_size(), 16);
-  }
-  std::printf("Marginalize() with %zu terms: %.3f ms\n", terms.size(), 1e3 * seconds / kRepeats);
 }
 
 }  // namespace

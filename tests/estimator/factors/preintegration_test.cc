@@ -1,6 +1,5 @@
 #include "estimator/factors/preintegration.h"
 
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -509,30 +508,6 @@ TEST(PreintegrationTest, AppendEqualsOnePreintegration) {
   AddSamples(traj, t0, 61, 70, &first);
   AddSamples(traj, t0, 61, 70, &whole);
   EXPECT_LT((first.alpha() - whole.alpha()).norm(), 1e-12);
-}
-
-TEST(PreintegrationTest, AddCost) {
-  const TrainTrajectory traj(false);
-  const int n = 2000;
-  std::vector<Vector3d> gyro(n + 1), accel(n + 1);
-  for (int k = 0; k <= n; ++k) {
-    gyro[k] = traj.Gyro(k * kImuDt);
-    accel[k] = traj.Accel(k * kImuDt);
-  }
-  Preintegration pre = MakePreintegration(traj);
-  const auto start = std::chrono::steady_clock::now();
-  for (int k = 0; k <= n; ++k) pre.Add(k == 0 ? 0.0 : kImuDt, gyro[k], accel[k], 30.0, true);
-  const double us =
-      std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count() /
-      n;
-  const auto start_sqrt = std::chrono::steady_clock::now();
-  const Eigen::Matrix<double, 19, 19> L = pre.SqrtInformation();
-  const double us_sqrt =
-      std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start_sqrt)
-          .count();
-  std::printf("Add(): %.2f us per sample; SqrtInformation(): %.1f us\n", us, us_sqrt);
-  EXPECT_TRUE(L.allFinite());
-  EXPECT_LT(us, 200.0);
 }
 
 }  // namespace

@@ -72,7 +72,8 @@ double DistanceToFaces(const std::vector<Face>& faces, const Eigen::Vector3f& p)
 
 double DistanceToCorners(const Eigen::Vector3f& p) {
   double best = 1e9;
-  for (const Eigen::Vector2d& c : kCorners) best = std::min(best, (p.head<2>().cast<double>() - c).norm());
+  for (const Eigen::Vector2d& c : kCorners)
+    best = std::min(best, (p.head<2>().cast<double>() - c).norm());
   return best;
 }
 

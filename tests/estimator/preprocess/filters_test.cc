@@ -39,9 +39,8 @@ ScanPoint MakePoint(const Eigen::Vector3d& p, uint8_t line = 0, double time_s = 
 
 /// Whether `scan` still holds a point at exactly `p`.
 bool Contains(const Scan& scan, const Eigen::Vector3f& p) {
-  return std::any_of(scan.points.begin(), scan.points.end(), [&p](const ScanPoint& q) {
-    return q.p == p;
-  });
+  return std::any_of(
+      scan.points.begin(), scan.points.end(), [&p](const ScanPoint& q) { return q.p == p; });
 }
 
 TEST(PreprocessOptions, DefaultsAreValidAndBadFieldsAreNamed) {
@@ -154,12 +153,10 @@ TEST(RemoveSunFlicker, RemovesIsolatedSkyPointsAndKeepsSurfaces) {
   std::vector<Eigen::Vector3d> flicker;
   const PreprocessOptions options;
   while (flicker.size() < 150) {
-    const Eigen::Vector3d p =
-        range(rng) * Direction(azimuth(rng) * kDeg, elevation(rng) * kDeg);
+    const Eigen::Vector3d p = range(rng) * Direction(azimuth(rng) * kDeg, elevation(rng) * kDeg);
     const double cell = options.flicker_cell_size_m * p.norm() / options.flicker_reference_range_m;
-    const bool isolated = std::all_of(flicker.begin(), flicker.end(), [&](const auto& q) {
-      return (q - p).norm() > 5.0 * cell;
-    });
+    const bool isolated = std::all_of(
+        flicker.begin(), flicker.end(), [&](const auto& q) { return (q - p).norm() > 5.0 * cell; });
     if (isolated) flicker.push_back(p);
   }
   for (size_t i = 0; i < flicker.size(); ++i) {
@@ -355,8 +352,9 @@ struct World {
 /// Pose (slerp and lerp) between `T` (weight 1) and identity (weight 0).
 Eigen::Isometry3d Interpolate(const Eigen::Isometry3d& T, double weight) {
   Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
-  out.linear() =
-      Eigen::Quaterniond::Identity().slerp(weight, Eigen::Quaterniond(T.linear())).toRotationMatrix();
+  out.linear() = Eigen::Quaterniond::Identity()
+                     .slerp(weight, Eigen::Quaterniond(T.linear()))
+                     .toRotationMatrix();
   out.translation() = weight * T.translation();
   return out;
 }
@@ -486,13 +484,15 @@ TEST(Preprocess, SimulatedFramesLoseTheirArtefactsAndKeepTheirSurfaces) {
         if (kinds[i] != sim::PointKind::kSurface || beyond_min) ++all.in[kinds[i]];
       }
       auto count_out = [&kind_of](const Scan& scan, KindCounts* counts) {
-        for (const ScanPoint& p : scan.points) ++counts->out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
+        for (const ScanPoint& p : scan.points)
+          ++counts->out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
       };
       Scan scan = ScanFromLidarFrame(message, static_cast<int>(unit), 0.1);
       // The bleeding filter on its own (the occupancy grid also takes many mixed returns).
       Scan alone = scan;
       RemoveNearAndFarPoints(options, &alone, nullptr);
-      for (const ScanPoint& p : alone.points) ++bleeding_stage.in[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
+      for (const ScanPoint& p : alone.points)
+        ++bleeding_stage.in[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
       RemoveBoundaryBleeding(options, &alone, nullptr);
       count_out(alone, &bleeding_stage);
 

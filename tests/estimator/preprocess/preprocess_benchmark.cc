@@ -1,7 +1,7 @@
 // Preprocessing and LOAM features on simulated frames: time per stage, what the filters remove by
 // point kind, and feature counts per scenario and LiDAR. Not a test: prints one line per LiDAR.
 //
-//   bench_preprocess [--frames N] [--every S] [--repeat R] [scenario ...]
+//   bench_preprocess [--frames N] [--every S] [--repeat R] [--exempt-intensity I] [scenario ...]
 //
 // Frames are taken every S seconds from 5 s into the run; each stage is timed R times on the same
 // frame and the fastest run counts (the machine is shared; the minimum is the stage's own cost).
@@ -42,12 +42,14 @@ struct Totals {
   size_t min_edges = std::numeric_limits<size_t>::max(), max_edges = 0;
   size_t min_planes = std::numeric_limits<size_t>::max(), max_planes = 0;
   double ms_convert = 0, ms_preprocess = 0, ms_deskew = 0, ms_features = 0, ms_worst = 0;
+  double ms_filter[3] = {};  ///< near/far, flicker, bleeding
 };
 
 int Run(int argc, char** argv) {
   int frames = 10, repeat = 5;
   double every_s = 2.0;
   std::vector<std::string> names;
+  PreprocessOptions pre_options;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--frames" && i + 1 < argc) {
@@ -56,16 +58,18 @@ int Run(int argc, char** argv) {
       every_s = std::atof(argv[++i]);
     } else if (arg == "--repeat" && i + 1 < argc) {
       repeat = std::max(1, std::atoi(argv[++i]));
+    } else if (arg == "--exempt-intensity" && i + 1 < argc) {
+      pre_options.flicker_exempt_intensity = std::atof(argv[++i]);
     } else if (!arg.empty() && arg[0] == '-') {
-      std::fprintf(stderr, "usage: bench_preprocess [--frames N] [--every S] [--repeat R] "
-                           "[scenario ...]\n");
+      std::fprintf(stderr,
+                   "usage: bench_preprocess [--frames N] [--every S] [--repeat R] "
+                   "[--exempt-intensity I] [scenario ...]\n");
       return 2;
     } else {
       names.push_back(arg);
     }
   }
   if (names.empty()) names = {"rich_low_station_a", "poor_high_open_a", "poor_low_embankment_b"};
-  const PreprocessOptions pre_options;
   const LoamFeatureOptions feature_options;
   for (const std::string& name : names) {
     sim::Scenario scenario;
@@ -112,20 +116,28 @@ int Run(int argc, char** argv) {
             ++t.surface_in;
           }
         }
-        const Eigen::Isometry3d T_end_start =
-            truth.Pose(t0 + period_s).inverse() * truth.Pose(t0);
-        double best[4] = {1e9, 1e9, 1e9, 1e9};
+        const Eigen::Isometry3d T_end_start = truth.Pose(t0 + period_s).inverse() * truth.Pose(t0);
+        double best[4] = {1e9, 1e9, 1e9, 1e9}, filter_best[3] = {1e9, 1e9, 1e9};
         Scan scan;
         FeatureSet features;
         for (int r = 0; r < repeat; ++r) {
           auto start = Clock::now();
           scan = ScanFromLidarFrame(message, static_cast<int>(unit), period_s);
           best[0] = std::min(best[0], MsSince(start));
+          // Preprocess() stage by stage.
           start = Clock::now();
-          Preprocess(pre_options, &scan);
+          RemoveNearAndFarPoints(pre_options, &scan, nullptr);
+          filter_best[0] = std::min(filter_best[0], MsSince(start));
+          auto filter_start = Clock::now();
+          RemoveSunFlicker(pre_options, &scan, nullptr);
+          filter_best[1] = std::min(filter_best[1], MsSince(filter_start));
+          filter_start = Clock::now();
+          RemoveBoundaryBleeding(pre_options, &scan, nullptr);
+          filter_best[2] = std::min(filter_best[2], MsSince(filter_start));
           best[1] = std::min(best[1], MsSince(start));
           if (r == 0) {
-            for (const ScanPoint& p : scan.points) ++t.kind_out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
+            for (const ScanPoint& p : scan.points)
+              ++t.kind_out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
           }
           start = Clock::now();
           Deskew(lidar.T_body_lidar(), T_end_start, &scan);
@@ -136,6 +148,7 @@ int Run(int argc, char** argv) {
         }
         t.ms_convert += best[0];
         t.ms_preprocess += best[1];
+        for (int i = 0; i < 3; ++i) t.ms_filter[i] += filter_best[i];
         t.ms_deskew += best[2];
         t.ms_features += best[3];
         t.ms_worst = std::max(t.ms_worst, best[0] + best[1] + best[2] + best[3]);
@@ -158,7 +171,8 @@ int Run(int argc, char** argv) {
       std::printf(
           "%-22s %-5s frames %zu | edges %.0f [%zu..%zu] planes %.0f [%zu..%zu] | flicker %zu "
           "removed %.1f%% | bleeding %zu removed %.1f%% | surface kept %zu/%zu %.2f%% | ms "
-          "convert %.2f preprocess %.2f deskew %.2f features %.2f worst %.2f\n",
+          "convert %.2f preprocess %.2f (near/far %.2f flicker %.2f bleeding %.2f) deskew %.2f "
+          "features %.2f worst %.2f\n",
           name.c_str(),
           lidar.config().name.c_str(),
           t.frames,
@@ -177,6 +191,9 @@ int Run(int argc, char** argv) {
           100.0 * t.kind_out[surface] / std::max<size_t>(t.surface_in, 1),
           t.ms_convert / n,
           t.ms_preprocess / n,
+          t.ms_filter[0] / n,
+          t.ms_filter[1] / n,
+          t.ms_filter[2] / n,
           t.ms_deskew / n,
           t.ms_features / n,
           t.ms_worst);

@@ -1,0 +1,190 @@
+// raillomer-estimator end to end: a short simulated run scored against the truth, the same on a
+// recorded bag, and clear errors on bad input that keep what was already written.
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "api/trajectory.h"
+#include "tests/support/process.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using raillomer::test::CommandResult;
+using raillomer::test::ReadText;
+using raillomer::test::ShellQuote;
+
+class EstimatorCli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    scratch_ = new raillomer::test::ScratchDir("raillomer_estimator_cli_");
+    // One short recording for the bag cases: 5 s of the demo run.
+    const fs::path bag_dir = scratch_->path() / "bag";
+    const CommandResult r =
+        raillomer::test::RunCommand(Bin("raillomer-sim") + " --scenario demo --duration 5 --out " +
+                                        ShellQuote(bag_dir.string()),
+                                    scratch_->path());
+    bag_ok_ = r.exit_code == 0;
+  }
+  static void TearDownTestSuite() {
+    delete scratch_;
+    scratch_ = nullptr;
+  }
+  void SetUp() override {
+    ASSERT_NE(scratch_, nullptr);
+    ASSERT_TRUE(bag_ok_) << "raillomer-sim could not record the test bag";
+  }
+
+  static std::string Bin(const std::string& name) {
+    return ShellQuote((raillomer::test::BinDir() / name).string());
+  }
+  static fs::path Dir() { return scratch_->path(); }
+  static fs::path Bag() { return Dir() / "bag" / "run.bag"; }
+  static fs::path Rig() { return Dir() / "bag" / "rig.yaml"; }
+  CommandResult Shell(const std::string& command) const {
+    return raillomer::test::RunCommand(command, Dir());
+  }
+  CommandResult Estimate(const std::string& args) const {
+    return Shell(Bin("raillomer-estimator") + " --quiet " + args);
+  }
+  /// Runs the estimator on the test bag with the rig's `from` replaced by `to`.
+  CommandResult EstimateWithEditedRig(const std::string& from,
+                                      const std::string& to,
+                                      const std::string& name) const {
+    std::string rig = ReadText(Rig());
+    rig.replace(rig.find(from), from.size(), to);
+    const fs::path edited = Dir() / (name + ".yaml");
+    std::ofstream(edited) << rig;
+    return Estimate("--bag " + ShellQuote(Bag().string()) + " --config " +
+                    ShellQuote(edited.string()) + " --out " + ShellQuote((Dir() / name).string()));
+  }
+  static size_t CountLines(const fs::path& path) {
+    std::ifstream in(path);
+    size_t n = 0;
+    for (std::string line; std::getline(in, line);) n += !line.empty() && line[0] != '#';
+    return n;
+  }
+
+  static raillomer::test::ScratchDir* scratch_;
+  static bool bag_ok_;
+};
+
+raillomer::test::ScratchDir* EstimatorCli::scratch_ = nullptr;
+bool EstimatorCli::bag_ok_ = false;
+
+TEST_F(EstimatorCli, ShortSimulatedRunTracksTheTruth) {
+  const fs::path out = Dir() / "sim";
+  const CommandResult r = Estimate("--sim demo --duration 15 --out " + ShellQuote(out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  // One pose per LiDAR frame (10 Hz) after the first second (initial levelling), one timing row
+  // each, keyframes and the summary.
+  raillomer::api::Trajectory estimate;
+  std::string error;
+  ASSERT_TRUE(raillomer::api::ReadTum((out / "trajectory.tum").string(), &estimate, &error))
+      << error;
+  EXPECT_NEAR(static_cast<double>(estimate.poses.size()), 141.0, 2.0);
+  EXPECT_EQ(CountLines(out / "timing.csv"), estimate.poses.size() + 1);
+  EXPECT_GT(CountLines(out / "keyframes.tum"), 5u);
+  size_t pcd = 0;
+  for (const auto& entry : fs::directory_iterator(out / "keyframes"))
+    pcd += entry.path().extension() == ".pcd";
+  EXPECT_EQ(pcd, CountLines(out / "keyframes.tum"));
+  const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
+  EXPECT_EQ(summary["frames"].get<int>(), static_cast<int>(estimate.poses.size()));
+  EXPECT_EQ(summary["ablation"], "full");
+
+  // Scored by raillomer-eval against the simulator's truth.
+  const CommandResult e =
+      Shell(Bin("raillomer-eval") + " --estimate " + ShellQuote((out / "trajectory.tum").string()) +
+            " --truth " + ShellQuote((out / "truth.tum").string()) + " --align se3 --json " +
+            ShellQuote((out / "eval.json").string()));
+  ASSERT_EQ(e.exit_code, 0) << e.err;
+  const nlohmann::json eval = nlohmann::json::parse(ReadText(out / "eval.json"));
+  EXPECT_GT(eval["distance_m"].get<double>(), 50.0);
+  EXPECT_LT(eval["ate_rmse_m"].get<double>(), 0.1);
+  EXPECT_LT(eval["end_drift_pct"].get<double>(), 0.5);
+}
+
+TEST_F(EstimatorCli, RecordedBagGivesAPoseForEveryFrameAfterLevelling) {
+  const fs::path out = Dir() / "from_bag";
+  const CommandResult r =
+      Estimate("--bag " + ShellQuote(Bag().string()) + " --config " + ShellQuote(Rig().string()) +
+               " --out " + ShellQuote(out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NEAR(static_cast<double>(CountLines(out / "trajectory.tum")), 41.0, 2.0);
+  const CommandResult e =
+      Shell(Bin("raillomer-eval") + " --estimate " + ShellQuote((out / "trajectory.tum").string()) +
+            " --truth " + ShellQuote((Dir() / "bag" / "truth.tum").string()) + " --align se3");
+  EXPECT_EQ(e.exit_code, 0) << e.err;
+}
+
+TEST_F(EstimatorCli, AblationSwitchesRunAndNameThemselves) {
+  const fs::path out = Dir() / "lidar_only";
+  const CommandResult r =
+      Estimate("--bag " + ShellQuote(Bag().string()) + " --config " + ShellQuote(Rig().string()) +
+               " --lidar-only --no-keyframes --out " + ShellQuote(out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(ReadText(out / "trajectory.tum").find("lidar-only"), std::string::npos);
+  EXPECT_FALSE(fs::exists(out / "keyframes"));
+  EXPECT_NE(ReadText(out / "summary.json").find("\"ablation\": \"lidar-only\""), std::string::npos);
+}
+
+TEST_F(EstimatorCli, MissingTopicIsNamed) {
+  const CommandResult r =
+      EstimateWithEditedRig("/livox/lidar_down", "/livox/lidar_middle", "missing");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("/livox/lidar_middle"), std::string::npos) << r.err;
+}
+
+TEST_F(EstimatorCli, WrongMessageTypeIsNamed) {
+  // The IMU topic pointed at the GNSS receiver's NavSatFix messages.
+  const CommandResult r = EstimateWithEditedRig("topic: /imu/data", "topic: /gnss/fix", "type");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("sensor_msgs/NavSatFix"), std::string::npos) << r.err;
+}
+
+TEST_F(EstimatorCli, TruncatedBagKeepsTheFramesBeforeTheCut) {
+  const std::string bytes = ReadText(Bag());
+  std::ofstream(Dir() / "cut.bag", std::ios::binary) << bytes.substr(0, bytes.size() * 6 / 10);
+  const fs::path out = Dir() / "cut";
+  const CommandResult r =
+      Estimate("--bag " + ShellQuote((Dir() / "cut.bag").string()) + " --config " +
+               ShellQuote(Rig().string()) + " --out " + ShellQuote(out.string()));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("stopped early"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("truncated"), std::string::npos) << r.err;
+  // What was written is a valid trajectory of the frames before the cut.
+  raillomer::api::Trajectory estimate;
+  std::string error;
+  ASSERT_TRUE(raillomer::api::ReadTum((out / "trajectory.tum").string(), &estimate, &error))
+      << error;
+  EXPECT_GT(estimate.poses.size(), 15u);
+  EXPECT_LT(estimate.poses.size(), 40u);
+  EXPECT_TRUE(fs::exists(out / "summary.json"));
+}
+
+TEST_F(EstimatorCli, UsageErrorsAreClear) {
+  CommandResult r = Estimate("--bag " + ShellQuote(Bag().string()) + " --out " +
+                             ShellQuote((Dir() / "x").string()));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--config is required"), std::string::npos) << r.err;
+  r = Estimate("--bag /nonexistent/run.bag --config " + ShellQuote(Rig().string()) + " --out " +
+               ShellQuote((Dir() / "y").string()));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("/nonexistent/run.bag"), std::string::npos) << r.err;
+  r = Estimate("--sim no_such_scenario --out " + ShellQuote((Dir() / "z").string()));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("no_such_scenario"), std::string::npos) << r.err;
+  std::ofstream(Dir() / "bad.yaml") << ReadText(Rig()) << "estimator:\n  window_sise: 4\n";
+  r = Estimate("--bag " + ShellQuote(Bag().string()) + " --config " +
+               ShellQuote((Dir() / "bad.yaml").string()) + " --out " +
+               ShellQuote((Dir() / "w").string()));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("estimator.window_sise"), std::string::npos) << r.err;
+}
+
+}  // namespace
