@@ -42,20 +42,29 @@ int main(int argc, char** argv) {
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
   auto* source = app.add_option_group("source", "Where the sensor data comes from");
   source->add_option("--bag", bag_path, "ROS1 bag of the sensor data contract");
-  source->add_option("--sim", sim_scenario, "Run the simulator in-process: built-in scenario name or YAML");
+  source->add_option(
+      "--sim", sim_scenario, "Run the simulator in-process: built-in scenario name or YAML");
   source->require_option(1);
-  app.add_option("--config", config_path, "Rig configuration YAML (required with --bag; --sim uses the scenario's rig)");
+  app.add_option("--config",
+                 config_path,
+                 "Rig configuration YAML (required with --bag; --sim uses the scenario's rig)");
   app.add_option("--out", out_dir, "Output folder (created if missing)")->required();
-  app.add_option("--duration", duration_s, "Process only the first N seconds of data")->check(CLI::PositiveNumber);
+  app.add_option("--duration", duration_s, "Process only the first N seconds of data")
+      ->check(CLI::PositiveNumber);
   app.add_option("--seed", seed, "With --sim: noise seed (the corridor keeps its world_seed)")
       ->check(CLI::Range(int64_t{0}, int64_t{4294967295}));
   app.add_flag("--no-odometer", no_odometer, "Ablation: ignore the wheel odometer");
   app.add_flag("--no-rail-plane", no_rail_plane, "Ablation: no rail-plane factor (eq. 28-30)");
-  app.add_flag("--no-height-descriptor", no_height, "Ablation: no height-descriptor factor (eq. 27)");
+  app.add_flag(
+      "--no-height-descriptor", no_height, "Ablation: no height-descriptor factor (eq. 27)");
   app.add_flag("--no-favour-factors", no_favour, "Ablation: LiDAR weights of eq. (23) all 1");
-  app.add_flag("--lidar-inertial", lidar_inertial,
-               "Ablation: the LiDAR-inertial subset (no odometer, rail plane or height descriptor)");
-  app.add_flag("--lidar-only", lidar_only, "Ablation: LiDAR odometry alone (no IMU, odometer or rail factors)");
+  app.add_flag(
+      "--lidar-inertial",
+      lidar_inertial,
+      "Ablation: the LiDAR-inertial subset (no odometer, rail plane or height descriptor)");
+  app.add_flag("--lidar-only",
+               lidar_only,
+               "Ablation: LiDAR odometry alone (no IMU, odometer or rail factors)");
   app.add_flag("--no-keyframes", no_keyframes, "Do not write keyframe clouds");
   app.add_flag("--quiet", quiet, "No progress line or configuration log");
   CLI11_PARSE(app, argc, argv);
@@ -77,14 +86,17 @@ int main(int argc, char** argv) {
     if (!s) return Fail(error);
     simulator = s.get();
     if (config_path.empty()) {
-      if (!ParseEstimatorConfig(s->RigYaml(), "sim:" + sim_scenario + "/rig.yaml", &config, &error)) return Fail(error);
+      if (!ParseEstimatorConfig(s->RigYaml(), "sim:" + sim_scenario + "/rig.yaml", &config, &error))
+        return Fail(error);
     }
     data_end_s = s->duration_s();
     input = std::move(s);
   }
-  if (!config_path.empty() && !LoadEstimatorConfig(config_path, &config, &error)) return Fail(error);
+  if (!config_path.empty() && !LoadEstimatorConfig(config_path, &config, &error))
+    return Fail(error);
   if (!bag_path.empty()) {
-    if (config_path.empty()) return Fail("--config is required with --bag (the rig.yaml of the recording)");
+    if (config_path.empty())
+      return Fail("--config is required with --bag (the rig.yaml of the recording)");
     io::BagTopics topics;
     topics.lidar.clear();
     for (const LidarRig& l : config.rig.lidars) topics.lidar.push_back(l.topic);
@@ -108,21 +120,24 @@ int main(int argc, char** argv) {
   if (lidar_only) sw.use_imu = false;
   if (no_keyframes) config.options.write_keyframes = false;
   if (!quiet) {
-    std::cerr << "raillomer-estimator: " << (bag ? "bag " + bag_path : "simulator " + sim_scenario) << " -> "
-              << out_dir << "\n";
+    std::cerr << "raillomer-estimator: " << (bag ? "bag " + bag_path : "simulator " + sim_scenario)
+              << " -> " << out_dir << "\n";
     std::istringstream lines(config.Describe());
     for (std::string line; std::getline(lines, line);) std::cerr << "  " << line << "\n";
   }
 
   RunWriter writer;
   std::ostringstream header;
-  header << "# raillomer-estimator " << sw.Name() << ": body pose at every LiDAR frame, local frame "
+  header << "# raillomer-estimator " << sw.Name()
+         << ": body pose at every LiDAR frame, local frame "
          << "(first state at the origin, yaw 0, gravity-aligned), rig " << config.rig.rig << "\n";
-  if (!writer.Open(out_dir, config.options.write_keyframes, header.str(), &error)) return Fail(error);
+  if (!writer.Open(out_dir, config.options.write_keyframes, header.str(), &error))
+    return Fail(error);
 
   EstimatorSinks sinks;
   sinks.on_frame = [&](const FrameResult& f) { writer.WriteFrame(f); };
-  if (config.options.write_keyframes) sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
+  if (config.options.write_keyframes)
+    sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
   sinks.on_warning = [&](const std::string& m) {
     if (!quiet) std::cerr << "\rraillomer-estimator: warning: " << m << "\n";
   };
@@ -143,14 +158,21 @@ int main(int argc, char** argv) {
       last_report = now;
       const double wall = std::chrono::duration<double>(now - wall_start).count();
       const double total = bag ? data_end_s - data_start_s : data_end_s;
-      std::fprintf(stderr, "\r  %6.1f / %.1f s of data, %llu frames, %.2f km, %.1fx real time, median %.1f ms/frame   ",
-                   last_s - first_s, total, static_cast<unsigned long long>(estimator.stats().frames),
-                   estimator.stats().distance_m / 1000.0, (last_s - first_s) / wall, writer.MedianFrameMs());
+      std::fprintf(stderr,
+                   "\r  %6.1f / %.1f s of data, %llu frames, %.2f km, %.1fx real time, median %.1f "
+                   "ms/frame   ",
+                   last_s - first_s,
+                   total,
+                   static_cast<unsigned long long>(estimator.stats().frames),
+                   estimator.stats().distance_m / 1000.0,
+                   (last_s - first_s) / wall,
+                   writer.MedianFrameMs());
       std::fflush(stderr);
     }
   }
   estimator.Finish();
-  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   const double data_s = std::max(0.0, last_s - first_s);
 
   std::string input_error;
@@ -170,14 +192,21 @@ int main(int argc, char** argv) {
         << "\",\n  \"peak_rss_mb\": " << static_cast<double>(usage.ru_maxrss) / 1024.0;
   if (!writer.Close(estimator.stats(), data_s, wall_s, extra.str(), &error)) return Fail(error);
   if (!quiet) {
-    std::fprintf(stderr, "\r  done: %zu frames, %.2f km in %.1f s (%.2fx real time), median %.1f ms/frame, p95 %.1f ms\n",
-                 writer.frames(), estimator.stats().distance_m / 1000.0, wall_s, wall_s > 0 ? data_s / wall_s : 0.0,
-                 writer.MedianFrameMs(), writer.PercentileFrameMs(0.95));
+    std::fprintf(stderr,
+                 "\r  done: %zu frames, %.2f km in %.1f s (%.2fx real time), median %.1f ms/frame, "
+                 "p95 %.1f ms\n",
+                 writer.frames(),
+                 estimator.stats().distance_m / 1000.0,
+                 wall_s,
+                 wall_s > 0 ? data_s / wall_s : 0.0,
+                 writer.MedianFrameMs(),
+                 writer.PercentileFrameMs(0.95));
   }
   if (!input_error.empty()) {
-    return Fail("the input stopped early: " + input_error + " (the " + std::to_string(writer.frames()) +
-                " frames before it are written)");
+    return Fail("the input stopped early: " + input_error + " (the " +
+                std::to_string(writer.frames()) + " frames before it are written)");
   }
-  if (writer.frames() == 0) return Fail("no frame was processed: check the LiDAR and IMU topics of the config");
+  if (writer.frames() == 0)
+    return Fail("no frame was processed: check the LiDAR and IMU topics of the config");
   return 0;
 }

@@ -9,7 +9,8 @@ namespace raillomer {
 namespace {
 
 /// Plane through the neighbours by least squares on n . x = -1 (LOAM), checked point by point.
-bool FitPlane(const Eigen::Vector3d* pts, int n, double max_residual, Eigen::Vector3d* normal, double* d) {
+bool FitPlane(
+    const Eigen::Vector3d* pts, int n, double max_residual, Eigen::Vector3d* normal, double* d) {
   Eigen::MatrixXd A(n, 3);
   for (int i = 0; i < n; ++i) A.row(i) = pts[i].transpose();
   // Centre the points first so the fit works at any distance from the origin.
@@ -29,7 +30,11 @@ bool FitPlane(const Eigen::Vector3d* pts, int n, double max_residual, Eigen::Vec
   return eig.eigenvalues()(1) > 4.0 * eig.eigenvalues()(0) + 1e-6;
 }
 
-bool FitLine(const Eigen::Vector3d* pts, int n, double min_ratio, Eigen::Vector3d* point, Eigen::Vector3d* direction) {
+bool FitLine(const Eigen::Vector3d* pts,
+             int n,
+             double min_ratio,
+             Eigen::Vector3d* point,
+             Eigen::Vector3d* direction) {
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (int i = 0; i < n; ++i) centroid += pts[i];
   centroid /= n;
@@ -130,7 +135,8 @@ LidarOnlySolution SolveLidarOnly(const LidarMatches& matches,
   const Eigen::Matrix3d Htt = H.topLeftCorner<3, 3>() / n;
   const Eigen::Matrix3d Htr = H.topRightCorner<3, 3>() / n;
   const Eigen::Matrix3d Hrr = H.bottomRightCorner<3, 3>() / n;
-  const Eigen::Matrix3d S = Htt - Htr * (Hrr + 1e-9 * Eigen::Matrix3d::Identity()).inverse() * Htr.transpose();
+  const Eigen::Matrix3d S =
+      Htt - Htr * (Hrr + 1e-9 * Eigen::Matrix3d::Identity()).inverse() * Htr.transpose();
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(S);
   out.degeneracy = std::max(0.0, eig.eigenvalues()(0));
   out.weakest_direction = eig.eigenvectors().col(0);

@@ -1,5 +1,7 @@
 #pragma once
 
+#include <cmath>
+
 #include <ceres/manifold.h>
 
 #include <Eigen/Core>
@@ -15,6 +17,13 @@ inline constexpr int kPoseSize = 7;
 inline constexpr int kPoseTangentSize = 6;
 inline constexpr int kSpeedBiasSize = 9;
 inline constexpr int kScaleSize = 1;
+
+/// Skew-symmetric matrix [v]x.
+inline Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
+  return m;
+}
 
 /// Exp map of SO(3) as a unit quaternion (exact, safe near zero).
 inline Eigen::Quaterniond ExpQuaternion(const Eigen::Vector3d& theta) {
@@ -80,11 +89,14 @@ class PoseManifold : public ceres::Manifold {
   }
 };
 
-/// Skew-symmetric matrix [v]x.
-inline Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d m;
-  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
-  return m;
+/// Right Jacobian of SO(3): Exp(x + d) ~= Exp(x) Exp(Jr(x) d).
+inline Eigen::Matrix3d RightJacobian(const Eigen::Vector3d& x) {
+  const double angle = x.norm();
+  const Eigen::Matrix3d k = Skew(x);
+  if (angle < 1e-4) return Eigen::Matrix3d::Identity() - 0.5 * k + k * k / 6.0;
+  const double a2 = angle * angle;
+  return Eigen::Matrix3d::Identity() - (1.0 - std::cos(angle)) / a2 * k +
+         (angle - std::sin(angle)) / (a2 * angle) * k * k;
 }
 
 }  // namespace raillomer

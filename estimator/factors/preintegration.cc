@@ -34,16 +34,6 @@ constexpr int kNs = 6;
 
 double Square(double x) { return x * x; }
 
-// Right Jacobian of SO(3): Exp(x + d) ~= Exp(x) Exp(Jr(x) d).
-Matrix3d RightJacobian(const Vector3d& x) {
-  const double angle = x.norm();
-  const Matrix3d k = Skew(x);
-  if (angle < 1e-4) return Matrix3d::Identity() - 0.5 * k + k * k / 6.0;
-  const double a2 = angle * angle;
-  return Matrix3d::Identity() - (1.0 - std::cos(angle)) / a2 * k +
-         (angle - std::sin(angle)) / (a2 * angle) * k * k;
-}
-
 }  // namespace
 
 Preintegration::Preintegration(const Vector3d& ba,

@@ -21,19 +21,6 @@ struct Candidate {
   float curvature;
 };
 
-/// Positions of the points of each laser line in the scan, in acquisition order.
-std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>& points) {
-  std::vector<size_t> counts;
-  for (const ScanPoint& p : points) {
-    if (p.line >= counts.size()) counts.resize(p.line + 1, 0);
-    ++counts[p.line];
-  }
-  std::vector<std::vector<uint32_t>> lines(counts.size());
-  for (size_t l = 0; l < counts.size(); ++l) lines[l].reserve(counts[l]);
-  for (size_t i = 0; i < points.size(); ++i) lines[points[i].line].push_back(i);
-  return lines;
-}
-
 float Range(const ScanPoint& point) { return point.range_m > 0.f ? point.range_m : point.p.norm(); }
 
 /// Chord 2 sin(angle / 2) between the beams of two returns `distance` apart at ranges ra, rb

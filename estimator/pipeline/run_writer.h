@@ -19,11 +19,18 @@ class RunWriter {
  public:
   ~RunWriter();
   /// Creates the folder and the files; false with a message naming the path on failure.
-  bool Open(const std::string& out_dir, bool write_keyframes, const std::string& header, std::string* error);
+  bool Open(const std::string& out_dir,
+            bool write_keyframes,
+            const std::string& header,
+            std::string* error);
   void WriteFrame(const FrameResult& frame);
   void WriteKeyframe(const Keyframe& keyframe);
   /// Writes summary.json; `extra_json` members (without braces) are added to it.
-  bool Close(const EstimatorStats& stats, double data_duration_s, double wall_s, const std::string& extra_json, std::string* error);
+  bool Close(const EstimatorStats& stats,
+             double data_duration_s,
+             double wall_s,
+             const std::string& extra_json,
+             std::string* error);
 
   size_t frames() const { return frame_ms_.size(); }
   /// Median and 95th percentile of frontend + backend time per frame.

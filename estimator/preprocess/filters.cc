@@ -22,19 +22,6 @@ size_t Compact(const std::vector<uint8_t>& keep, std::vector<ScanPoint>* points)
   return removed;
 }
 
-/// Positions of the points of each laser line in the scan, in acquisition order.
-std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>& points) {
-  std::vector<size_t> counts;
-  for (const ScanPoint& p : points) {
-    if (p.line >= counts.size()) counts.resize(p.line + 1, 0);
-    ++counts[p.line];
-  }
-  std::vector<std::vector<uint32_t>> lines(counts.size());
-  for (size_t l = 0; l < counts.size(); ++l) lines[l].reserve(counts[l]);
-  for (size_t i = 0; i < points.size(); ++i) lines[points[i].line].push_back(i);
-  return lines;
-}
-
 /// Points per cell of a sparse 3D grid: a counting hash set of 46-bit cell keys with open
 /// addressing, key and count packed in one word so that the table stays small in the cache.
 class CellCounter {

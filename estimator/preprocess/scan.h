@@ -33,4 +33,18 @@ struct FeatureSet {
   std::vector<Eigen::Vector3f> planes;  ///< low curvature (LOAM "flat")
 };
 
+/// Positions of the points of each laser line in the scan, in acquisition order.
+inline std::vector<std::vector<uint32_t>> PositionsByLine(const std::vector<ScanPoint>& points) {
+  std::vector<size_t> counts;
+  for (const ScanPoint& p : points) {
+    if (p.line >= counts.size()) counts.resize(p.line + 1, 0);
+    ++counts[p.line];
+  }
+  std::vector<std::vector<uint32_t>> lines(counts.size());
+  for (size_t l = 0; l < counts.size(); ++l) lines[l].reserve(counts[l]);
+  for (size_t i = 0; i < points.size(); ++i)
+    lines[points[i].line].push_back(static_cast<uint32_t>(i));
+  return lines;
+}
+
 }  // namespace raillomer

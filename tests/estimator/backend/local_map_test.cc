@@ -34,9 +34,11 @@ TEST(LocalMap, KNearestMatchesBruteForce) {
     for (const Eigen::Vector3d& p : kept) d.push_back((p - q).norm());
     std::sort(d.begin(), d.end());
     const int found = map.KNearest(q, 5, 1.0, out);
-    const int expected = static_cast<int>(std::count_if(d.begin(), d.end(), [](double x) { return x <= 1.0; }));
+    const int expected =
+        static_cast<int>(std::count_if(d.begin(), d.end(), [](double x) { return x <= 1.0; }));
     ASSERT_EQ(found, std::min(5, expected));
-    for (int i = 0; i < found; ++i) EXPECT_NEAR((out[i] - q).norm(), d[static_cast<size_t>(i)], 1e-12);
+    for (int i = 0; i < found; ++i)
+      EXPECT_NEAR((out[i] - q).norm(), d[static_cast<size_t>(i)], 1e-12);
   }
 }
 
@@ -49,7 +51,9 @@ TEST(LocalMap, CapsPointsPerVoxelAndSpacing) {
   EXPECT_EQ(map.num_voxels(), 1u);
   // Points closer than a quarter voxel to a kept one are skipped.
   LocalMap spaced(1.0, 100);
-  spaced.Add({Eigen::Vector3d(0.1, 0.1, 0.1), Eigen::Vector3d(0.2, 0.1, 0.1), Eigen::Vector3d(0.6, 0.6, 0.6)});
+  spaced.Add({Eigen::Vector3d(0.1, 0.1, 0.1),
+              Eigen::Vector3d(0.2, 0.1, 0.1),
+              Eigen::Vector3d(0.6, 0.6, 0.6)});
   EXPECT_EQ(spaced.num_points(), 2u);
 }
 

@@ -11,7 +11,8 @@ namespace {
 
 Eigen::Isometry3d Pose(double x, double y, double z, double roll, double pitch, double yaw) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
                 Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   T.translation() = Eigen::Vector3d(x, y, z);
@@ -46,7 +47,8 @@ FeatureSet ScanFrom(const World& w, const Eigen::Isometry3d& T_world_body, int s
   for (size_t i = 0; i < w.planes.size(); i += static_cast<size_t>(stride)) {
     f.planes.push_back((T_body_world * w.planes[i]).cast<float>());
   }
-  for (size_t i = 0; i < w.edges.size(); i += 3) f.edges.push_back((T_body_world * w.edges[i]).cast<float>());
+  for (size_t i = 0; i < w.edges.size(); i += 3)
+    f.edges.push_back((T_body_world * w.edges[i]).cast<float>());
   return f;
 }
 
@@ -91,7 +93,8 @@ TEST(ScanMatching, NoMatchesAgainstAnEmptyMap) {
   LocalMap edges(1.0, 20), planes(1.0, 20);
   FeatureSet scan;
   scan.planes.push_back(Eigen::Vector3f(1, 2, 3));
-  const LidarMatches m = MatchFeatures(MatchOptions{}, scan, Eigen::Isometry3d::Identity(), edges, planes);
+  const LidarMatches m =
+      MatchFeatures(MatchOptions{}, scan, Eigen::Isometry3d::Identity(), edges, planes);
   EXPECT_EQ(m.size(), 0u);
   const LidarOnlySolution s = SolveLidarOnly(m, Eigen::Isometry3d::Identity(), 5);
   EXPECT_FALSE(s.converged);

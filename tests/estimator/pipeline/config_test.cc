@@ -51,9 +51,11 @@ TEST(EstimatorConfig, RejectsUnknownKeysWithTheirLine) {
 TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
   EstimatorConfig config;
   std::string error;
-  EXPECT_FALSE(ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  window_size: 1\n", "rig.yaml", &config, &error));
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  window_size: 1\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("window_size"), std::string::npos) << error;
-  EXPECT_FALSE(ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  map_voxel_m: big\n", "rig.yaml", &config, &error));
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  map_voxel_m: big\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("wrong type"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
