@@ -231,7 +231,6 @@ NavState SlidingWindow::PopOldest(double* t_s) {
     for (const WindowTerm& t : oldest.lidar) add(t);
     for (const WindowTerm& t : nodes_[1]->links) add(t);
     if (info->Marginalize()) {
-      prior_info_ = info;
       prior_term_ = {std::make_shared<MarginalizationFactor>(info), nullptr, info->KeptBlocks({})};
       has_prior_ = true;
     }

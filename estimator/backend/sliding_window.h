@@ -84,12 +84,10 @@ class SlidingWindow {
 
  private:
   struct Node;
-  void AddTerms(const std::vector<WindowTerm>& terms, void* problem) const;
   std::vector<WindowTerm> AllTerms() const;
 
   SlidingWindowOptions options_;
   std::deque<std::unique_ptr<Node>> nodes_;
-  std::shared_ptr<MarginalizationInfo> prior_info_;
   WindowTerm prior_term_;
   bool has_prior_ = false;
 };

@@ -135,7 +135,7 @@ void Estimator::Add(const io::SensorMessage& message) {
   stream_time_s_ = std::max(stream_time_s_, receive_s);
   if (const auto* frame = std::get_if<io::LidarFrame>(&message.data)) {
     const auto it = lidar_topics_.find(message.topic);
-    if (it != lidar_topics_.end()) AddLidar(it->second, *frame, receive_s);
+    if (it != lidar_topics_.end()) AddLidar(it->second, *frame);
   } else if (const auto* imu = std::get_if<io::ImuSample>(&message.data)) {
     if (message.topic == config_.rig.imu_topic && config_.options.switches.use_imu) AddImu(*imu);
   } else if (const auto* odo = std::get_if<io::WheelOdometry>(&message.data)) {
@@ -146,7 +146,7 @@ void Estimator::Add(const io::SensorMessage& message) {
   ProcessReady(false);
 }
 
-void Estimator::AddLidar(int index, const io::LidarFrame& frame, double /*receive_s*/) {
+void Estimator::AddLidar(int index, const io::LidarFrame& frame) {
   const double start_s = static_cast<double>(frame.timebase_ns) * 1e-9;
   const double period = 1.0 / config_.rig.lidars[static_cast<size_t>(index)].rate_hz;
   if (start_s <= last_frame_start_s_ + 0.25 * period) {

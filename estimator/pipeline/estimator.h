@@ -110,7 +110,7 @@ class Estimator {
   struct NodeExtras;
 
   void Warn(const std::string& message);
-  void AddLidar(int index, const io::LidarFrame& frame, double receive_s);
+  void AddLidar(int index, const io::LidarFrame& frame);
   void AddImu(const io::ImuSample& sample);
   void AddOdometer(const io::WheelOdometry& reading);
   void ProcessReady(bool flush);
