@@ -37,6 +37,17 @@ void LocalMap::Add(const std::vector<Eigen::Vector3d>& points_world) {
   }
 }
 
+void LocalMap::Rotate(const Eigen::Matrix3d& R) {
+  std::vector<Eigen::Vector3d> points;
+  points.reserve(num_points_);
+  for (const auto& [key, voxel] : voxels_) {
+    for (const Eigen::Vector3d& p : voxel) points.push_back(R * p);
+  }
+  voxels_.clear();
+  num_points_ = 0;
+  Add(points);
+}
+
 void LocalMap::RemoveFar(const Eigen::Vector3d& center, double radius_m) {
   const double limit_sq = radius_m * radius_m;
   for (auto it = voxels_.begin(); it != voxels_.end();) {

@@ -17,6 +17,8 @@ class LocalMap {
 
   /// Inserts points; a point closer than a quarter voxel to one already held is skipped.
   void Add(const std::vector<Eigen::Vector3d>& points_world);
+  /// Moves every point by R (about the origin), e.g. when the world frame is re-levelled.
+  void Rotate(const Eigen::Matrix3d& R);
   /// Drops the voxels farther than radius_m from center.
   void RemoveFar(const Eigen::Vector3d& center, double radius_m);
   /// Up to k nearest points within max_distance_m, nearest first; returns how many.

@@ -91,24 +91,7 @@ void SlidingWindow::Push(double t_s,
   node->t_s = t_s;
   ToBlocks(state, node->pose, node->speed_bias, node->scale);
   if (nodes_.empty() && !has_prior_) {
-    // The first state anchors the frame: its pose is held, velocity and biases loosely.
-    node->priors.push_back(
-        {std::make_shared<PosePriorFactor>(node->pose, 1e-4, options_.use_imu ? 0.02 : 1e-5, 1e-5),
-         nullptr,
-         {node->pose}});
-    if (options_.use_imu) {
-      Eigen::VectorXd sigma(9);
-      sigma << Eigen::Vector3d::Constant(options_.initial_velocity_sigma_mps),
-          Eigen::Vector3d::Constant(options_.initial_accel_bias_sigma),
-          Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
-      node->priors.push_back(
-          {DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
-      node->priors.push_back(
-          {DiagonalPrior(
-               node->scale, 1, Eigen::VectorXd::Constant(1, options_.initial_scale_sigma)),
-           nullptr,
-           {node->scale}});
-    }
+    AddAnchorPriors(node.get());
   } else if (options_.use_imu && preintegration && !nodes_.empty()) {
     Node& prev = *nodes_.back();
     node->preintegration = preintegration;
@@ -134,6 +117,42 @@ void SlidingWindow::AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cos
   Node& prev = *nodes_[nodes_.size() - 2];
   Node& node = *nodes_.back();
   node.links.push_back({std::move(cost), std::move(loss), {prev.pose, node.pose}});
+}
+
+void SlidingWindow::AddAnchorPriors(Node* node) const {
+  // The anchor state holds the frame: its pose tightly (roll and pitch loosely when the IMU
+  // observes them through gravity), velocity and biases loosely.
+  node->priors.push_back(
+      {std::make_shared<PosePriorFactor>(node->pose, 1e-4, options_.use_imu ? 0.02 : 1e-5, 1e-5),
+       nullptr,
+       {node->pose}});
+  if (!options_.use_imu) return;
+  Eigen::VectorXd sigma(9);
+  sigma << Eigen::Vector3d::Constant(options_.initial_velocity_sigma_mps),
+      Eigen::Vector3d::Constant(options_.initial_accel_bias_sigma),
+      Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
+  node->priors.push_back({DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
+  node->priors.push_back(
+      {DiagonalPrior(node->scale, 1, Eigen::VectorXd::Constant(1, options_.initial_scale_sigma)),
+       nullptr,
+       {node->scale}});
+}
+
+void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old) {
+  const Eigen::Quaterniond q_rot(R_new_old);
+  for (auto& n : nodes_) {
+    Eigen::Map<Eigen::Vector3d> p(n->pose), v(n->speed_bias), ba(n->speed_bias + 3);
+    Eigen::Map<Eigen::Quaterniond> q(n->pose + 3);
+    p = R_new_old * p;
+    q = (q_rot * q).normalized();
+    v = R_new_old * v;
+    ba.setZero();
+    n->lidar.clear();
+    n->priors.clear();
+  }
+  has_prior_ = false;
+  prior_term_ = WindowTerm();
+  if (!nodes_.empty()) AddAnchorPriors(nodes_.front().get());
 }
 
 std::vector<WindowTerm> SlidingWindow::AllTerms() const {

@@ -24,7 +24,7 @@ struct SlidingWindowOptions {
   bool use_imu = true;         ///< false: states are poses only, linked by nothing but priors
   bool estimate_scale = true;  ///< false: the odometer scale stays at its initial value
   double initial_velocity_sigma_mps = 1.0;
-  double initial_accel_bias_sigma = 2.0e-3;  ///< m/s^2, about 10x an MTi-680G turn-on bias
+  double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2: also takes up a residual tilt of ~0.2 deg
   double initial_gyro_bias_sigma = 2.0e-4;   ///< rad/s, about 5x an MTi-680G turn-on bias
   double initial_scale_sigma = 0.02;
   int num_threads = 2;
@@ -82,9 +82,17 @@ class SlidingWindow {
   /// The newest state's pose block (7 doubles), e.g. to build its factors.
   double* NewestPose();
 
+  /// Re-levels the world frame: rotates every state (position, attitude, velocity) by
+  /// R_new_old about the origin and zeroes the accelerometer biases, which had absorbed the
+  /// old frame's tilt. The LiDAR factors (tied to the old frame's map) are dropped and the
+  /// marginalisation prior is replaced by fresh priors on the oldest state.
+  void RotateWorld(const Eigen::Matrix3d& R_new_old);
+
  private:
   struct Node;
   std::vector<WindowTerm> AllTerms() const;
+  /// The priors that anchor the frame at a state (the first one, or after RotateWorld).
+  void AddAnchorPriors(Node* node) const;
 
   SlidingWindowOptions options_;
   std::deque<std::unique_ptr<Node>> nodes_;

@@ -1,5 +1,8 @@
 #include "estimator/factors/lidar_factors.h"
 
+#include <algorithm>
+#include <utility>
+
 #include <Eigen/Geometry>
 
 namespace raillomer {
@@ -141,6 +144,34 @@ bool LongitudinalShiftFactor::Evaluate(double const* const* parameters,
     Eigen::Map<RowJacobian1x7> jacobian(jacobians[1]);
     jacobian.setZero();
     jacobian.leftCols<3>() = forward_world;
+  }
+  return true;
+}
+
+ProjectedTranslationCost::ProjectedTranslationCost(std::shared_ptr<ceres::CostFunction> inner,
+                                                   const Eigen::Vector3d& p0,
+                                                   const Eigen::Vector3d& direction)
+    : inner_(std::move(inner)),
+      p0_(p0),
+      projector_(Eigen::Matrix3d::Identity() -
+                 direction.normalized() * direction.normalized().transpose()) {
+  set_num_residuals(inner_->num_residuals());
+  mutable_parameter_block_sizes()->push_back(7);
+}
+
+bool ProjectedTranslationCost::Evaluate(double const* const* parameters,
+                                        double* residuals,
+                                        double** jacobians) const {
+  double pose[7];
+  std::copy(parameters[0], parameters[0] + 7, pose);
+  Eigen::Map<Eigen::Vector3d> p(pose);
+  p = p0_ + projector_ * (p - p0_);
+  const double* projected[1] = {pose};
+  if (!inner_->Evaluate(projected, residuals, jacobians)) return false;
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 7, Eigen::RowMajor>> J(
+        jacobians[0], num_residuals(), 7);
+    J.leftCols<3>() = (J.leftCols<3>() * projector_).eval();
   }
   return true;
 }

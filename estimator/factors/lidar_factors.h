@@ -1,5 +1,8 @@
 #pragma once
 
+#include <memory>
+
+#include <ceres/cost_function.h>
 #include <ceres/sized_cost_function.h>
 
 #include <Eigen/Core>
@@ -41,6 +44,26 @@ class PointToLineFactor : public ceres::SizedCostFunction<3, 7> {
   Eigen::Vector3d p_body_, a_;
   Eigen::Matrix3d projector_;
   double weight_;
+};
+
+/// Solution remapping (Zhang et al., the degeneracy measure of eq. 25): wraps a cost over one
+/// pose block so that it no longer sees the translation along `direction` (world frame, unit)
+/// away from `p0`: it is evaluated at p0 + (I - u u^T)(p - p0). A LiDAR frame that cannot
+/// observe that direction (a plain cutting, seen along the track) then neither pulls nor holds
+/// the pose along it, and the other factors decide. Jacobian columns: the first 6 of 7.
+class ProjectedTranslationCost : public ceres::CostFunction {
+ public:
+  ProjectedTranslationCost(std::shared_ptr<ceres::CostFunction> inner,
+                           const Eigen::Vector3d& p0,
+                           const Eigen::Vector3d& direction);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  std::shared_ptr<ceres::CostFunction> inner_;
+  Eigen::Vector3d p0_;
+  Eigen::Matrix3d projector_;
 };
 
 /// Rail-plane factor, eq. (28-30): the rail plane measured in body frame i, moved into body

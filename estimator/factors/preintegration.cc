@@ -31,6 +31,8 @@ constexpr int kC = 18;
 constexpr int kNa = 0;
 constexpr int kNg = 3;
 constexpr int kNs = 6;
+constexpr int kNl = 7;  // two components: across the odometer axis (y, z)
+constexpr int kNoise = 9;
 
 double Square(double x) { return x * x; }
 
@@ -146,7 +148,7 @@ void Preintegration::Integrate(const Step& s) {
   // through Gr (accelerometer, gyroscope, odometer speed) and the random walks add directly.
   constexpr int kRowPhi = 9;
   Eigen::Matrix<double, 12, 19> Fr = Eigen::Matrix<double, 12, 19>::Zero();
-  Eigen::Matrix<double, 12, 7> Gr = Eigen::Matrix<double, 12, 7>::Zero();
+  Eigen::Matrix<double, 12, kNoise> Gr = Eigen::Matrix<double, 12, kNoise>::Zero();
   const double half_dt2 = 0.5 * dt * dt;
   Fr.block<9, 9>(0, 0).setIdentity();
   Fr.block<3, 3>(kRowPhi, kPhi).setIdentity();
@@ -174,14 +176,16 @@ void Preintegration::Integrate(const Step& s) {
     Gr.block<3, 3>(kRowPhi, kNg) = Fr.block<3, 3>(kRowPhi, kBg);
     // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
     Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
+    Gr.block<3, 2>(kRowPhi, kNl) = -0.5 * dt * (R0 + R1) * R_body_odo_.rightCols<2>();
   }
 
   // Continuous densities to the variances of one step: white noise averaged over dt has
   // variance density^2 / dt, a random walk grows by density^2 * dt.
-  Eigen::Matrix<double, 7, 1> q_white;
+  Eigen::Matrix<double, kNoise, 1> q_white;
   q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / dt);
   q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / dt);
   q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
+  q_white.segment<2>(kNl).setConstant(Square(noise_.odometer_lateral_density) / dt);
 
   // Eq. (17): J = F J, P = F P F^T + G Q G^T, touching only the rows and columns F changes.
   const Eigen::Matrix<double, 12, 19> new_rows = Fr * jacobian_;
@@ -341,6 +345,19 @@ Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s,
   return T;
 }
 
+Eigen::Matrix<double, 19, 19> Preintegration::FactorCovariance() const {
+  Matrix19d cov = covariance_;
+  if (odometer_used_ && noise_.odometer_resolution_m > 0.0) {
+    // Each end of the interval reads the distance to within one pulse: along the odometer axis
+    // at the start (u) and at the end (gamma u), in the start body frame.
+    const Vector3d u0 = R_body_odo_.col(0);
+    const Vector3d u1 = gamma_ * u0;
+    const double var = Square(noise_.odometer_resolution_m) / 12.0;
+    cov.block<3, 3>(kPhi, kPhi) += var * (u0 * u0.transpose() + u1 * u1.transpose());
+  }
+  return cov;
+}
+
 Eigen::Matrix<double, 19, 19> Preintegration::SqrtInformation() const {
   // Information of the rows that carry any: without odometer data phi is left out entirely.
   const int n = odometer_used_ ? 19 : 16;
@@ -348,10 +365,11 @@ Eigen::Matrix<double, 19, 19> Preintegration::SqrtInformation() const {
   for (int k = 0, m = 0; k < 19; ++k) {
     if (odometer_used_ || k < kPhi || k >= kPhi + 3) index(m++) = k;
   }
+  const Matrix19d full = FactorCovariance();
   Eigen::MatrixXd cov(n, n);
   for (int a = 0; a < n; ++a) {
     for (int b = 0; b < n; ++b)
-      cov(a, b) = 0.5 * (covariance_(index(a), index(b)) + covariance_(index(b), index(a)));
+      cov(a, b) = 0.5 * (full(index(a), index(b)) + full(index(b), index(a)));
   }
   // Invert through the correlation matrix so that the very different scales (alpha over a few
   // milliseconds against phi over a second) do not cost precision; variances below a floor of

@@ -16,6 +16,14 @@ struct PreintegrationNoise {
   double accel_bias_walk = 1.0e-5;       ///< m/s^3/sqrt(Hz)
   double odometer_speed_density = 0.02;  ///< m/s/sqrt(Hz), white speed noise eta_sO
   double odometer_scale_walk = 1.0e-4;   ///< 1/sqrt(s), random walk of c^O
+  /// m/s/sqrt(Hz): velocity of the body across the odometer's axis (lateral and vertical). The
+  /// car body sways and bounces on its suspension while the wheel rolls along the rail, so the
+  /// body does not move exactly along its x axis; without this term phi would pin the attitude
+  /// to the suspension's motion.
+  double odometer_lateral_density = 0.01;
+  /// m: distance of one encoder pulse. Each end of an interval is quantised to it, a bounded
+  /// error (variance resolution^2 / 12 per end) that does not grow with the interval.
+  double odometer_resolution_m = 0.0;
 };
 
 /// A state of the sliding window (eq. 1) in plain form.
@@ -102,6 +110,9 @@ class Preintegration {
   /// Error-state Jacobian and covariance, 19 x 19 in the residual order above (eq. 16-17).
   const Eigen::Matrix<double, 19, 19>& jacobian() const { return jacobian_; }
   const Eigen::Matrix<double, 19, 19>& covariance() const { return covariance_; }
+  /// The covariance the factor whitens with: covariance() plus the odometer's pulse
+  /// quantisation at both ends of the interval.
+  Eigen::Matrix<double, 19, 19> FactorCovariance() const;
   /// Upper-triangular L with L^T L = covariance^-1 (phi rows zero when !odometer_used()).
   Eigen::Matrix<double, 19, 19> SqrtInformation() const;
   double gravity_mps2() const { return gravity_mps2_; }

@@ -69,12 +69,15 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("failure_min_edges", &o->failure_min_edges);
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
+  r.Read("degeneracy_projection", &o->degeneracy_projection);
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
   r.Read("init_gravity_s", &o->init_gravity_s);
+  r.Read("gravity_align_s", &o->gravity_align_s);
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
   r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
+  r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
   if (r.Has("preprocess")) {
     MapReader p(r.Node("preprocess"), r.Path("preprocess"), root.source());
     p.Read("min_range_m", &o->preprocess.min_range_m);
@@ -118,6 +121,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (registration_rounds < 1) return fail("registration_rounds must be >= 1");
   if (!(init_gravity_s >= 0.1 && init_gravity_s <= 10.0))
     return fail("init_gravity_s must be in [0.1, 10] s");
+  if (!(gravity_align_s == 0.0 || (gravity_align_s >= 3.0 && gravity_align_s <= 120.0)))
+    return fail("gravity_align_s must be 0 (off) or in [3, 120] s");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
@@ -152,7 +157,9 @@ std::string EstimatorConfig::Describe() const {
     << ", g " << rig.gravity_mps2 << "\n";
   s << "odometer: " << rig.odometer_topic << " joint '" << rig.odometer_joint << "', wheel "
     << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, speed noise "
-    << rig.noise.odometer_speed_density << ", scale walk " << rig.noise.odometer_scale_walk << "\n";
+    << rig.noise.odometer_speed_density << ", across-axis noise "
+    << rig.noise.odometer_lateral_density << ", scale walk " << rig.noise.odometer_scale_walk
+    << ", pulse " << rig.noise.odometer_resolution_m << " m\n";
   s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
     << " m\n";
   const EstimatorOptions& o = options;
@@ -166,7 +173,8 @@ std::string EstimatorConfig::Describe() const {
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
-    << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold << "\n";
+    << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
+    << "; solution remapping below " << o.degeneracy_projection << "\n";
   s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
     << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
     << o.preprocess.flicker_min_points_per_cell << ", hidden sector "
@@ -176,7 +184,8 @@ std::string EstimatorConfig::Describe() const {
     << o.height.y_min_m << ", " << o.height.y_max_m << "] bin " << o.height.bin_m << " m\n";
   s << "keyframes: every " << o.keyframe_distance_m << " m or " << o.keyframe_angle_deg
     << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
-  s << "initial levelling: " << o.init_gravity_s << " s of IMU data\n";
+  s << "initial levelling: " << o.init_gravity_s << " s of IMU data, re-levelled after "
+    << o.gravity_align_s << " s\n";
   return s.str();
 }
 
@@ -223,6 +232,7 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       if (rig.pulses_per_rev < 1) {
         r.Fail(r.Node("pulses_per_rev"), "key 'odometer.pulses_per_rev' must be >= 1");
       }
+      rig.noise.odometer_resolution_m = M_PI * rig.wheel_diameter_m / rig.pulses_per_rev;
       r.Finish();
     } else {
       rig.odometer_topic.clear();

@@ -81,11 +81,18 @@ struct EstimatorOptions {
   int failure_min_edges = 20;
   int failure_min_planes = 100;
   /// Degeneracy (eq. 25): smallest eigenvalue of the LiDAR's normalised information matrix.
-  double degeneracy_threshold = 0.02;
+  double degeneracy_threshold = 0.012;
+  /// Solution remapping: when both LiDARs' matches together are this degenerate, their
+  /// factors stop seeing the translation along the weakest direction. 0 disables.
+  double degeneracy_projection = 0.012;
   double keyframe_distance_m = 2.0;  ///< keyframes for mapping: distance since the last
   double keyframe_angle_deg = 5.0;   ///< ... or rotation since the last
   double imu_gap_warn_s = 0.05;      ///< IMU gaps longer than this are reported
-  double init_gravity_s = 1.0;       ///< IMU data averaged for the initial roll and pitch
+  double init_gravity_s = 4.0;       ///< IMU and odometer data for the initial roll and pitch
+  /// After this long, gravity is re-estimated from the IMU against the estimated trajectory and
+  /// the world frame re-levelled once (a start at speed levels the first second poorly); poses
+  /// are held back until then. 0 disables.
+  double gravity_align_s = 10.0;
   bool write_keyframes = true;
 
   /// False with a message naming the bad field.

@@ -98,6 +98,10 @@ struct Estimator::NodeExtras {
   HeightDescriptor descriptor;
   std::vector<Eigen::Vector3f> cloud;
   std::vector<float> intensities;
+  /// Until the world is re-levelled: the link from the previous state, and the final state.
+  std::shared_ptr<const Preintegration> preintegration;
+  NavState final_state;
+  double t_s = 0.0;
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
@@ -114,6 +118,8 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
+  gravity_pending_ = o.switches.use_imu && o.gravity_align_s > 0.0;
+  next_gravity_try_s_ = o.gravity_align_s;
 }
 
 Estimator::~Estimator() = default;
@@ -204,7 +210,7 @@ void Estimator::AddImu(const io::ImuSample& sample) {
   }
   last_imu_t_ = t;
   ++stats_.imu_samples;
-  imu_.push_back({t, sample.angular_velocity_radps, sample.linear_acceleration_mps2});
+  inertial_.AddImu(t, sample.angular_velocity_radps, sample.linear_acceleration_mps2);
 }
 
 void Estimator::AddOdometer(const io::WheelOdometry& reading) {
@@ -219,7 +225,7 @@ void Estimator::AddOdometer(const io::WheelOdometry& reading) {
   }
   last_odo_t_ = t;
   ++stats_.odometer_samples;
-  odo_.push_back({t, reading.position_rad * 0.5 * config_.rig.wheel_diameter_m});
+  inertial_.AddOdometer(t, reading.position_rad * 0.5 * config_.rig.wheel_diameter_m);
 }
 
 void Estimator::ProcessReady(bool flush) {
@@ -240,123 +246,42 @@ void Estimator::ProcessReady(bool flush) {
   }
 }
 
-double Estimator::OdometerDistanceAt(double t, bool* ok) const {
-  *ok = false;
-  if (odo_.size() < 2 || t < odo_.front().t || t > odo_.back().t) return 0.0;
-  auto it = std::lower_bound(
-      odo_.begin(), odo_.end(), t, [](const OdoRecord& r, double value) { return r.t < value; });
-  if (it == odo_.begin()) {
-    *ok = true;
-    return it->distance_m;
-  }
-  const OdoRecord& b = *it;
-  const OdoRecord& a = *(it - 1);
-  if (b.t - a.t > 0.25) return 0.0;  // an odometer gap: no reading
-  *ok = true;
-  const double s = (t - a.t) / (b.t - a.t);
-  return a.distance_m + s * (b.distance_m - a.distance_m);
-}
-
 std::shared_ptr<Preintegration> Estimator::Preintegrate(
-    double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) {
+    double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) const {
   const RigConfig& rig = config_.rig;
-  auto pre = std::make_shared<Preintegration>(start.ba,
-                                              start.bg,
-                                              start.c,
-                                              Eigen::Matrix3d::Identity(),
-                                              rig.p_body_odometer,
-                                              rig.noise,
-                                              rig.gravity_mps2);
-  // IMU samples at t0, every record inside (t0, t1), and t1; interpolated at the ends, held
-  // across the ends of the buffer.
-  auto sample_at = [&](double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) {
-    auto it = std::lower_bound(
-        imu_.begin(), imu_.end(), t, [](const ImuRecord& r, double value) { return r.t < value; });
-    if (it == imu_.end()) {
-      *gyro = imu_.back().gyro;
-      *accel = imu_.back().accel;
-    } else if (it == imu_.begin()) {
-      *gyro = it->gyro;
-      *accel = it->accel;
-    } else {
-      const ImuRecord& a = *(it - 1);
-      const double s = (t - a.t) / (it->t - a.t);
-      *gyro = (1 - s) * a.gyro + s * it->gyro;
-      *accel = (1 - s) * a.accel + s * it->accel;
-    }
-  };
-  std::vector<double> times{t0};
-  for (const ImuRecord& r : imu_) {
-    if (r.t > t0 + 1e-6 && r.t < t1 - 1e-6) times.push_back(r.t);
-  }
-  times.push_back(t1);
-  bool d0_ok = false, d1_ok = false;
   const bool use_odo =
       use_odometer && config_.options.switches.use_odometer && !rig.odometer_topic.empty();
-  const double d0 = use_odo ? OdometerDistanceAt(t0, &d0_ok) : 0.0;
-  const double d1 = use_odo ? OdometerDistanceAt(t1, &d1_ok) : 0.0;
-  *odometer_ok = use_odo && d0_ok && d1_ok;
-  Eigen::Vector3d g0, a0, g1, a1;
-  sample_at(times[0], &g0, &a0);
-  double prev_d = d0;
-  for (size_t i = 1; i < times.size(); ++i) {
-    sample_at(times[i], &g1, &a1);
-    const double dt = times[i] - times[i - 1];
-    double speed = 0.0;
-    bool ok = false;
-    if (*odometer_ok) {
-      const double d = i + 1 == times.size() ? d1 : OdometerDistanceAt(times[i], &ok);
-      ok = ok || i + 1 == times.size();
-      if (ok && dt > 0.0) {
-        speed = (d - prev_d) / dt;
-        prev_d = d;
-      }
-    }
-    if (dt > 0.0) pre->Add(dt, g0, a0, speed, ok && *odometer_ok);
-    g0 = g1;
-    a0 = a1;
-  }
-  return pre;
+  return inertial_.Preintegrate(t0,
+                                t1,
+                                start.ba,
+                                start.bg,
+                                start.c,
+                                rig.p_body_odometer,
+                                rig.noise,
+                                rig.gravity_mps2,
+                                use_odo,
+                                odometer_ok);
 }
 
 bool Estimator::Initialize(double t_end) {
   NavState s;
   if (config_.options.switches.use_imu) {
-    // Roll and pitch from the mean specific force over the first init_gravity_s of IMU data,
-    // less the train's own acceleration: along track from the odometer, centripetal from the
-    // yaw rate. Shorter averages leave car-body vibration in the tilt, and a tilt error at
-    // speed reads as a turn (lateral gravity = v * yaw rate) that no later LiDAR map undoes.
+    // Roll and pitch from the first init_gravity_s of IMU data, with the velocity change from
+    // the odometer's path (InertialBuffer::UpInBody). A roll error at speed reads as a turn
+    // (lateral gravity = v * yaw rate): the gyro bias soaks it up and the heading drifts, and
+    // no later LiDAR map on a plain line undoes it.
     const double span = config_.options.init_gravity_s;
-    if (imu_.empty() || imu_.back().t - imu_.front().t < span - 1e-3 ||
-        t_end - imu_.front().t < span - 1e-3) {
+    const auto& imu = inertial_.imu();
+    if (imu.empty() || imu.back().t - imu.front().t < span - 1e-3 ||
+        t_end - imu.front().t < span - 1e-3) {
       if (warning_counts_["init-imu"]++ == 0) {
         Warn("initialising: levelling on the first " + Seconds(span) +
              " of IMU data; no poses before that");
       }
       return false;
     }
-    Eigen::Vector3d f = Eigen::Vector3d::Zero();
-    Eigen::Vector3d w = Eigen::Vector3d::Zero();
-    int n = 0;
-    for (const ImuRecord& r : imu_) {
-      if (r.t > t_end - span && r.t <= t_end + 1e-6) {
-        f += r.accel;
-        w += r.gyro;
-        ++n;
-      }
-    }
-    if (n < 5) return false;
-    bool ok_a = false, ok_b = false, ok_c = false;
-    const double d_a = OdometerDistanceAt(t_end - span, &ok_a);
-    const double d_b = OdometerDistanceAt(t_end - 0.5 * span, &ok_b);
-    const double d_c = OdometerDistanceAt(t_end, &ok_c);
-    if (ok_a && ok_b && ok_c) {
-      const double v1 = (d_b - d_a) / (0.5 * span), v2 = (d_c - d_b) / (0.5 * span);
-      const double accel = (v2 - v1) / (0.5 * span);
-      const double speed = 0.5 * (v1 + v2);
-      f -= n * Eigen::Vector3d(accel, speed * w.z() / n, 0.0);
-    }
-    f /= n;
+    Eigen::Vector3d f;
+    if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f)) return false;
     s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
     // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
     const Eigen::Vector3d x = s.q * Eigen::Vector3d::UnitX();
@@ -364,15 +289,16 @@ bool Estimator::Initialize(double t_end) {
     s.q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * s.q;
   }
   // Initial speed from the odometer over up to the last 0.2 s (the train may start at speed).
-  if (!odo_.empty()) {
-    const double t0 = std::max(odo_.front().t, t_end - 0.2);
+  if (inertial_.HasOdometer()) {
+    const double t0 = std::max(inertial_.FirstOdometerTime(), t_end - 0.2);
     bool ok0 = false, ok1 = false;
-    const double d1 = OdometerDistanceAt(t_end, &ok1);
-    const double d0 = OdometerDistanceAt(t0, &ok0);
+    const double d1 = inertial_.OdometerDistanceAt(t_end, &ok1);
+    const double d0 = inertial_.OdometerDistanceAt(t0, &ok0);
     if (ok0 && ok1 && t_end - t0 > 0.03)
       s.v = s.q * Eigen::Vector3d((d1 - d0) / (t_end - t0), 0.0, 0.0);
   }
   init_time_s_ = t_end;
+  next_gravity_try_s_ = t_end + config_.options.gravity_align_s;
   window_->Push(t_end, s, nullptr);
   initialized_ = true;
   last_node_t_ = t_end;
@@ -478,6 +404,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
 
   auto extras = std::make_unique<NodeExtras>();
   extras->stamp_ns = stamp_ns;
+  extras->t_s = t_end;
+  if (gravity_pending_) extras->preintegration = pre;
   FrameResult& result = extras->result;
   result.stamp_ns = stamp_ns;
   result.lidars.resize(rig.lidars.size());
@@ -545,6 +473,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     const NavState current = window_->Newest();
     const Eigen::Isometry3d T_current = PoseOf(current);
     std::vector<std::shared_ptr<ceres::CostFunction>> costs;
+    LidarMatches all;
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
@@ -570,12 +499,25 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       const double favour = 1.0 / std::sqrt(diag.xi_failure * diag.xi_degeneracy * diag.xi_pose);
       const double w_plane = favour / o.plane_sigma_m;
       const double w_edge = favour / o.edge_sigma_m;
+      all.planes.insert(all.planes.end(), matches.planes.begin(), matches.planes.end());
+      all.lines.insert(all.lines.end(), matches.lines.begin(), matches.lines.end());
       for (const PlaneMatch& m : matches.planes) {
         costs.push_back(std::make_shared<PointToPlaneFactor>(m.p_body, m.normal, m.d, w_plane));
       }
       for (const LineMatch& m : matches.lines) {
         costs.push_back(
             std::make_shared<PointToLineFactor>(m.p_body, m.point, m.direction, w_edge));
+      }
+    }
+    // Solution remapping: what neither LiDAR observes is left to the other factors.
+    const LidarOnlySolution frame = SolveLidarOnly(all, T_current, 1);
+    result.degeneracy = frame.degeneracy;
+    result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
+                       frame.degeneracy < o.degeneracy_projection;
+    if (result.projected) {
+      for (auto& cost : costs) {
+        cost = std::make_shared<ProjectedTranslationCost>(
+            std::move(cost), T_current.translation(), frame.weakest_direction);
       }
     }
     window_->SetNewestLidarFactors(std::move(costs), std::make_shared<ceres::HuberLoss>(1.0));
@@ -615,13 +557,14 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   result.odometer_scale = newest.c;
   latest_ = result;
   extras_.push_back(std::move(extras));
+  if (gravity_pending_ && t_end >= next_gravity_try_s_) AlignGravity(false);
   while (window_->Full()) {
     const Clock::time_point t_pop = Clock::now();
     EmitOldest();
     // Marginalisation is part of this frame's backend time.
     extras_.back()->result.backend_ms += Ms(t_pop, Clock::now());
   }
-  TrimBuffers(last_node_t_ - 1.0);
+  inertial_.Trim(last_node_t_ - 1.0);
 }
 
 void Estimator::EmitOldest() {
@@ -635,8 +578,21 @@ void Estimator::EmitOldest() {
   result.odometer_scale = s.c;
   result.gyro_bias = s.bg;
   result.accel_bias = s.ba;
-  if (have_output_) stats_.distance_m += (s.p - last_output_position_).norm();
-  last_output_position_ = s.p;
+  if (gravity_pending_) {
+    // Held back until the world is re-levelled; the cloud is thinned now to bound the memory.
+    extras->final_state = s;
+    if (!extras->cloud.empty()) VoxelThin(0.1, &extras->cloud, &extras->intensities);
+    held_.push_back(std::move(extras));
+    return;
+  }
+  Emit(std::move(extras));
+}
+
+void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
+  FrameResult& result = extras->result;
+  const Eigen::Vector3d position = result.T_world_body.translation();
+  if (have_output_) stats_.distance_m += (position - last_output_position_).norm();
+  last_output_position_ = position;
   have_output_ = true;
   if (sinks_.on_frame) sinks_.on_frame(result);
 
@@ -658,13 +614,80 @@ void Estimator::EmitOldest() {
   }
 }
 
-void Estimator::TrimBuffers(double t) {
-  while (imu_.size() > 2 && imu_[1].t < t) imu_.pop_front();
-  while (odo_.size() > 2 && odo_[1].t < t) odo_.pop_front();
+void Estimator::AlignGravity(bool last_chance) {
+  // The states so far in time order: the held-back final ones, then the window's (the two
+  // newest are left out: their velocities are the least settled). Over the intervals between
+  // them the IMU's velocity increments, rotated into the world and taken with zero
+  // accelerometer bias (a bias would have absorbed the tilt), add up to the velocity change
+  // plus gravity times the time: g T = sum R_i beta_i - (v_last - v_first).
+  struct Item {
+    NavState state;
+    const Preintegration* pre;
+  };
+  std::vector<Item> items;
+  for (const auto& h : held_) items.push_back({h->final_state, h->preintegration.get()});
+  for (int i = 0; i < window_->size(); ++i) {
+    items.push_back({window_->State(i), extras_[static_cast<size_t>(i)]->preintegration.get()});
+  }
+  const size_t n = items.size() >= 3 ? items.size() - 2 : 0;
+  const Eigen::Vector3d g_w(0.0, 0.0, config_.rig.gravity_mps2);
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  double duration = 0.0;
+  for (size_t k = 1; k < n; ++k) {
+    if (!items[k].pre) continue;
+    NavState start = items[k - 1].state;
+    start.ba.setZero();
+    const double dt = items[k].pre->sum_dt();
+    sum += items[k].pre->Predict(start).v - start.v + g_w * dt;
+    duration += dt;
+  }
+  const double min_duration = 0.5 * config_.options.gravity_align_s;
+  bool aligned = false;
+  if (n >= 2 && duration >= (last_chance ? std::min(3.0, min_duration) : min_duration)) {
+    const Eigen::Vector3d g_est = (sum - (items[n - 1].state.v - items[0].state.v)) / duration;
+    const Eigen::Quaterniond q_fix =
+        Eigen::Quaterniond::FromTwoVectors(g_est.normalized(), Eigen::Vector3d::UnitZ());
+    const double angle_deg = Eigen::AngleAxisd(q_fix).angle() * 180.0 / M_PI;
+    if (std::abs(g_est.norm() - g_w.z()) < 0.03 * g_w.z() && angle_deg < 3.0) {
+      const Eigen::Matrix3d R = q_fix.toRotationMatrix();
+      window_->RotateWorld(R);
+      edge_map_->Rotate(R);
+      plane_map_->Rotate(R);
+      for (auto& h : held_) {
+        h->result.T_world_body.linear() = R * h->result.T_world_body.linear();
+        h->result.T_world_body.translation() = R * h->result.T_world_body.translation();
+        h->result.v_world = R * h->result.v_world;
+      }
+      if (sinks_.on_warning) {
+        std::ostringstream m;
+        m.precision(3);
+        m << "re-levelled the world frame by " << angle_deg << " deg on gravity from " << duration
+          << " s of IMU data (|g| " << g_est.norm() << " m/s^2)";
+        sinks_.on_warning(m.str());
+      }
+      aligned = true;
+    } else {
+      Warn("gravity from the IMU does not fit the trajectory (|g| " + std::to_string(g_est.norm()) +
+           " m/s^2, tilt " + std::to_string(angle_deg) + " deg): frame kept as levelled");
+      aligned = true;  // not retried: the data disagree, the initial levelling stands
+    }
+  }
+  if (!aligned && !last_chance) {
+    next_gravity_try_s_ += 1.0;
+    return;
+  }
+  gravity_pending_ = false;
+  for (auto& e : extras_) e->preintegration.reset();
+  while (!held_.empty()) {
+    std::unique_ptr<NodeExtras> h = std::move(held_.front());
+    held_.pop_front();
+    Emit(std::move(h));
+  }
 }
 
 void Estimator::Finish() {
   ProcessReady(true);
+  if (gravity_pending_) AlignGravity(true);
   // Flush the window: every remaining state is final now.
   while (window_->size() > 0 && !extras_.empty()) EmitOldest();
 }

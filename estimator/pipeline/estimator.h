@@ -13,6 +13,7 @@
 #include "estimator/features/height_descriptor.h"
 #include "estimator/io/sensor_messages.h"
 #include "estimator/pipeline/config.h"
+#include "estimator/pipeline/inertial_buffer.h"
 
 namespace raillomer {
 
@@ -43,6 +44,8 @@ struct FrameResult {
   std::vector<LidarDiagnostics> lidars;
   bool rail_plane = false;     ///< a rail plane was extracted
   bool height_shift = false;   ///< a height-descriptor displacement was used
+  double degeneracy = 0.0;     ///< of both LiDARs' matches together (last registration round)
+  bool projected = false;      ///< LiDAR factors blind to the weakest direction (remapping)
   bool odometer_used = false;  ///< the odometer entered this interval's factor
   int solver_iterations = 0;
 };
@@ -94,14 +97,6 @@ class Estimator {
   std::optional<FrameResult> Latest() const { return latest_; }
 
  private:
-  struct ImuRecord {
-    double t;
-    Eigen::Vector3d gyro, accel;
-  };
-  struct OdoRecord {
-    double t;
-    double distance_m;
-  };
   struct PendingFrame {
     double start_s = 0.0;
     std::map<int, io::LidarFrame> frames;  ///< by LiDAR index
@@ -118,18 +113,21 @@ class Estimator {
   bool Initialize(double t_end);
   /// IMU (and, when use_odometer, odometer) preintegration over [t0, t1] from `start`'s biases.
   std::shared_ptr<Preintegration> Preintegrate(
-      double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok);
-  double OdometerDistanceAt(double t, bool* ok) const;
+      double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) const;
   void EmitOldest();
-  void TrimBuffers(double t);
+  /// Hands a final state to the sinks (and picks keyframes).
+  void Emit(std::unique_ptr<NodeExtras> extras);
+  /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so
+  /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
+  /// `last_chance` it settles for whatever data there is.
+  void AlignGravity(bool last_chance);
 
   EstimatorConfig config_;
   EstimatorSinks sinks_;
   EstimatorStats stats_;
   std::map<std::string, int> lidar_topics_;
 
-  std::deque<ImuRecord> imu_;
-  std::deque<OdoRecord> odo_;
+  InertialBuffer inertial_;
   std::map<int64_t, PendingFrame> pending_;  ///< by frame start (ns)
   double stream_time_s_ = -1e300;
   double last_frame_start_s_ = -1e300;
@@ -138,6 +136,9 @@ class Estimator {
   std::unique_ptr<SlidingWindow> window_;
   std::unique_ptr<LocalMap> edge_map_, plane_map_;
   std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
+  bool gravity_pending_ = false;                    ///< re-levelling still to come
+  double next_gravity_try_s_ = 0.0;
+  std::deque<std::unique_ptr<NodeExtras>> held_;  ///< final states held until re-levelling
   bool initialized_ = false;
   double last_node_t_ = 0.0;
   double init_time_s_ = 0.0;

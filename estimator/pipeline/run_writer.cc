@@ -63,11 +63,11 @@ bool RunWriter::Open(const std::string& out_dir,
   if (write_keyframes && !open("keyframes.tum", &keyframes_)) return false;
   std::fprintf(trajectory_, "%s", header.c_str());
   std::fflush(trajectory_);
-  std::fprintf(
-      timing_,
-      "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
-      "height_shift,odometer_scale,speed_mps,gyro_bias_x,gyro_bias_y,gyro_bias_z,accel_bias_x,"
-      "accel_bias_y,accel_bias_z");
+  std::fprintf(timing_,
+               "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
+               "height_shift,degeneracy,projected,odometer_scale,speed_mps,gyro_bias_x,gyro_bias_y,"
+               "gyro_bias_z,accel_bias_x,"
+               "accel_bias_y,accel_bias_z");
   for (const char* lidar : {"up", "down"}) {
     std::fprintf(timing_,
                  ",%s_points,%s_edges,%s_planes,%s_matches,%s_degeneracy,%s_xi_f,%s_xi_d,%s_xi_p",
@@ -93,7 +93,7 @@ void RunWriter::WriteFrame(const FrameResult& f) {
   frontend_ms_.push_back(f.frontend_ms);
   backend_ms_.push_back(f.backend_ms);
   std::fprintf(timing_,
-               "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.5f,%.3f",
+               "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.4f,%d,%.5f,%.3f",
                api::FormatStampSeconds(f.stamp_ns).c_str(),
                f.frontend_ms,
                f.backend_ms,
@@ -102,6 +102,8 @@ void RunWriter::WriteFrame(const FrameResult& f) {
                f.odometer_used ? 1 : 0,
                f.rail_plane ? 1 : 0,
                f.height_shift ? 1 : 0,
+               f.degeneracy,
+               f.projected ? 1 : 0,
                f.odometer_scale,
                f.v_world.norm());
   std::fprintf(timing_,

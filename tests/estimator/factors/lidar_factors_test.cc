@@ -175,6 +175,43 @@ TEST(PointToLineFactor, JacobianMatchesNumeric) {
   }
 }
 
+TEST(ProjectedTranslationCost, JacobianMatchesNumeric) {
+  Pose pose = kTruePose;
+  const Eigen::Vector3d p0 = Position(pose) + Eigen::Vector3d(0.3, -0.2, 0.1);
+  const ProjectedTranslationCost plane(
+      std::make_shared<PointToLineFactor>(Eigen::Vector3d(4.0, -2.0, 1.5),
+                                          Eigen::Vector3d(1.0, 0.0, -1.0),
+                                          Eigen::Vector3d(0.2, 0.9, 0.1),
+                                          2.5),
+      p0,
+      Eigen::Vector3d(1.0, 1.0, 0.2));
+  ExpectJacobiansMatch(plane, {pose.data()});
+}
+
+// The wrapped cost does not change with the translation along the projected direction, and
+// changes as before across it.
+TEST(ProjectedTranslationCost, IgnoresTranslationAlongTheDirection) {
+  Pose pose = kTruePose;
+  const Eigen::Vector3d u = Eigen::Vector3d(1.0, 0.5, 0.0).normalized();
+  // A plane whose normal has a component along u: it would pull the pose along u.
+  const Eigen::Vector3d normal = Eigen::Vector3d(0.6, 0.0, 0.8);
+  auto inner =
+      std::make_shared<PointToPlaneFactor>(Eigen::Vector3d(2.0, 1.0, -1.0), normal, 0.3, 1.0);
+  const ProjectedTranslationCost projected(inner, Position(pose), u);
+  const double r0 = EvaluateScalar(projected, {pose.data()});
+  EXPECT_NEAR(r0, EvaluateScalar(*inner, {pose.data()}), 1e-12);
+  Pose moved = pose;
+  for (int k = 0; k < 3; ++k) moved[k] += 0.7 * u[k];
+  EXPECT_NEAR(EvaluateScalar(projected, {moved.data()}), r0, 1e-12);
+  EXPECT_GT(std::abs(EvaluateScalar(*inner, {moved.data()}) - r0), 0.1);
+  const Eigen::Vector3d across = u.cross(Eigen::Vector3d::UnitZ()).normalized();
+  Pose sideways = pose;
+  for (int k = 0; k < 3; ++k) sideways[k] += 0.5 * across[k] + 0.2 * (k == 2);
+  EXPECT_NEAR(EvaluateScalar(projected, {sideways.data()}),
+              EvaluateScalar(*inner, {sideways.data()}),
+              1e-12);
+}
+
 /// The plane n_w . x + d_w = 0 expressed in the body frame of `pose`.
 std::pair<Eigen::Vector3d, double> PlaneInBody(const Pose& pose,
                                                const Eigen::Vector3d& n_world,

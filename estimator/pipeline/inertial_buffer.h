@@ -1,0 +1,75 @@
+#pragma once
+
+#include <deque>
+#include <memory>
+
+#include <Eigen/Core>
+
+#include "estimator/factors/preintegration.h"
+
+namespace raillomer {
+
+/// The recent IMU samples and wheel-odometer distances, and their preintegration between two
+/// times: the link between consecutive states of the sliding window.
+class InertialBuffer {
+ public:
+  struct ImuRecord {
+    double t;
+    Eigen::Vector3d gyro, accel;
+  };
+  struct OdoRecord {
+    double t;
+    double distance_m;
+  };
+
+  /// Samples must come in increasing time; the caller filters rewinds.
+  void AddImu(double t, const Eigen::Vector3d& gyro, const Eigen::Vector3d& accel);
+  void AddOdometer(double t, double distance_m);
+
+  const std::deque<ImuRecord>& imu() const { return imu_; }
+  bool HasOdometer() const { return !odo_.empty(); }
+  double FirstOdometerTime() const { return odo_.front().t; }
+
+  /// Distance rolled by the wheel at time t, interpolated; ok false outside the buffer or
+  /// inside a gap of more than `max_gap_s` between readings.
+  double OdometerDistanceAt(double t, bool* ok) const;
+
+  /// Mean odometer speed over [t - half_window_s, t + half_window_s] (clipped to the buffer).
+  double OdometerSpeedAt(double t, double half_window_s, bool* ok) const;
+
+  /// The up direction (unit, opposite to gravity) in the body frame at t1, from the IMU and
+  /// odometer over [t0, t1]. In the body frame at t0, the wheel's path (odometer distances
+  /// along the gyro-rotated body x axis) equals v0 t + (double integral of the rotated specific
+  /// force) - g t^2 / 2 at every t; a least-squares fit of v0 and g per axis gives the tilt.
+  /// Fitting positions, not end velocities, keeps the car body's sway (a few mm, but +-2 cm/s)
+  /// and the pulse quantisation out of the tilt. Without odometer data the train is taken to
+  /// stand still. False without enough IMU data.
+  bool UpInBody(double t0, double t1, double gravity_mps2, Eigen::Vector3d* up_body) const;
+
+  /// Preintegration over [t0, t1] linearised at the given biases and odometer scale. IMU
+  /// samples are interpolated at t0 and t1 and held across the ends of the buffer. With
+  /// use_odometer the odometer enters when it covers the whole interval (*odometer_ok says so).
+  std::shared_ptr<Preintegration> Preintegrate(double t0,
+                                               double t1,
+                                               const Eigen::Vector3d& ba,
+                                               const Eigen::Vector3d& bg,
+                                               double c,
+                                               const Eigen::Vector3d& p_body_odometer,
+                                               const PreintegrationNoise& noise,
+                                               double gravity_mps2,
+                                               bool use_odometer,
+                                               bool* odometer_ok) const;
+
+  /// Drops what lies entirely before t (keeping one record before it for interpolation).
+  void Trim(double t);
+
+  double max_gap_s = 0.25;  ///< odometer readings farther apart than this are a gap
+
+ private:
+  void ImuAt(double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) const;
+
+  std::deque<ImuRecord> imu_;
+  std::deque<OdoRecord> odo_;
+};
+
+}  // namespace raillomer

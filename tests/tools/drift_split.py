@@ -1,0 +1,132 @@
+#!/usr/bin/python3
+"""Splits an estimator run's error against truth into along-track, lateral, vertical and heading
+components over distance, to tell which direction drifts.
+
+Usage:
+  /usr/bin/python3 tests/tools/drift_split.py <run dir> [--every M] [--csv FILE]
+
+<run dir> holds trajectory.tum and truth.tum (a --sim run). Both are put in one frame by the
+yaw and position of the first estimated pose (no fitting; roll and pitch are absolute, since the
+estimator levels on gravity), so the figures are the drift accumulated since the start.
+Rows are printed every M metres of travelled distance (default 50).
+"""
+import argparse
+import bisect
+import math
+import sys
+
+
+def read_tum(path):
+    rows = []
+    with open(path) as f:
+        for line in f:
+            if not line.strip() or line.startswith("#"):
+                continue
+            v = [float(x) for x in line.split()[:8]]
+            rows.append((v[0], v[1:4], v[4:8]))
+    if not rows:
+        sys.exit(f"drift_split: {path} holds no poses")
+    return rows
+
+
+def qmul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def qconj(q):
+    return (-q[0], -q[1], -q[2], q[3])
+
+
+def qrot(q, v):
+    p = qmul(qmul(q, (v[0], v[1], v[2], 0.0)), qconj(q))
+    return p[:3]
+
+
+def yaw_of(q):
+    x, y, z, w = q
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def rpy_of(q):
+    x, y, z, w = q
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    return roll, pitch, yaw_of(q)
+
+
+def wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run")
+    ap.add_argument("--every", type=float, default=50.0, help="metres between printed rows")
+    ap.add_argument("--csv", help="write every matched pose's split to this CSV")
+    args = ap.parse_args()
+    est = read_tum(f"{args.run}/trajectory.tum")
+    truth = read_tum(f"{args.run}/truth.tum")
+    tstamps = [t for t, _, _ in truth]
+
+    def truth_at(t):
+        k = bisect.bisect_left(tstamps, t - 1e-6)
+        if k >= len(truth) or abs(tstamps[k] - t) > 5e-3:
+            return None
+        return truth[k]
+
+    first = None
+    for t, p, q in est:
+        tr = truth_at(t)
+        if tr is not None:
+            first = (p, q, tr[1], tr[2])
+            break
+    if first is None:
+        sys.exit("drift_split: no estimated pose matches a truth stamp")
+    # The estimator's world is levelled on gravity: only yaw and position are free, so the
+    # frames are tied by the yaw and position of the first pose (roll and pitch stay absolute).
+    pe0, qe0, pt0, qt0 = first
+    dyaw = wrap(yaw_of(qt0) - yaw_of(qe0))
+    q_te = (0.0, 0.0, math.sin(0.5 * dyaw), math.cos(0.5 * dyaw))
+    t_te = [a - b for a, b in zip(pt0, qrot(q_te, pe0))]
+
+    out = []
+    dist = 0.0
+    last_tp = None
+    for t, p, q in est:
+        tr = truth_at(t)
+        if tr is None:
+            continue
+        _, tp, tq = tr
+        if last_tp is not None:
+            dist += math.dist(tp, last_tp)
+        last_tp = tp
+        pw = [a + b for a, b in zip(qrot(q_te, p), t_te)]
+        qw = qmul(q_te, q)
+        err_world = [a - b for a, b in zip(pw, tp)]
+        e_body = qrot(qconj(tq), err_world)  # along (x), lateral (y), vertical (z) in the truth body
+        r_e, p_e, y_e = rpy_of(qw)
+        r_t, p_t, y_t = rpy_of(tq)
+        out.append((t, dist, e_body[0], e_body[1], e_body[2], wrap(r_e - r_t), wrap(p_e - p_t), wrap(y_e - y_t)))
+
+    print(f"{'t_s':>8} {'dist_m':>8} {'along_m':>8} {'lat_m':>8} {'vert_m':>8} {'roll_deg':>8} {'pitch_deg':>9} {'yaw_deg':>8}")
+    next_d = 0.0
+    t0 = out[0][0]
+    for i, r in enumerate(out):
+        if r[1] >= next_d or i == len(out) - 1:
+            print(f"{r[0] - t0:8.1f} {r[1]:8.1f} {r[2]:8.3f} {r[3]:8.3f} {r[4]:8.3f} "
+                  f"{math.degrees(r[5]):8.3f} {math.degrees(r[6]):9.3f} {math.degrees(r[7]):8.3f}")
+            next_d += args.every
+    if args.csv:
+        with open(args.csv, "w") as f:
+            f.write("t_s,dist_m,along_m,lateral_m,vertical_m,roll_rad,pitch_rad,yaw_rad\n")
+            for r in out:
+                f.write(",".join(f"{x:.6f}" for x in r) + "\n")
+
+
+if __name__ == "__main__":
+    main()
