@@ -10,13 +10,7 @@ using Eigen::Matrix3d;
 using Eigen::Quaterniond;
 using Eigen::Vector3d;
 
-constexpr int kAlpha = 0;
-constexpr int kBeta = 3;
-constexpr int kTheta = 6;
-constexpr int kBa = 9;
-constexpr int kBg = 12;
-constexpr int kPhi = 15;
-constexpr int kC = 18;
+using namespace preintegration_index;  // NOLINT: the residual's block offsets
 
 // Lower-right 3x3 block of Qleft(a) * Qright(b) (Hamilton, [w, x, y, z]), where a (x) q equals
 // Qleft(a) q and q (x) b equals Qright(b) q.

@@ -17,14 +17,7 @@ using Eigen::Quaterniond;
 using Eigen::Vector3d;
 using Matrix19d = Eigen::Matrix<double, 19, 19>;
 
-// Error-state (and residual) offsets.
-constexpr int kAlpha = 0;
-constexpr int kBeta = 3;
-constexpr int kTheta = 6;
-constexpr int kBa = 9;
-constexpr int kBg = 12;
-constexpr int kPhi = 15;
-constexpr int kC = 18;
+using namespace preintegration_index;  // NOLINT: the residual's block offsets
 
 // White noise offsets of one step: accelerometer, gyroscope, odometer speed. The random walks
 // (biases, odometer scale) add to their own diagonal entries.

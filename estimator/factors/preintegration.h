@@ -26,6 +26,17 @@ struct PreintegrationNoise {
   double odometer_resolution_m = 0.0;
 };
 
+/// Offsets of the blocks of the 19-row preintegration residual and error state (eq. 19).
+namespace preintegration_index {
+constexpr int kAlpha = 0;
+constexpr int kBeta = 3;
+constexpr int kTheta = 6;
+constexpr int kBa = 9;
+constexpr int kBg = 12;
+constexpr int kPhi = 15;
+constexpr int kC = 18;
+}  // namespace preintegration_index
+
 /// A state of the sliding window (eq. 1) in plain form.
 struct NavState {
   Eigen::Vector3d p = Eigen::Vector3d::Zero();            ///< p_world_body

@@ -135,6 +135,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
     return fail("keyframe thresholds must be > 0");
   }
+  if (!(degeneracy_threshold >= 0.0 && degeneracy_threshold < 1.0))
+    return fail("degeneracy_threshold must be in [0, 1)");
+  if (!(degeneracy_projection >= 0.0 && degeneracy_projection < 1.0))
+    return fail("degeneracy_projection must be in [0, 1) (0 = no remapping)");
   std::string stage;
   if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
@@ -270,6 +274,30 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
   if (!c.options.IsValid(&why)) {
     if (error) *error = source_name + ": estimator." + why;
     return false;
+  }
+  // White-noise densities must be positive (zero would make a measurement exact); random walks
+  // may be zero (a constant bias or scale).
+  const PreintegrationNoise& n = c.rig.noise;
+  const std::pair<const char*, double> densities[] = {
+      {"imu.gyro_noise_density", n.gyro_noise_density},
+      {"imu.accel_noise_density", n.accel_noise_density},
+      {"estimator.odometer_speed_density", n.odometer_speed_density},
+      {"estimator.odometer_lateral_density", n.odometer_lateral_density}};
+  const std::pair<const char*, double> walks[] = {
+      {"imu.gyro_bias_walk", n.gyro_bias_walk},
+      {"imu.accel_bias_walk", n.accel_bias_walk},
+      {"estimator.odometer_scale_walk", n.odometer_scale_walk}};
+  for (const auto& [key, value] : densities) {
+    if (!(value > 0.0 && std::isfinite(value))) {
+      if (error) *error = source_name + ": " + key + " must be > 0";
+      return false;
+    }
+  }
+  for (const auto& [key, value] : walks) {
+    if (!(value >= 0.0 && std::isfinite(value))) {
+      if (error) *error = source_name + ": " + key + " must be >= 0";
+      return false;
+    }
   }
   *config = std::move(c);
   return true;

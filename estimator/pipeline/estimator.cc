@@ -101,7 +101,6 @@ struct Estimator::NodeExtras {
   /// Until the world is re-levelled: the link from the previous state, and the final state.
   std::shared_ptr<const Preintegration> preintegration;
   NavState final_state;
-  double t_s = 0.0;
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
@@ -119,7 +118,6 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   gravity_pending_ = o.switches.use_imu && o.gravity_align_s > 0.0;
-  next_gravity_try_s_ = o.gravity_align_s;
 }
 
 Estimator::~Estimator() = default;
@@ -404,7 +402,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
 
   auto extras = std::make_unique<NodeExtras>();
   extras->stamp_ns = stamp_ns;
-  extras->t_s = t_end;
   if (gravity_pending_) extras->preintegration = pre;
   FrameResult& result = extras->result;
   result.stamp_ns = stamp_ns;

@@ -31,19 +31,6 @@ double InertialBuffer::OdometerDistanceAt(double t, bool* ok) const {
   return a.distance_m + s * (b.distance_m - a.distance_m);
 }
 
-double InertialBuffer::OdometerSpeedAt(double t, double half_window_s, bool* ok) const {
-  *ok = false;
-  if (odo_.size() < 2) return 0.0;
-  const double a = std::max(t - half_window_s, odo_.front().t);
-  const double b = std::min(t + half_window_s, odo_.back().t);
-  if (b - a < 0.5 * half_window_s) return 0.0;
-  bool ok_a = false, ok_b = false;
-  const double da = OdometerDistanceAt(a, &ok_a);
-  const double db = OdometerDistanceAt(b, &ok_b);
-  *ok = ok_a && ok_b;
-  return *ok ? (db - da) / (b - a) : 0.0;
-}
-
 bool InertialBuffer::UpInBody(double t0,
                               double t1,
                               double gravity_mps2,

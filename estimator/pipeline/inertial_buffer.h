@@ -34,9 +34,6 @@ class InertialBuffer {
   /// inside a gap of more than `max_gap_s` between readings.
   double OdometerDistanceAt(double t, bool* ok) const;
 
-  /// Mean odometer speed over [t - half_window_s, t + half_window_s] (clipped to the buffer).
-  double OdometerSpeedAt(double t, double half_window_s, bool* ok) const;
-
   /// The up direction (unit, opposite to gravity) in the body frame at t1, from the IMU and
   /// odometer over [t0, t1]. In the body frame at t0, the wheel's path (odometer distances
   /// along the gyro-rotated body x axis) equals v0 t + (double integral of the rotated specific

@@ -121,17 +121,25 @@ std::array<Jacobian, 6> AnalyticJacobians(const ImuOdometerFactor& factor,
   return out;
 }
 
-TEST(ImuOdometerFactorTest, ResidualIsWhitenedPreintegrationResidual) {
-  const auto pre = MakePreintegration();
-  const ImuOdometerFactor factor(pre);
-  const auto blocks = MakeParameters(*pre);
+/// The factor's residual at `blocks` is the preintegration's current whitened residual.
+template <typename Blocks>
+void ExpectWhitenedResidual(const ImuOdometerFactor& factor,
+                            const Preintegration& pre,
+                            const Blocks& blocks) {
   const double* parameters[6];
   for (int b = 0; b < 6; ++b) parameters[b] = blocks[b].data();
   Eigen::Matrix<double, 19, 1> r;
   ASSERT_TRUE(factor.Evaluate(parameters, r.data(), nullptr));
   const Eigen::Matrix<double, 19, 1> expected =
-      pre->SqrtInformation() * pre->Evaluate(ToState(blocks, 0), ToState(blocks, 1));
+      pre.SqrtInformation() * pre.Evaluate(ToState(blocks, 0), ToState(blocks, 1));
   EXPECT_LT((r - expected).norm(), 1e-9 * expected.norm());
+}
+
+TEST(ImuOdometerFactorTest, ResidualIsWhitenedPreintegrationResidual) {
+  const auto pre = MakePreintegration();
+  const ImuOdometerFactor factor(pre);
+  const auto blocks = MakeParameters(*pre);
+  ExpectWhitenedResidual(factor, *pre, blocks);
   EXPECT_EQ(factor.sqrt_information(), pre->SqrtInformation());
 }
 
@@ -221,13 +229,7 @@ TEST(ImuOdometerFactorTest, NoticesARepropagatedPreintegration) {
   const ImuOdometerFactor factor(pre);
   const auto blocks = MakeParameters(*pre);
   pre->Repropagate(pre->linearized_ba() + Vector3d(0.01, 0.0, 0.0), pre->linearized_bg(), 1.01);
-  const double* parameters[6];
-  for (int b = 0; b < 6; ++b) parameters[b] = blocks[b].data();
-  Eigen::Matrix<double, 19, 1> r;
-  ASSERT_TRUE(factor.Evaluate(parameters, r.data(), nullptr));
-  const Eigen::Matrix<double, 19, 1> expected =
-      pre->SqrtInformation() * pre->Evaluate(ToState(blocks, 0), ToState(blocks, 1));
-  EXPECT_LT((r - expected).norm(), 1e-9 * expected.norm());
+  ExpectWhitenedResidual(factor, *pre, blocks);
 }
 
 }  // namespace

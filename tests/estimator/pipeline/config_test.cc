@@ -57,6 +57,14 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
   EXPECT_FALSE(ParseEstimatorConfig(
       DemoRigYaml() + "estimator:\n  map_voxel_m: big\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("wrong type"), std::string::npos) << error;
+  // A zero across-axis odometer noise would pin the attitude to the car body's sway again.
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  odometer_lateral_density: 0\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("estimator.odometer_lateral_density must be > 0"), std::string::npos)
+      << error;
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  degeneracy_projection: -1\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("degeneracy_projection must be in [0, 1)"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
