@@ -70,6 +70,10 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
   r.Read("degeneracy_projection", &o->degeneracy_projection);
+  r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
+  r.Read("initial_accel_bias_sigma", &o->initial_accel_bias_sigma);
+  r.Read("initial_gyro_bias_sigma", &o->initial_gyro_bias_sigma);
+  r.Read("initial_scale_sigma", &o->initial_scale_sigma);
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
@@ -132,6 +136,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
   }
+  if (!(initial_velocity_sigma_mps > 0.0) || !(initial_accel_bias_sigma > 0.0) ||
+      !(initial_gyro_bias_sigma > 0.0) || !(initial_scale_sigma > 0.0)) {
+    return fail("initial_*_sigma values must be > 0");
+  }
   if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
     return fail("keyframe thresholds must be > 0");
   }
@@ -176,6 +184,9 @@ std::string EstimatorConfig::Describe() const {
     << " m, correspondences within " << o.max_correspondence_m << " m\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m\n";
+  s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
+    << o.initial_accel_bias_sigma << " m/s^2, gyro bias " << o.initial_gyro_bias_sigma
+    << " rad/s, odometer scale " << o.initial_scale_sigma << "\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
     << "; solution remapping below " << o.degeneracy_projection << "\n";

@@ -66,14 +66,20 @@ struct EstimatorOptions {
   HeightDescriptorOptions height;
   AblationSwitches switches;
 
-  int window_size = 6;                   ///< states in the sliding window (eq. 2)
-  int registration_rounds = 2;           ///< correspondence search + optimisation rounds
-  int max_solver_iterations = 6;         ///< Ceres iterations per round
-  double map_voxel_m = 1.0;              ///< local map voxel edge
-  int map_points_per_voxel = 10;         ///< local map cap per voxel
-  double map_radius_m = 200.0;           ///< voxels farther from the vehicle are dropped
-  double plane_sigma_m = 0.1;            ///< point-to-plane noise (before favour factors)
-  double edge_sigma_m = 0.15;            ///< point-to-line noise
+  int window_size = 6;            ///< states in the sliding window (eq. 2)
+  int registration_rounds = 2;    ///< correspondence search + optimisation rounds
+  int max_solver_iterations = 6;  ///< Ceres iterations per round
+  double map_voxel_m = 1.0;       ///< local map voxel edge
+  int map_points_per_voxel = 10;  ///< local map cap per voxel
+  double map_radius_m = 200.0;    ///< voxels farther from the vehicle are dropped
+  /// Point-to-plane and point-to-line noise (before the favour factors). Well above the
+  /// sensor's 2 cm: a frame's thousands of residuals share their errors (the map is built from
+  /// the same trajectory, the deskew from the same prediction), and weighted as independent
+  /// 0.1 m measurements they outvote the IMU and odometer so far that a pitch error grows by
+  /// feedback through the map at 100 km/h and above (RailLoMer README, "Where the estimator
+  /// stands").
+  double plane_sigma_m = 0.3;
+  double edge_sigma_m = 0.45;
   double max_correspondence_m = 1.0;     ///< neighbour search radius
   double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
   double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
@@ -85,10 +91,15 @@ struct EstimatorOptions {
   /// Solution remapping: when both LiDARs' matches together are this degenerate, their
   /// factors stop seeing the translation along the weakest direction. 0 disables.
   double degeneracy_projection = 0.012;
-  double keyframe_distance_m = 2.0;  ///< keyframes for mapping: distance since the last
-  double keyframe_angle_deg = 5.0;   ///< ... or rotation since the last
-  double imu_gap_warn_s = 0.05;      ///< IMU gaps longer than this are reported
-  double init_gravity_s = 4.0;       ///< IMU and odometer data for the initial roll and pitch
+  /// Priors of the first state (and of the window after re-levelling).
+  double initial_velocity_sigma_mps = 1.0;
+  double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2
+  double initial_gyro_bias_sigma = 2.0e-4;   ///< rad/s
+  double initial_scale_sigma = 0.02;         ///< odometer scale
+  double keyframe_distance_m = 2.0;          ///< keyframes for mapping: distance since the last
+  double keyframe_angle_deg = 5.0;           ///< ... or rotation since the last
+  double imu_gap_warn_s = 0.05;              ///< IMU gaps longer than this are reported
+  double init_gravity_s = 4.0;  ///< IMU and odometer data for the initial roll and pitch
   /// After this long, gravity is re-estimated from the IMU against the estimated trajectory and
   /// the world frame re-levelled once (a start at speed levels the first second poorly); poses
   /// are held back until then. 0 disables.

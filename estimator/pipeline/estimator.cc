@@ -114,6 +114,10 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   w.max_iterations = o.max_solver_iterations;
   w.use_imu = o.switches.use_imu;
   w.estimate_scale = o.switches.use_odometer;
+  w.initial_velocity_sigma_mps = o.initial_velocity_sigma_mps;
+  w.initial_accel_bias_sigma = o.initial_accel_bias_sigma;
+  w.initial_gyro_bias_sigma = o.initial_gyro_bias_sigma;
+  w.initial_scale_sigma = o.initial_scale_sigma;
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
@@ -263,6 +267,7 @@ std::shared_ptr<Preintegration> Estimator::Preintegrate(
 
 bool Estimator::Initialize(double t_end) {
   NavState s;
+  Eigen::Vector3d v_body = Eigen::Vector3d::Zero();
   if (config_.options.switches.use_imu) {
     // Roll and pitch from the first init_gravity_s of IMU data, with the velocity change from
     // the odometer's path (InertialBuffer::UpInBody). A roll error at speed reads as a turn
@@ -279,15 +284,19 @@ bool Estimator::Initialize(double t_end) {
       return false;
     }
     Eigen::Vector3d f;
-    if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f)) return false;
+    if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f, &v_body))
+      return false;
     s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
     // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
     const Eigen::Vector3d x = s.q * Eigen::Vector3d::UnitX();
     const double yaw = std::atan2(x.y(), x.x());
     s.q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * s.q;
   }
-  // Initial speed from the odometer over up to the last 0.2 s (the train may start at speed).
-  if (inertial_.HasOdometer()) {
+  // Initial velocity: with IMU and odometer, from the levelling fit over its whole span;
+  // otherwise from the odometer over up to the last 0.2 s (the train may start at speed).
+  if (config_.options.switches.use_imu && inertial_.HasOdometer()) {
+    s.v = s.q * v_body;
+  } else if (inertial_.HasOdometer()) {
     const double t0 = std::max(inertial_.FirstOdometerTime(), t_end - 0.2);
     bool ok0 = false, ok1 = false;
     const double d1 = inertial_.OdometerDistanceAt(t_end, &ok1);

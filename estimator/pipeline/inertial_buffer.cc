@@ -34,7 +34,8 @@ double InertialBuffer::OdometerDistanceAt(double t, bool* ok) const {
 bool InertialBuffer::UpInBody(double t0,
                               double t1,
                               double gravity_mps2,
-                              Eigen::Vector3d* up_body) const {
+                              Eigen::Vector3d* up_body,
+                              Eigen::Vector3d* velocity_body) const {
   if (imu_.size() < 5 || t1 - t0 < 0.1 || imu_.front().t > t0 + 0.05 || imu_.back().t < t1 - 0.05)
     return false;
   bool odometer_ok = false;
@@ -73,6 +74,11 @@ bool InertialBuffer::UpInBody(double t0,
   const Eigen::Quaterniond gamma(
       pre->RelativePoseAt(T, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity()).linear());
   *up_body = (gamma.conjugate() * w).normalized();
+  if (velocity_body) {
+    // v(t) = v0 + beta(t) - w t in the frame at t0, beta the rotated specific force integrated.
+    const Eigen::Vector3d v0 = x.row(0).transpose();
+    *velocity_body = gamma.conjugate() * (v0 + pre->beta() - w * T);
+  }
   return true;
 }
 

@@ -40,8 +40,14 @@ class InertialBuffer {
   /// force) - g t^2 / 2 at every t; a least-squares fit of v0 and g per axis gives the tilt.
   /// Fitting positions, not end velocities, keeps the car body's sway (a few mm, but +-2 cm/s)
   /// and the pulse quantisation out of the tilt. Without odometer data the train is taken to
-  /// stand still. False without enough IMU data.
-  bool UpInBody(double t0, double t1, double gravity_mps2, Eigen::Vector3d* up_body) const;
+  /// stand still. False without enough IMU data. velocity_body (if given) gets the fitted
+  /// velocity at t1 in the body frame at t1: a fit over the whole span, far less disturbed by
+  /// the pulse quantisation and the creep than the odometer's speed over a fraction of a second.
+  bool UpInBody(double t0,
+                double t1,
+                double gravity_mps2,
+                Eigen::Vector3d* up_body,
+                Eigen::Vector3d* velocity_body = nullptr) const;
 
   /// Preintegration over [t0, t1] linearised at the given biases and odometer scale. IMU
   /// samples are interpolated at t0 and t1 and held across the ends of the buffer. With

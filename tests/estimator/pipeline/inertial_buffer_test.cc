@@ -129,27 +129,40 @@ INSTANTIATE_TEST_SUITE_P(Scenarios,
                          ::testing::Values("poor_low_open_a", "rich_high_town_a"));
 
 // The initial levelling: roll and pitch from the first seconds of IMU and odometer data match
-// the truth, also when the run starts at 140 km/h with the car body swaying.
+// the truth, also when the run starts at 140 km/h with the car body swaying; so does the
+// initial velocity fitted with them.
 TEST(InertialBufferSim, UpInBodyLevelsAtSpeed) {
   for (const char* name : {"poor_low_open_a", "poor_high_open_a", "rich_high_town_a"}) {
     SimInertial s = Simulate(name, 12.0, false);
     const sim::TruthMotion& truth = s.simulator->truth();
     const double span = EstimatorOptions().init_gravity_s;  // the default levelling span
-    double worst_roll = 0.0, worst_pitch = 0.0;
+    double worst_roll = 0.0, worst_pitch = 0.0, worst_speed = 0.0, worst_across = 0.0;
     for (double t1 = span + 0.2; t1 < 11.5; t1 += 0.7) {
-      Eigen::Vector3d up;
-      ASSERT_TRUE(s.buffer.UpInBody(t1 - span, t1, s.config.rig.gravity_mps2, &up));
-      const Eigen::Vector3d up_true =
-          truth.Pose(t1).linear().transpose() * Eigen::Vector3d::UnitZ();
+      Eigen::Vector3d up, v;
+      ASSERT_TRUE(s.buffer.UpInBody(t1 - span, t1, s.config.rig.gravity_mps2, &up, &v));
+      const Eigen::Isometry3d T1 = truth.Pose(t1);
+      const Eigen::Vector3d up_true = T1.linear().transpose() * Eigen::Vector3d::UnitZ();
       // Roll error about x, pitch error about y (small angles).
       worst_roll = std::max(worst_roll, std::abs(up.y() - up_true.y()));
       worst_pitch = std::max(worst_pitch, std::abs(up.x() - up_true.x()));
+      const Eigen::Vector3d v_true =
+          T1.linear().transpose() *
+          (truth.Pose(t1 + 1e-4).translation() - truth.Pose(t1 - 1e-4).translation()) / 2e-4;
+      worst_speed = std::max(worst_speed, std::abs(v.x() - v_true.x()) / (v_true.norm() + 1.0));
+      worst_across = std::max(worst_across, v.tail<2>().norm());
     }
-    std::printf("%-18s span %.0f s: worst roll error %.3f deg, pitch %.3f deg\n",
-                name,
-                span,
-                worst_roll * 180 / M_PI,
-                worst_pitch * 180 / M_PI);
+    std::printf(
+        "%-18s span %.0f s: worst roll error %.3f deg, pitch %.3f deg, speed %.2f %%, "
+        "across %.3f m/s\n",
+        name,
+        span,
+        worst_roll * 180 / M_PI,
+        worst_pitch * 180 / M_PI,
+        100.0 * worst_speed,
+        worst_across);
+    // The wheel reads 0.4 % long (the simulated wear) and creeps by 0.5 % of the speed.
+    EXPECT_LT(worst_speed, 0.015) << name;
+    EXPECT_LT(worst_across, 0.1) << name;
     // Roll decides the heading at speed (lateral gravity reads as a turn): hundredths of a
     // degree. Pitch is limited by the wheel's creep (0.5 % of speed, varying over seconds).
     EXPECT_LT(worst_roll * 180 / M_PI, 0.05) << name;
