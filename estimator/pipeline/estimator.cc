@@ -121,7 +121,10 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
-  gravity_pending_ = o.switches.use_imu && o.gravity_align_s > 0.0;
+  // Re-levelling needs the trajectory's velocities; without the odometer they carry the very
+  // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
+  gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
+                     !config_.rig.odometer_topic.empty() && o.gravity_align_s > 0.0;
 }
 
 Estimator::~Estimator() = default;
@@ -284,8 +287,30 @@ bool Estimator::Initialize(double t_end) {
       return false;
     }
     Eigen::Vector3d f;
-    if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f, &v_body))
-      return false;
+    if (inertial_.HasOdometer()) {
+      if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f, &v_body))
+        return false;
+    } else {
+      // Without the odometer the path is unknown and the train is taken to stand still: level
+      // on the first second only (a train that pulls away later would read its acceleration
+      // as pitch, 1.6 deg at 0.8 m/s^2), then carry the up direction to t_end on the gyro.
+      const double t0 = imu.front().t;
+      const double t1 = std::min(t0 + 1.0, t_end);
+      Eigen::Vector3d up_t1;
+      if (!inertial_.UpInBody(t0, t1, config_.rig.gravity_mps2, &up_t1)) return false;
+      bool unused = false;
+      const auto pre = inertial_.Preintegrate(t1,
+                                              t_end,
+                                              Eigen::Vector3d::Zero(),
+                                              Eigen::Vector3d::Zero(),
+                                              1.0,
+                                              Eigen::Vector3d::Zero(),
+                                              config_.rig.noise,
+                                              config_.rig.gravity_mps2,
+                                              false,
+                                              &unused);
+      f = pre->gamma().conjugate() * up_t1;
+    }
     s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
     // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
     const Eigen::Vector3d x = s.q * Eigen::Vector3d::UnitX();
