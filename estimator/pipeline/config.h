@@ -94,7 +94,7 @@ struct EstimatorOptions {
   /// Priors of the first state (and of the window after re-levelling).
   double initial_velocity_sigma_mps = 1.0;
   double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2
-  double initial_gyro_bias_sigma = 2.0e-4;   ///< rad/s
+  double initial_gyro_bias_sigma = 5.0e-5;   ///< rad/s: an MTi-680G's bias stability
   double initial_scale_sigma = 0.02;         ///< odometer scale
   double keyframe_distance_m = 2.0;          ///< keyframes for mapping: distance since the last
   double keyframe_angle_deg = 5.0;           ///< ... or rotation since the last
