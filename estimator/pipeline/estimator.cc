@@ -299,16 +299,7 @@ bool Estimator::Initialize(double t_end) {
       Eigen::Vector3d up_t1;
       if (!inertial_.UpInBody(t0, t1, config_.rig.gravity_mps2, &up_t1)) return false;
       bool unused = false;
-      const auto pre = inertial_.Preintegrate(t1,
-                                              t_end,
-                                              Eigen::Vector3d::Zero(),
-                                              Eigen::Vector3d::Zero(),
-                                              1.0,
-                                              Eigen::Vector3d::Zero(),
-                                              config_.rig.noise,
-                                              config_.rig.gravity_mps2,
-                                              false,
-                                              &unused);
+      const auto pre = Preintegrate(t1, t_end, NavState(), false, &unused);
       f = pre->gamma().conjugate() * up_t1;
     }
     s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
