@@ -1,39 +1,79 @@
 #include "estimator/factors/lidar_factors.h"
 
 #include <algorithm>
+#include <cmath>
 #include <utility>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 namespace raillomer {
 namespace {
 
+using RowJacobian1x6 = Eigen::Matrix<double, 1, 6, Eigen::RowMajor>;
+using RowJacobian3x6 = Eigen::Matrix<double, 3, 6, Eigen::RowMajor>;
 using RowJacobian1x7 = Eigen::Matrix<double, 1, 7, Eigen::RowMajor>;
 using RowJacobian3x7 = Eigen::Matrix<double, 3, 7, Eigen::RowMajor>;
 using RowJacobian4x7 = Eigen::Matrix<double, 4, 7, Eigen::RowMajor>;
+using RowJacobian7x7 = Eigen::Matrix<double, 7, 7, Eigen::RowMajor>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+
+/// Eq. (21) at rotation R and translation t, with its Jacobian on the tangent (dp, dtheta).
+double PlaneResidual(const PlaneTerm& m,
+                     const Eigen::Matrix3d& rotation,
+                     const Eigen::Vector3d& t,
+                     RowJacobian1x6* jacobian) {
+  if (jacobian) {
+    jacobian->leftCols<3>() = m.weight * m.normal.transpose();
+    // d(R Exp(dtheta) p)/d(dtheta) = -R [p]x.
+    jacobian->rightCols<3>() = -m.weight * m.normal.transpose() * rotation * Skew(m.p_body);
+  }
+  // The signed distance of the world point to the plane.
+  return m.weight * (m.normal.dot(rotation * m.p_body + t) + m.d);
+}
+
+/// Eq. (20): the component of (p_world - a) perpendicular to the line (its norm is d_epsilon).
+Eigen::Vector3d LineResidual(const LineTerm& m,
+                             const Eigen::Matrix3d& rotation,
+                             const Eigen::Vector3d& t,
+                             RowJacobian3x6* jacobian) {
+  if (jacobian) {
+    jacobian->leftCols<3>() = m.weight * m.projector;
+    jacobian->rightCols<3>() = -m.weight * m.projector * rotation * Skew(m.p_body);
+  }
+  return m.weight * m.projector * (rotation * m.p_body + t - m.point);
+}
 
 }  // namespace
+
+LineTerm::LineTerm(const Eigen::Vector3d& p_body_in,
+                   const Eigen::Vector3d& point_world,
+                   const Eigen::Vector3d& direction_world,
+                   double weight_in)
+    : p_body(p_body_in), point(point_world), weight(weight_in) {
+  const Eigen::Vector3d u = direction_world.normalized();
+  projector = Eigen::Matrix3d::Identity() - u * u.transpose();
+}
 
 PointToPlaneFactor::PointToPlaneFactor(const Eigen::Vector3d& p_body,
                                        const Eigen::Vector3d& normal_world,
                                        double d,
                                        double weight)
-    : p_body_(p_body), normal_(normal_world), d_(d), weight_(weight) {}
+    : term_{p_body, normal_world, d, weight} {}
 
 bool PointToPlaneFactor::Evaluate(double const* const* parameters,
                                   double* residuals,
                                   double** jacobians) const {
   const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
-  const Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
   const Eigen::Matrix3d rotation = q.toRotationMatrix();
-  // Eq. (21): signed distance of the world point to the plane.
-  residuals[0] = weight_ * (normal_.dot(rotation * p_body_ + t) + d_);
-  if (jacobians != nullptr && jacobians[0] != nullptr) {
+  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  RowJacobian1x6 tangent;
+  residuals[0] = PlaneResidual(term_, rotation, t, jacobian_wanted ? &tangent : nullptr);
+  if (jacobian_wanted) {
     Eigen::Map<RowJacobian1x7> jacobian(jacobians[0]);
-    jacobian.leftCols<3>() = weight_ * normal_.transpose();
-    // d(R Exp(dtheta) p)/d(dtheta) = -R [p]x.
-    jacobian.block<1, 3>(0, 3) = -weight_ * normal_.transpose() * rotation * Skew(p_body_);
-    jacobian(0, 6) = 0.0;
+    jacobian << tangent, 0.0;
   }
   return true;
 }
@@ -42,26 +82,92 @@ PointToLineFactor::PointToLineFactor(const Eigen::Vector3d& p_body,
                                      const Eigen::Vector3d& point_world,
                                      const Eigen::Vector3d& direction_world,
                                      double weight)
-    : p_body_(p_body), a_(point_world), weight_(weight) {
-  const Eigen::Vector3d u = direction_world.normalized();
-  projector_ = Eigen::Matrix3d::Identity() - u * u.transpose();
-}
+    : term_(p_body, point_world, direction_world, weight) {}
 
 bool PointToLineFactor::Evaluate(double const* const* parameters,
                                  double* residuals,
                                  double** jacobians) const {
   const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
-  const Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
   const Eigen::Matrix3d rotation = q.toRotationMatrix();
-  // Eq. (20): the component of (p_world - a) perpendicular to the line; its norm is d_epsilon.
+  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  RowJacobian3x6 tangent;
   Eigen::Map<Eigen::Vector3d> r(residuals);
-  r = weight_ * projector_ * (rotation * p_body_ + t - a_);
-  if (jacobians != nullptr && jacobians[0] != nullptr) {
+  r = LineResidual(term_, rotation, t, jacobian_wanted ? &tangent : nullptr);
+  if (jacobian_wanted) {
     Eigen::Map<RowJacobian3x7> jacobian(jacobians[0]);
-    jacobian.leftCols<3>() = weight_ * projector_;
-    jacobian.block<3, 3>(0, 3) = -weight_ * projector_ * rotation * Skew(p_body_);
+    jacobian.leftCols<6>() = tangent;
     jacobian.col(6).setZero();
   }
+  return true;
+}
+
+LidarFrameCost::LidarFrameCost(std::vector<PlaneTerm> planes,
+                               std::vector<LineTerm> lines,
+                               double huber)
+    : planes_(std::move(planes)), lines_(std::move(lines)), huber_(huber) {}
+
+bool LidarFrameCost::Evaluate(double const* const* parameters,
+                              double* residuals,
+                              double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
+  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
+  const Eigen::Matrix3d rotation = q.toRotationMatrix();
+  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  const double b = huber_ * huber_;
+  // ceres::HuberLoss on s = |r|^2: rho = s below b, 2 sqrt(b s) - b above; rho' = min(1,
+  // sqrt(b/s)).
+  auto robust = [&](double s, double* rho1) {
+    if (s <= b) {
+      *rho1 = 1.0;
+      return s;
+    }
+    const double root = std::sqrt(s);
+    *rho1 = huber_ / root;
+    return 2.0 * huber_ * root - b;
+  };
+  double cost = 0.0;  // sum of rho, twice Ceres' cost
+  Matrix6d H = Matrix6d::Zero();
+  Vector6d g = Vector6d::Zero();
+  RowJacobian1x6 j_plane;
+  for (const PlaneTerm& m : planes_) {
+    const double r = PlaneResidual(m, rotation, t, jacobian_wanted ? &j_plane : nullptr);
+    double rho1 = 1.0;
+    cost += robust(r * r, &rho1);
+    if (!jacobian_wanted) continue;
+    H.selfadjointView<Eigen::Upper>().rankUpdate(j_plane.transpose(), rho1);
+    g += (rho1 * r) * j_plane.transpose();
+  }
+  RowJacobian3x6 j_line;
+  for (const LineTerm& m : lines_) {
+    const Eigen::Vector3d r = LineResidual(m, rotation, t, jacobian_wanted ? &j_line : nullptr);
+    double rho1 = 1.0;
+    cost += robust(r.squaredNorm(), &rho1);
+    if (!jacobian_wanted) continue;
+    H.selfadjointView<Eigen::Upper>().rankUpdate(j_line.transpose(), rho1);
+    g += rho1 * j_line.transpose() * r;
+  }
+  Eigen::Map<Eigen::Matrix<double, 7, 1>> out(residuals);
+  out.setZero();
+  if (!jacobian_wanted) {
+    out(6) = std::sqrt(cost);
+    return true;
+  }
+  // H = V S V^T; rows for the directions the terms observe, none for the rest (g has no part
+  // there: it lies in the range of H).
+  H.triangularView<Eigen::StrictlyLower>() = H.transpose();
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eigen(H);
+  const double floor = 1e-12 * std::max(eigen.eigenvalues().maxCoeff(), 1e-300);
+  Eigen::Map<RowJacobian7x7> jacobian(jacobians[0]);
+  jacobian.setZero();
+  for (int k = 0; k < 6; ++k) {
+    const double s = eigen.eigenvalues()(k);
+    if (s <= floor) continue;
+    const double root = std::sqrt(s);
+    jacobian.block<1, 6>(k, 0) = root * eigen.eigenvectors().col(k).transpose();
+    out(k) = eigen.eigenvectors().col(k).dot(g) / root;
+  }
+  out(6) = std::sqrt(std::max(cost - out.head<6>().squaredNorm(), 0.0));
   return true;
 }
 

@@ -1,6 +1,7 @@
 #pragma once
 
 #include <memory>
+#include <vector>
 
 #include <ceres/cost_function.h>
 #include <ceres/sized_cost_function.h>
@@ -10,6 +11,26 @@
 #include "estimator/factors/pose_manifold.h"
 
 namespace raillomer {
+
+/// One point-to-plane term of a frame (eq. 21): r = weight * (normal . (R p_body + t) + d).
+struct PlaneTerm {
+  Eigen::Vector3d p_body;
+  Eigen::Vector3d normal;  ///< unit, world frame
+  double d = 0.0;
+  double weight = 1.0;
+};
+
+/// One point-to-line term of a frame (eq. 20): r = weight * (I - u u^T)(R p_body + t - a).
+struct LineTerm {
+  LineTerm(const Eigen::Vector3d& p_body,
+           const Eigen::Vector3d& point_world,
+           const Eigen::Vector3d& direction_world,
+           double weight);
+  Eigen::Vector3d p_body;
+  Eigen::Vector3d point;
+  Eigen::Matrix3d projector;
+  double weight = 1.0;
+};
 
 /// Point-to-plane distance, eq. (21): r = w * (n . (R p_body + t) + d).
 /// Parameter block: pose[7] (T_world_body). `n` is a unit normal in the world frame.
@@ -24,8 +45,7 @@ class PointToPlaneFactor : public ceres::SizedCostFunction<1, 7> {
                 double** jacobians) const override;
 
  private:
-  Eigen::Vector3d p_body_, normal_;
-  double d_, weight_;
+  PlaneTerm term_;
 };
 
 /// Point-to-line distance, eq. (20), as the 3-vector r = w * (I - u u^T)(R p_body + t - a).
@@ -41,9 +61,33 @@ class PointToLineFactor : public ceres::SizedCostFunction<3, 7> {
                 double** jacobians) const override;
 
  private:
-  Eigen::Vector3d p_body_, a_;
-  Eigen::Matrix3d projector_;
-  double weight_;
+  LineTerm term_;
+};
+
+/// All of one frame's LiDAR terms on one pose, each robustified by a Huber loss of scale `huber`
+/// (on |r|, as ceres::HuberLoss), folded into one residual block of 7.
+///
+/// Thousands of one-row residual blocks per frame cost Ceres far more in bookkeeping than in
+/// arithmetic. This block sums them itself: at the evaluation point it forms the robustified
+/// normal equations H = sum rho' J^T J, g = sum rho' J^T r (Ceres' own treatment of a Huber
+/// loss) and returns the 6 rows J' = S^1/2 V^T, r' = S^-1/2 V^T g from H = V S V^T, so that
+/// J'^T J' = H and J'^T r' = g, plus a seventh row, sqrt(sum rho - |r'|^2), with no Jacobian, so
+/// that the block's cost is exactly the frame's robust cost. Every Gauss-Newton or
+/// Levenberg-Marquardt step, and a marginalisation, sees the same system as with one block per
+/// term.
+class LidarFrameCost : public ceres::SizedCostFunction<7, 7> {
+ public:
+  LidarFrameCost(std::vector<PlaneTerm> planes, std::vector<LineTerm> lines, double huber);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+  size_t size() const { return planes_.size() + lines_.size(); }
+
+ private:
+  std::vector<PlaneTerm> planes_;
+  std::vector<LineTerm> lines_;
+  double huber_;
 };
 
 /// Solution remapping (Zhang et al., the degeneracy measure of eq. 25): wraps a cost over one

@@ -24,6 +24,9 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+/// Huber scale of the LiDAR residuals, in units of their sigma.
+constexpr double kLidarHuber = 1.0;
+
 double Ms(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
 }
@@ -494,7 +497,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   for (int round = 0; round < o.registration_rounds && have_map && !first; ++round) {
     const NavState current = window_->Newest();
     const Eigen::Isometry3d T_current = PoseOf(current);
-    std::vector<std::shared_ptr<ceres::CostFunction>> costs;
+    std::vector<PlaneTerm> plane_terms;
+    std::vector<LineTerm> line_terms;
     LidarMatches all;
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
@@ -524,11 +528,10 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       all.planes.insert(all.planes.end(), matches.planes.begin(), matches.planes.end());
       all.lines.insert(all.lines.end(), matches.lines.begin(), matches.lines.end());
       for (const PlaneMatch& m : matches.planes) {
-        costs.push_back(std::make_shared<PointToPlaneFactor>(m.p_body, m.normal, m.d, w_plane));
+        plane_terms.push_back({m.p_body, m.normal, m.d, w_plane});
       }
       for (const LineMatch& m : matches.lines) {
-        costs.push_back(
-            std::make_shared<PointToLineFactor>(m.p_body, m.point, m.direction, w_edge));
+        line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
       }
     }
     // Solution remapping: what neither LiDAR observes is left to the other factors.
@@ -536,13 +539,14 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     result.degeneracy = frame.degeneracy;
     result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
                        frame.degeneracy < o.degeneracy_projection;
+    // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
+    std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
+        std::move(plane_terms), std::move(line_terms), kLidarHuber);
     if (result.projected) {
-      for (auto& cost : costs) {
-        cost = std::make_shared<ProjectedTranslationCost>(
-            std::move(cost), T_current.translation(), frame.weakest_direction);
-      }
+      cost = std::make_shared<ProjectedTranslationCost>(
+          std::move(cost), T_current.translation(), frame.weakest_direction);
     }
-    window_->SetNewestLidarFactors(std::move(costs), std::make_shared<ceres::HuberLoss>(1.0));
+    window_->SetNewestLidarFactors({std::move(cost)}, nullptr);
     const WindowSummary summary = window_->Optimize();
     result.solver_iterations += summary.iterations;
   }
