@@ -20,7 +20,7 @@ class MarginalizationInfo;
 /// Options of the sliding-window smoother.
 struct SlidingWindowOptions {
   int size = 6;                ///< states kept (eq. 2)
-  int max_iterations = 6;      ///< Ceres iterations per Optimize()
+  int max_iterations = 20;     ///< Ceres iterations per Optimize()
   bool use_imu = true;         ///< false: states are poses only, linked by nothing but priors
   bool estimate_scale = true;  ///< false: the odometer scale stays at its initial value
   double initial_velocity_sigma_mps = 1.0;

@@ -66,12 +66,12 @@ struct EstimatorOptions {
   HeightDescriptorOptions height;
   AblationSwitches switches;
 
-  int window_size = 6;            ///< states in the sliding window (eq. 2)
-  int registration_rounds = 2;    ///< correspondence search + optimisation rounds
-  int max_solver_iterations = 6;  ///< Ceres iterations per round
-  double map_voxel_m = 1.0;       ///< local map voxel edge
-  int map_points_per_voxel = 10;  ///< local map cap per voxel
-  double map_radius_m = 200.0;    ///< voxels farther from the vehicle are dropped
+  int window_size = 6;             ///< states in the sliding window (eq. 2)
+  int registration_rounds = 2;     ///< correspondence search + optimisation rounds
+  int max_solver_iterations = 20;  ///< Ceres iterations per round (most converge in fewer)
+  double map_voxel_m = 1.0;        ///< local map voxel edge
+  int map_points_per_voxel = 10;   ///< local map cap per voxel
+  double map_radius_m = 200.0;     ///< voxels farther from the vehicle are dropped
   /// Point-to-plane and point-to-line noise (before the favour factors). Well above the
   /// sensor's 2 cm: a frame's thousands of residuals share their errors (the map is built from
   /// the same trajectory, the deskew from the same prediction), and weighted as independent
