@@ -76,7 +76,7 @@ struct SlidingWindow::Node {
   double speed_bias[kSpeedBiasSize];
   double scale[kScaleSize];
   std::shared_ptr<Preintegration> preintegration;  ///< from the previous state to this one
-  std::vector<WindowTerm> lidar;                   ///< unary, on pose
+  std::vector<WindowTerm> lidar;                   ///< unary, on pose: none or one
   std::vector<WindowTerm> links;   ///< with the previous state: IMU and pair factors
   std::vector<WindowTerm> priors;  ///< initial priors of the first state
 };
@@ -103,12 +103,10 @@ void SlidingWindow::Push(double t_s,
   nodes_.push_back(std::move(node));
 }
 
-void SlidingWindow::SetNewestLidarFactors(std::vector<std::shared_ptr<ceres::CostFunction>> costs,
-                                          std::shared_ptr<ceres::LossFunction> loss) {
+void SlidingWindow::SetNewestLidarFactor(std::shared_ptr<ceres::CostFunction> cost) {
   Node& node = *nodes_.back();
   node.lidar.clear();
-  node.lidar.reserve(costs.size());
-  for (auto& c : costs) node.lidar.push_back({std::move(c), loss, {node.pose}});
+  if (cost) node.lidar.push_back({std::move(cost), nullptr, {node.pose}});
 }
 
 void SlidingWindow::AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cost,

@@ -60,9 +60,9 @@ class SlidingWindow {
   /// the first state, which gets priors instead, and when !use_imu).
   void Push(double t_s, const NavState& state, std::shared_ptr<Preintegration> preintegration);
 
-  /// Replaces the LiDAR factors of the newest state (cost functions over its pose block only).
-  void SetNewestLidarFactors(std::vector<std::shared_ptr<ceres::CostFunction>> costs,
-                             std::shared_ptr<ceres::LossFunction> loss);
+  /// Replaces the LiDAR factor of the newest state: one cost over its pose block (a
+  /// LidarFrameCost, robust within), or none when null.
+  void SetNewestLidarFactor(std::shared_ptr<ceres::CostFunction> cost);
   /// Adds a factor over the poses of the two newest states (rail plane, longitudinal shift).
   void AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cost,
                            std::shared_ptr<ceres::LossFunction> loss);

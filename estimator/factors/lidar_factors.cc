@@ -19,6 +19,17 @@ using RowJacobian7x7 = Eigen::Matrix<double, 7, 7, Eigen::RowMajor>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 
+/// A pose block [p, q] as the rotation and translation the residuals use.
+struct PoseBlock {
+  explicit PoseBlock(const double* pose)
+      : t(pose),
+        rotation(Eigen::Quaterniond(pose[6], pose[3], pose[4], pose[5]).toRotationMatrix()) {}
+  Eigen::Vector3d t;
+  Eigen::Matrix3d rotation;
+};
+
+bool JacobianWanted(double** jacobians) { return jacobians != nullptr && jacobians[0] != nullptr; }
+
 /// Eq. (21) at rotation R and translation t, with its Jacobian on the tangent (dp, dtheta).
 double PlaneResidual(const PlaneTerm& m,
                      const Eigen::Matrix3d& rotation,
@@ -65,12 +76,10 @@ PointToPlaneFactor::PointToPlaneFactor(const Eigen::Vector3d& p_body,
 bool PointToPlaneFactor::Evaluate(double const* const* parameters,
                                   double* residuals,
                                   double** jacobians) const {
-  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
-  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
-  const Eigen::Matrix3d rotation = q.toRotationMatrix();
-  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  const PoseBlock pose(parameters[0]);
+  const bool jacobian_wanted = JacobianWanted(jacobians);
   RowJacobian1x6 tangent;
-  residuals[0] = PlaneResidual(term_, rotation, t, jacobian_wanted ? &tangent : nullptr);
+  residuals[0] = PlaneResidual(term_, pose.rotation, pose.t, jacobian_wanted ? &tangent : nullptr);
   if (jacobian_wanted) {
     Eigen::Map<RowJacobian1x7> jacobian(jacobians[0]);
     jacobian << tangent, 0.0;
@@ -87,13 +96,11 @@ PointToLineFactor::PointToLineFactor(const Eigen::Vector3d& p_body,
 bool PointToLineFactor::Evaluate(double const* const* parameters,
                                  double* residuals,
                                  double** jacobians) const {
-  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
-  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
-  const Eigen::Matrix3d rotation = q.toRotationMatrix();
-  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  const PoseBlock pose(parameters[0]);
+  const bool jacobian_wanted = JacobianWanted(jacobians);
   RowJacobian3x6 tangent;
   Eigen::Map<Eigen::Vector3d> r(residuals);
-  r = LineResidual(term_, rotation, t, jacobian_wanted ? &tangent : nullptr);
+  r = LineResidual(term_, pose.rotation, pose.t, jacobian_wanted ? &tangent : nullptr);
   if (jacobian_wanted) {
     Eigen::Map<RowJacobian3x7> jacobian(jacobians[0]);
     jacobian.leftCols<6>() = tangent;
@@ -110,10 +117,8 @@ LidarFrameCost::LidarFrameCost(std::vector<PlaneTerm> planes,
 bool LidarFrameCost::Evaluate(double const* const* parameters,
                               double* residuals,
                               double** jacobians) const {
-  const Eigen::Map<const Eigen::Vector3d> t(parameters[0]);
-  const Eigen::Quaterniond q = Eigen::Map<const Eigen::Quaterniond>(parameters[0] + 3);
-  const Eigen::Matrix3d rotation = q.toRotationMatrix();
-  const bool jacobian_wanted = jacobians != nullptr && jacobians[0] != nullptr;
+  const PoseBlock pose(parameters[0]);
+  const bool jacobian_wanted = JacobianWanted(jacobians);
   const double b = huber_ * huber_;
   // ceres::HuberLoss on s = |r|^2: rho = s below b, 2 sqrt(b s) - b above; rho' = min(1,
   // sqrt(b/s)).
@@ -131,7 +136,7 @@ bool LidarFrameCost::Evaluate(double const* const* parameters,
   Vector6d g = Vector6d::Zero();
   RowJacobian1x6 j_plane;
   for (const PlaneTerm& m : planes_) {
-    const double r = PlaneResidual(m, rotation, t, jacobian_wanted ? &j_plane : nullptr);
+    const double r = PlaneResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_plane : nullptr);
     double rho1 = 1.0;
     cost += robust(r * r, &rho1);
     if (!jacobian_wanted) continue;
@@ -140,7 +145,8 @@ bool LidarFrameCost::Evaluate(double const* const* parameters,
   }
   RowJacobian3x6 j_line;
   for (const LineTerm& m : lines_) {
-    const Eigen::Vector3d r = LineResidual(m, rotation, t, jacobian_wanted ? &j_line : nullptr);
+    const Eigen::Vector3d r =
+        LineResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_line : nullptr);
     double rho1 = 1.0;
     cost += robust(r.squaredNorm(), &rho1);
     if (!jacobian_wanted) continue;

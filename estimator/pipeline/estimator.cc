@@ -546,7 +546,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       cost = std::make_shared<ProjectedTranslationCost>(
           std::move(cost), T_current.translation(), frame.weakest_direction);
     }
-    window_->SetNewestLidarFactors({std::move(cost)}, nullptr);
+    window_->SetNewestLidarFactor(std::move(cost));
     const WindowSummary summary = window_->Optimize();
     result.solver_iterations += summary.iterations;
   }

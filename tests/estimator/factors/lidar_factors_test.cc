@@ -304,6 +304,19 @@ TEST(LongitudinalShiftFactor, JacobianMatchesNumeric) {
   ExpectJacobiansMatch(factor, {pose_i.data(), pose_j.data()});
 }
 
+/// Solves `problem` to convergence with tight tolerances.
+void SolveToConvergence(ceres::Problem* problem) {
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = 50;
+  options.function_tolerance = 1e-16;
+  options.gradient_tolerance = 1e-16;
+  options.parameter_tolerance = 1e-16;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, problem, &summary);
+  EXPECT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
+}
+
 /// Solves for one pose from `factors` starting at `start`; Ceres takes the factors.
 Pose SolvePose(const Pose& start, std::vector<ceres::CostFunction*> factors) {
   Pose pose = start;
@@ -312,15 +325,7 @@ Pose SolvePose(const Pose& start, std::vector<ceres::CostFunction*> factors) {
   for (ceres::CostFunction* factor : factors) {
     problem.AddResidualBlock(factor, nullptr, pose.data());
   }
-  ceres::Solver::Options options;
-  options.linear_solver_type = ceres::DENSE_QR;
-  options.max_num_iterations = 50;
-  options.function_tolerance = 1e-16;
-  options.gradient_tolerance = 1e-16;
-  options.parameter_tolerance = 1e-16;
-  ceres::Solver::Summary summary;
-  ceres::Solve(options, &problem, &summary);
-  EXPECT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
+  SolveToConvergence(&problem);
   return pose;
 }
 
@@ -380,6 +385,7 @@ TEST(PointToLineFactor, RecoversPoseFromThreeLines) {
 struct FrameTerms {
   std::vector<PlaneTerm> planes;
   std::vector<LineTerm> lines;
+  std::vector<Eigen::Vector3d> line_directions;  ///< of each line term, for PointToLineFactor
 };
 
 FrameTerms MakeFrameTerms(bool degenerate, unsigned seed) {
@@ -413,6 +419,7 @@ FrameTerms MakeFrameTerms(bool degenerate, unsigned seed) {
       const double off = noise(rng) + (outlier(rng) ? (upward(rng) ? 1.5 : -1.5) : 0.0);
       const Eigen::Vector3d world = points[k] + uniform(rng) * directions[k] + off * side;
       terms.lines.emplace_back(ToBody(kTruePose, world), points[k], directions[k], 2.0);
+      terms.line_directions.push_back(directions[k]);
     }
   }
   return terms;
@@ -450,11 +457,10 @@ void AddFrame(const FrameTerms& terms, bool folded, ceres::Problem* problem, dou
     problem->AddResidualBlock(
         new PointToPlaneFactor(m.p_body, m.normal, m.d, m.weight), new ceres::HuberLoss(1.0), pose);
   }
-  for (const LineTerm& m : terms.lines) {
-    // The projector's null space is the line direction.
-    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m.projector, Eigen::ComputeFullU);
+  for (size_t k = 0; k < terms.lines.size(); ++k) {
+    const LineTerm& m = terms.lines[k];
     problem->AddResidualBlock(
-        new PointToLineFactor(m.p_body, m.point, svd.matrixU().col(2), m.weight),
+        new PointToLineFactor(m.p_body, m.point, terms.line_directions[k], m.weight),
         new ceres::HuberLoss(1.0),
         pose);
   }
@@ -500,15 +506,7 @@ TEST(LidarFrameCost, SolvesToTheSamePoseAsOneBlockPerTerm) {
     Pose* pose = folded ? &folded_pose : &blocks_pose;
     ceres::Problem problem;
     AddFrame(terms, folded, &problem, pose->data());
-    ceres::Solver::Options options;
-    options.linear_solver_type = ceres::DENSE_QR;
-    options.max_num_iterations = 50;
-    options.function_tolerance = 1e-14;
-    options.gradient_tolerance = 1e-14;
-    options.parameter_tolerance = 1e-14;
-    ceres::Solver::Summary summary;
-    ceres::Solve(options, &problem, &summary);
-    EXPECT_TRUE(summary.IsSolutionUsable()) << summary.BriefReport();
+    SolveToConvergence(&problem);
   }
   const auto [position_gap, rotation_gap] = PoseError(folded_pose, blocks_pose);
   EXPECT_LT(position_gap, 1e-6);
