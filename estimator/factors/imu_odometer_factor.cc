@@ -31,12 +31,30 @@ NavState ReadState(const double* pose, const double* speed_bias, const double* s
   return s;
 }
 
+/// The odometer counts pulses: its noise (quantisation, speed noise, creep) lives in its own
+/// units, not in metres. The component of phi along the odometer axis is therefore taken in
+/// odometer units, scaled by c_lin / c_i, so that its whitened size does not depend on the
+/// scale estimate. In metres the cost of pure odometer noise would fall as c^2, and the solver
+/// would shrink a scale the data leave unobserved (constant speed, LiDAR degenerate along the
+/// track) a little at every step.
+Matrix3d PhiScaling(const Preintegration& pre, double c_i) {
+  const Vector3d axis = pre.R_body_odo().col(0);
+  return Matrix3d::Identity() + (pre.linearized_c() / c_i - 1.0) * axis * axis.transpose();
+}
+
 }  // namespace
 
 ImuOdometerFactor::ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration)
     : preintegration_(std::move(preintegration)),
       sqrt_information_(preintegration_->SqrtInformation()),
       revision_(preintegration_->revision()) {}
+
+Eigen::Matrix<double, 19, 1> ImuOdometerFactor::Residual(const NavState& i,
+                                                         const NavState& j) const {
+  Eigen::Matrix<double, 19, 1> r = preintegration_->Evaluate(i, j);
+  r.segment<3>(kPhi) = PhiScaling(*preintegration_, i.c) * r.segment<3>(kPhi);
+  return r;
+}
 
 bool ImuOdometerFactor::Evaluate(double const* const* parameters,
                                  double* residuals,
@@ -53,9 +71,15 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
   }
   const Eigen::Matrix<double, 19, 19>& sqrt_info = *sqrt_info_ptr;
 
-  // Eq. (19), whitened.
+  const Vector3d axis = pre.R_body_odo().col(0);
+  const double scale_ratio = pre.linearized_c() / i.c;
+  Eigen::Matrix<double, 19, 19> whitening = sqrt_info;
+  whitening.middleCols<3>(kPhi) = sqrt_info.middleCols<3>(kPhi) * PhiScaling(pre, i.c);
+
+  // Eq. (19) with the odometer row in odometer units, whitened.
+  const Eigen::Matrix<double, 19, 1> error = pre.Evaluate(i, j);
   Eigen::Map<Eigen::Matrix<double, 19, 1>> r(residuals);
-  r = sqrt_info * pre.Evaluate(i, j);
+  r = whitening * error;
   if (jacobians == nullptr) return true;
 
   const double dt = pre.sum_dt();
@@ -79,7 +103,7 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kPhi, 0) = -Ri_t;
     d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p + Rj * p_bo - i.p));
     Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[0]);
-    out.leftCols<6>() = sqrt_info * d;
+    out.leftCols<6>() = whitening * d;
     out.col(6).setZero();
   }
   if (jacobians[1] != nullptr) {
@@ -95,13 +119,15 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kBg, 6) = -Matrix3d::Identity();
     d.block<3, 6>(kPhi, 3) = -J.block<3, 6>(kPhi, kBa);
     Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[1]);
-    out = sqrt_info * d;
+    out = whitening * d;
   }
   if (jacobians[2] != nullptr) {
     Eigen::Matrix<double, 19, 1> d = -J.col(kC);
     d(kC) = -1.0;
     Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[2]);
-    out = sqrt_info * d;
+    // The scaled row also depends on c_i through c_lin / c_i.
+    const Vector3d along = axis * axis.dot(error.segment<3>(kPhi));
+    out = whitening * d - sqrt_info.middleCols<3>(kPhi) * (scale_ratio / i.c) * along;
   }
   if (jacobians[3] != nullptr) {
     Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
@@ -110,7 +136,7 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kPhi, 0) = Ri_t;
     d.block<3, 3>(kPhi, 3) = -Ri_t * Rj * Skew(p_bo);
     Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[3]);
-    out.leftCols<6>() = sqrt_info * d;
+    out.leftCols<6>() = whitening * d;
     out.col(6).setZero();
   }
   if (jacobians[4] != nullptr) {
@@ -119,11 +145,11 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kBa, 3).setIdentity();
     d.block<3, 3>(kBg, 6).setIdentity();
     Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[4]);
-    out = sqrt_info * d;
+    out = whitening * d;
   }
   if (jacobians[5] != nullptr) {
     Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[5]);
-    out = sqrt_info.col(kC);
+    out = whitening.col(kC);
   }
   return true;
 }

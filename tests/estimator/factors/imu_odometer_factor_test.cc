@@ -131,7 +131,7 @@ void ExpectWhitenedResidual(const ImuOdometerFactor& factor,
   Eigen::Matrix<double, 19, 1> r;
   ASSERT_TRUE(factor.Evaluate(parameters, r.data(), nullptr));
   const Eigen::Matrix<double, 19, 1> expected =
-      pre.SqrtInformation() * pre.Evaluate(ToState(blocks, 0), ToState(blocks, 1));
+      pre.SqrtInformation() * factor.Residual(ToState(blocks, 0), ToState(blocks, 1));
   EXPECT_LT((r - expected).norm(), 1e-9 * expected.norm());
 }
 
@@ -141,6 +141,30 @@ TEST(ImuOdometerFactorTest, ResidualIsWhitenedPreintegrationResidual) {
   const auto blocks = MakeParameters(*pre);
   ExpectWhitenedResidual(factor, *pre, blocks);
   EXPECT_EQ(factor.sqrt_information(), pre->SqrtInformation());
+}
+
+// The residual is eq. (19) but for the odometer-axis component of d_phi, which is in odometer
+// units: c_lin / c_i times its length in metres. Pure odometer noise then costs the same at any
+// scale estimate, so an unobserved scale is not shrunk.
+TEST(ImuOdometerFactorTest, OdometerAxisRowIsInOdometerUnits) {
+  const auto pre = MakePreintegration();
+  const ImuOdometerFactor factor(pre);
+  const auto blocks = MakeParameters(*pre);
+  const NavState i = ToState(blocks, 0), j = ToState(blocks, 1);
+  const Eigen::Matrix<double, 19, 1> metres = pre->Evaluate(i, j);
+  const Eigen::Matrix<double, 19, 1> r = factor.Residual(i, j);
+  ASSERT_GT(std::abs(i.c - pre->linearized_c()), 1e-3);  // a state off the linearisation scale
+  const int phi = preintegration_index::kPhi;
+  const Vector3d axis = pre->R_body_odo().col(0);
+  const Vector3d phi_metres = metres.segment<3>(phi), phi_r = r.segment<3>(phi);
+  EXPECT_NEAR(axis.dot(phi_r), pre->linearized_c() / i.c * axis.dot(phi_metres), 1e-12);
+  const Matrix3d across = Matrix3d::Identity() - axis * axis.transpose();
+  EXPECT_LT((across * (phi_r - phi_metres)).norm(), 1e-12);
+  for (int k = 0; k < 19; ++k) {
+    if (k < phi || k >= phi + 3) {
+      EXPECT_EQ(r(k), metres(k)) << "row " << k;
+    }
+  }
 }
 
 struct JacobianCase {
@@ -182,7 +206,7 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
     return r;
   };
   auto raw = [&](const std::array<std::vector<double>, 6>& x) {
-    return pre->Evaluate(ToState(x, 0), ToState(x, 1));
+    return factor.Residual(ToState(x, 0), ToState(x, 1));
   };
 
   const double h = 1e-6;
