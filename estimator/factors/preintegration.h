@@ -15,7 +15,10 @@ struct PreintegrationNoise {
   double gyro_bias_walk = 1.0e-6;        ///< rad/s^2/sqrt(Hz)
   double accel_bias_walk = 1.0e-5;       ///< m/s^3/sqrt(Hz)
   double odometer_speed_density = 0.02;  ///< m/s/sqrt(Hz), white speed noise eta_sO
-  double odometer_scale_walk = 1.0e-4;   ///< 1/sqrt(s), random walk of c^O
+  /// 1/sqrt(s), random walk of c^O: 0.18 % in an hour. Wheel wear moves the scale over months;
+  /// a looser walk lets gravity leaking through a small pitch error drag the scale along on
+  /// long stretches at constant speed, where nothing else observes it.
+  double odometer_scale_walk = 3.0e-5;
   /// m/s/sqrt(Hz): velocity of the body across the odometer's axis (lateral and vertical). The
   /// car body sways and bounces on its suspension while the wheel rolls along the rail, so the
   /// body does not move exactly along its x axis; without this term phi would pin the attitude
