@@ -71,16 +71,14 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
   }
   const Eigen::Matrix<double, 19, 19>& sqrt_info = *sqrt_info_ptr;
 
-  const Vector3d axis = pre.R_body_odo().col(0);
-  const double scale_ratio = pre.linearized_c() / i.c;
+  // Eq. (19) with the odometer row in odometer units, whitened.
+  const Eigen::Matrix<double, 19, 1> error = Residual(i, j);
+  Eigen::Map<Eigen::Matrix<double, 19, 1>> r(residuals);
+  r = sqrt_info * error;
+  if (jacobians == nullptr) return true;
+  // The Jacobians of the metre residual go through the same odometer-unit scaling.
   Eigen::Matrix<double, 19, 19> whitening = sqrt_info;
   whitening.middleCols<3>(kPhi) = sqrt_info.middleCols<3>(kPhi) * PhiScaling(pre, i.c);
-
-  // Eq. (19) with the odometer row in odometer units, whitened.
-  const Eigen::Matrix<double, 19, 1> error = pre.Evaluate(i, j);
-  Eigen::Map<Eigen::Matrix<double, 19, 1>> r(residuals);
-  r = whitening * error;
-  if (jacobians == nullptr) return true;
 
   const double dt = pre.sum_dt();
   const Vector3d g_w(0.0, 0.0, pre.gravity_mps2());
@@ -125,9 +123,11 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     Eigen::Matrix<double, 19, 1> d = -J.col(kC);
     d(kC) = -1.0;
     Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[2]);
-    // The scaled row also depends on c_i through c_lin / c_i.
+    // The scaled row also depends on c_i through c_lin / c_i: d/dc_i of (c_lin / c_i) e is
+    // -(scaled row) / c_i.
+    const Vector3d axis = pre.R_body_odo().col(0);
     const Vector3d along = axis * axis.dot(error.segment<3>(kPhi));
-    out = whitening * d - sqrt_info.middleCols<3>(kPhi) * (scale_ratio / i.c) * along;
+    out = whitening * d - sqrt_info.middleCols<3>(kPhi) * along / i.c;
   }
   if (jacobians[3] != nullptr) {
     Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
