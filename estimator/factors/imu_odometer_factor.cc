@@ -84,7 +84,7 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
   const Vector3d g_w(0.0, 0.0, pre.gravity_mps2());
   const Matrix3d Ri_t = i.q.toRotationMatrix().transpose();
   const Matrix3d Rj = j.q.toRotationMatrix();
-  const Vector3d& p_bo = pre.p_body_odo();
+  const Matrix3d R_ij = Ri_t * Rj;
   const Eigen::Matrix<double, 19, 19>& J = pre.jacobian();
   // The corrected gamma of eq. (18) and the rotation error quaternion e = gamma^-1 qi^-1 qj.
   const Vector3d dtheta_bg = J.block<3, 3>(kTheta, kBg) * (i.bg - pre.linearized_bg());
@@ -99,7 +99,7 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kBeta, 3) = Skew(Ri_t * (j.v + g_w * dt - i.v));
     d.block<3, 3>(kTheta, 3) = -QleftQrightVec(gamma.conjugate(), qij);
     d.block<3, 3>(kPhi, 0) = -Ri_t;
-    d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p + Rj * p_bo - i.p));
+    d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p - i.p)) + pre.LeverTermJacobianI(R_ij);
     Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[0]);
     out.leftCols<6>() = whitening * d;
     out.col(6).setZero();
@@ -134,7 +134,7 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kAlpha, 0) = Ri_t;
     d.block<3, 3>(kTheta, 3) = e.w() * Matrix3d::Identity() + Skew(e.vec());
     d.block<3, 3>(kPhi, 0) = Ri_t;
-    d.block<3, 3>(kPhi, 3) = -Ri_t * Rj * Skew(p_bo);
+    d.block<3, 3>(kPhi, 3) = pre.LeverTermJacobianJ(R_ij);
     Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[3]);
     out.leftCols<6>() = whitening * d;
     out.col(6).setZero();

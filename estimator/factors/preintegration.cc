@@ -44,7 +44,26 @@ Preintegration::Preintegration(const Vector3d& ba,
       R_body_odo_(R_body_odo),
       p_body_odo_(p_body_odo),
       noise_(noise),
-      gravity_mps2_(gravity_mps2) {}
+      gravity_mps2_(gravity_mps2) {
+  const Vector3d axis = R_body_odo_.col(0), up = R_body_odo_.col(2);
+  p_body_odo_level_ = p_body_odo_ - up * up.dot(p_body_odo_);
+  along_odo_ = axis * axis.transpose();
+}
+
+Vector3d Preintegration::LeverTerm(const Matrix3d& R_ij) const {
+  return along_odo_ * (R_ij * p_body_odo_level_ - p_body_odo_level_) +
+         (Matrix3d::Identity() - along_odo_) * (R_ij * p_body_odo_ - p_body_odo_);
+}
+
+Matrix3d Preintegration::LeverTermJacobianJ(const Matrix3d& R_ij) const {
+  return -along_odo_ * R_ij * Skew(p_body_odo_level_) -
+         (Matrix3d::Identity() - along_odo_) * R_ij * Skew(p_body_odo_);
+}
+
+Matrix3d Preintegration::LeverTermJacobianI(const Matrix3d& R_ij) const {
+  return along_odo_ * Skew(R_ij * p_body_odo_level_) +
+         (Matrix3d::Identity() - along_odo_) * Skew(R_ij * p_body_odo_);
+}
 
 void Preintegration::Add(double dt,
                          const Vector3d& gyro_radps,
@@ -175,8 +194,9 @@ void Preintegration::Integrate(const Step& s) {
   // Continuous densities to the variances of one step: white noise averaged over dt has
   // variance density^2 / dt, a random walk grows by density^2 * dt.
   Eigen::Matrix<double, kNoise, 1> q_white;
-  q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / dt);
-  q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / dt);
+  const double imu_dt = noise_.imu_period_s > 0.0 ? std::min(dt, noise_.imu_period_s) : dt;
+  q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / imu_dt);
+  q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / imu_dt);
   q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
   q_white.segment<2>(kNl).setConstant(Square(noise_.odometer_lateral_density) / dt);
 
@@ -270,7 +290,7 @@ Eigen::Matrix<double, 19, 1> Preintegration::Evaluate(const NavState& i, const N
   r.segment<3>(kTheta) = 2.0 * (d.gamma.conjugate() * (qi_inv * j.q)).vec();
   r.segment<3>(kBa) = j.ba - i.ba;
   r.segment<3>(kBg) = j.bg - i.bg;
-  r.segment<3>(kPhi) = qi_inv * (j.p + j.q * p_body_odo_ - i.p) - p_body_odo_ - d.phi;
+  r.segment<3>(kPhi) = qi_inv * (j.p - i.p) + LeverTerm((qi_inv * j.q).toRotationMatrix()) - d.phi;
   r(kC) = j.c - i.c;
   return r;
 }
@@ -322,7 +342,7 @@ Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s, const Vector3d& v_s
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = d.gamma.toRotationMatrix();
   // The odometer point moved by phi in the start body frame.
-  T.translation() = d.phi + p_body_odo_ - d.gamma * p_body_odo_;
+  T.translation() = d.phi - LeverTerm(d.gamma.toRotationMatrix());
   return T;
 }
 

@@ -27,6 +27,11 @@ struct PreintegrationNoise {
   /// m: distance of one encoder pulse. Each end of an interval is quantised to it, a bounded
   /// error (variance resolution^2 / 12 per end) that does not grow with the interval.
   double odometer_resolution_m = 0.0;
+  /// s: the IMU's sample period (0: unknown). A longer step bridges missing samples by
+  /// interpolating between the two around the gap; their noise is not averaged down over the
+  /// step but held through it, so a step's white-noise variance is density^2 / min(dt, period)
+  /// rather than density^2 / dt, and a 0.5 s dropout is not trusted like 100 real samples.
+  double imu_period_s = 0.0;
 };
 
 /// Offsets of the blocks of the 19-row preintegration residual and error state (eq. 19).
@@ -100,7 +105,7 @@ class Preintegration {
   /// integrated from the raw steps with the linearisation biases; for deskewing.
   ///
   /// Rotation: gamma(t). Translation: when odometer_used(), the odometer path with its lever
-  /// arm, phi(t) + p_body_odo - gamma(t) * p_body_odo (v_start_body is not used); otherwise
+  /// arm, phi(t) - LeverTerm(gamma(t)) (v_start_body is not used); otherwise
   /// v_start_body * t + alpha(t) - 0.5 t^2 g_start, with gravity g_start = (0, 0, g) assumed
   /// along the start body's z axis (a level start; prefer the overload below). Within a step
   /// the measurements are interpolated linearly; t_s is clamped to [0, sum_dt].
@@ -132,6 +137,16 @@ class Preintegration {
   double gravity_mps2() const { return gravity_mps2_; }
   const Eigen::Matrix3d& R_body_odo() const { return R_body_odo_; }
   const Eigen::Vector3d& p_body_odo() const { return p_body_odo_; }
+  /// The lever-arm term of the phi residual for the relative rotation R_ij = R_i^T R_j: the
+  /// odometer point moves by R_ij p - p in the start body frame. Across the odometer axis the
+  /// whole arm counts: a body high above the rail swings sideways over it when the track cants.
+  /// Along the axis the arm's height (its component along the odometer's z) is left out: the
+  /// body pitching on its suspension does not turn the wheels.
+  Eigen::Vector3d LeverTerm(const Eigen::Matrix3d& R_ij) const;
+  /// d LeverTerm / d delta for R_ij * Exp(delta) (perturbing j) and for Exp(-delta) * R_ij
+  /// (perturbing i, right perturbation of R_i).
+  Eigen::Matrix3d LeverTermJacobianJ(const Eigen::Matrix3d& R_ij) const;
+  Eigen::Matrix3d LeverTermJacobianI(const Eigen::Matrix3d& R_ij) const;
   /// Number of integrated steps.
   int num_steps() const { return static_cast<int>(steps_.size()); }
   /// Incremented by every Add(), Repropagate() and Append(); lets factors spot stale caches.
@@ -171,6 +186,8 @@ class Preintegration {
   double c_;
   Eigen::Matrix3d R_body_odo_;
   Eigen::Vector3d p_body_odo_;
+  Eigen::Vector3d p_body_odo_level_;  ///< p_body_odo_ without its height (see LeverTerm)
+  Eigen::Matrix3d along_odo_;         ///< projector onto the odometer axis
   PreintegrationNoise noise_;
   double gravity_mps2_;
 

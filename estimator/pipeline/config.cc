@@ -168,10 +168,10 @@ std::string EstimatorConfig::Describe() const {
     << ", gyro walk " << rig.noise.gyro_bias_walk << ", accel walk " << rig.noise.accel_bias_walk
     << ", g " << rig.gravity_mps2 << "\n";
   s << "odometer: " << rig.odometer_topic << " joint '" << rig.odometer_joint << "', wheel "
-    << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, speed noise "
-    << rig.noise.odometer_speed_density << ", across-axis noise "
-    << rig.noise.odometer_lateral_density << ", scale walk " << rig.noise.odometer_scale_walk
-    << ", pulse " << rig.noise.odometer_resolution_m << " m\n";
+    << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, at ["
+    << rig.p_body_odometer.transpose() << "] m, speed noise " << rig.noise.odometer_speed_density
+    << ", across-axis noise " << rig.noise.odometer_lateral_density << ", scale walk "
+    << rig.noise.odometer_scale_walk << ", pulse " << rig.noise.odometer_resolution_m << " m\n";
   s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
     << " m\n";
   const EstimatorOptions& o = options;
@@ -228,6 +228,7 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
       r.Read("gravity_mps2", &rig.gravity_mps2);
       r.Finish();
+      if (rig.imu_rate_hz > 0.0) rig.noise.imu_period_s = 1.0 / rig.imu_rate_hz;
     } else {
       root.Fail(root_node, "key 'imu' is required");
     }

@@ -63,7 +63,10 @@ class TrainTrajectory {
         (Eigen::AngleAxisd(0.03, Vector3d::UnitZ()) * Eigen::AngleAxisd(-0.02, Vector3d::UnitY()) *
          Eigen::AngleAxisd(0.01, Vector3d::UnitX()))
             .toRotationMatrix();
-    p_body_odo_ = Vector3d(1.5, -0.4, -1.2);
+    // Level in the odometer frame: a rigid arm's height would move the odometer point along
+    // the track as the body pitches, which the along-track row deliberately leaves out (see
+    // OdometerPointUnderATallBody).
+    p_body_odo_ = R_body_odo_ * Vector3d(1.6, -0.4, 0.0);
     ba_ = Vector3d(0.03, -0.02, 0.05);
     bg_ = Vector3d(0.002, -0.001, 0.0015);
     c_ = 1.03;
@@ -219,7 +222,7 @@ class PreintegrationTruthTest : public ::testing::TestWithParam<TruthCase> {};
 // Midpoint integration is second order: over T the trapezoid error is about T dt^2 / 12 times
 // the second derivative of the integrand. The trajectory's carbody vibrations (amplitude A at
 // angular frequency w: 4 mrad at 9 rad/s, 2 mrad at 11 rad/s) give omega'' ~ A w^3 ~ 4 rad/s^3
-// and, through the 2 m lever arm, a'' ~ A w^4 |p_body_odo| ~ 100 m/s^4, so at dt = 5 ms
+// and, through the 1.65 m lever arm, a'' ~ A w^4 |p_body_odo| ~ 80 m/s^4, so at dt = 5 ms
 // |d_theta| ~ 1e-6 rad and |d_beta| ~ 2e-5 m/s over 0.1 s (oscillating, not growing, over 1 s).
 // The tolerances allow 3-5 times that, far below any sensor noise and well inside the 1 mm /
 // 1e-5 rad asked for 0.1 s. SecondOrderConvergence checks that these are truncation errors.
@@ -271,6 +274,88 @@ TEST_P(PreintegrationTruthTest, MatchesIntegratedTruth) {
       EXPECT_LT(RotationError(Quaterniond(T.linear()), q_rel), tc.rotation_tol_rad) << "t " << t;
     }
   }
+}
+
+/// Odometer-row residual of an interval of `n` steps with constant gyro and odometer speed, for
+/// body positions p_i = 0 and p_j, rotations Identity and R_j.
+Vector3d OdometerRow(const Vector3d& p_body_odo,
+                     const Vector3d& gyro,
+                     double speed,
+                     int n,
+                     const Vector3d& p_j,
+                     const Matrix3d& R_j) {
+  Preintegration pre(Vector3d::Zero(),
+                     Vector3d::Zero(),
+                     1.0,
+                     Matrix3d::Identity(),
+                     p_body_odo,
+                     PreintegrationNoise(),
+                     kGravity);
+  for (int k = 0; k <= n; ++k)
+    pre.Add(k == 0 ? 0.0 : kImuDt, gyro, Vector3d(0, 0, kGravity), speed, true);
+  NavState i, j;
+  j.p = p_j;
+  j.q = Quaterniond(R_j);
+  return pre.Evaluate(i, j).segment<3>(15);
+}
+
+// The body 3.8 m above the rail: the wheels meet the rail at p_body_odo = (0, 0, -3.8).
+TEST(PreintegrationTest, OdometerPointUnderATallBody) {
+  const double h = 3.8, v = 30.0, T = 0.5;
+  const int n = static_cast<int>(std::lround(T / kImuDt));
+  const Vector3d rail_contact(0.0, 0.0, -h);
+
+  // Entering a cant, the track rolls 0.06 rad about the rail and takes the body with it: the
+  // body swings 0.23 m sideways over a contact point that runs straight along x. With the
+  // contact point, the across-track rows hold; taken at the body they would not.
+  const double roll = 0.06;
+  const Matrix3d R_roll(Eigen::AngleAxisd(roll, Vector3d::UnitX()));
+  const Vector3d body_j =
+      Vector3d(v * T, 0.0, 0.0) + R_roll * Vector3d(0.0, 0.0, h) - Vector3d(0.0, 0.0, h);
+  const Vector3d gyro_roll(roll / T, 0.0, 0.0);
+  const Vector3d cant = OdometerRow(rail_contact, gyro_roll, v, n, body_j, R_roll);
+  EXPECT_LT(cant.norm(), 1e-9) << cant.transpose();
+  const Vector3d cant_at_body = OdometerRow(Vector3d::Zero(), gyro_roll, v, n, body_j, R_roll);
+  EXPECT_GT(std::fabs(cant_at_body.y()), 0.2) << cant_at_body.transpose();
+
+  // Pitching 2 mrad on its suspension, the body turns about its own origin, which runs straight
+  // along x with the wheels: the wheels do not roll any farther. The along-track row stays at
+  // the second-order cosine loss of the pitched odometer axis instead of taking the arm's swing
+  // h * pitch = 7.6 mm.
+  const double pitch = 0.002;
+  const Matrix3d R_pitch(Eigen::AngleAxisd(pitch, Vector3d::UnitY()));
+  const Vector3d gyro_pitch(0.0, pitch / T, 0.0);
+  const Vector3d bounce =
+      OdometerRow(rail_contact, gyro_pitch, v, n, Vector3d(v * T, 0.0, 0.0), R_pitch);
+  EXPECT_LT(std::fabs(bounce.x()), 1e-4) << bounce.transpose();
+}
+
+// A 0.5 s IMU dropout is bridged by one step between the samples around it. Their noise holds
+// through the step instead of averaging out over 100 samples, so the step's rotation variance
+// is about 100 times that of 100 real samples, not the same.
+TEST(PreintegrationTest, ABridgedGapIsNotTrustedLikeRealSamples) {
+  PreintegrationNoise noise;
+  noise.imu_period_s = kImuDt;
+  const Vector3d gyro(0.0, 0.0, 0.01), accel(0.0, 0.0, kGravity);
+  auto theta_variance = [&](const PreintegrationNoise& n, int steps) {
+    Preintegration pre(Vector3d::Zero(),
+                       Vector3d::Zero(),
+                       1.0,
+                       Matrix3d::Identity(),
+                       Vector3d::Zero(),
+                       n,
+                       kGravity);
+    for (int k = 0; k <= steps; ++k) pre.Add(k == 0 ? 0.0 : 0.5 / steps, gyro, accel, 20.0, true);
+    return pre.covariance()(8, 8);  // yaw
+  };
+  const double sampled = theta_variance(noise, 100);
+  const double bridged = theta_variance(noise, 1);
+  const double density = noise.gyro_noise_density;
+  EXPECT_NEAR(sampled, density * density * 0.5, 1e-3 * sampled);
+  EXPECT_NEAR(bridged / sampled, 100.0, 1.0);
+  // Without the sample period the bridged step counts as if it had been sampled.
+  PreintegrationNoise unknown_period;
+  EXPECT_NEAR(theta_variance(unknown_period, 1) / sampled, 1.0, 1e-4);
 }
 
 INSTANTIATE_TEST_SUITE_P(Intervals,

@@ -36,7 +36,19 @@ TEST(EstimatorConfig, ReadsTheSimulatorsRig) {
   EXPECT_EQ(config.rig.pulses_per_rev, 100);
   EXPECT_DOUBLE_EQ(config.rig.body_above_rail_top_m, 3.8);
   EXPECT_DOUBLE_EQ(config.options.rail.body_above_rail_top_m, 3.8);
+  EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d::Zero());
   EXPECT_NE(config.Describe().find("window_size"), std::string::npos);
+}
+
+TEST(EstimatorConfig, AnOdometerPointGivenIsKept) {
+  std::string yaml = DemoRigYaml();
+  const size_t at = yaml.find("odometer:\n");
+  ASSERT_NE(at, std::string::npos);
+  yaml.insert(at + 10, "  translation_m: [1.5, 0, -3.4]\n");
+  EstimatorConfig config;
+  std::string error;
+  ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
+  EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d(1.5, 0.0, -3.4));
 }
 
 TEST(EstimatorConfig, RejectsUnknownKeysWithTheirLine) {
