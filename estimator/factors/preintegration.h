@@ -27,10 +27,11 @@ struct PreintegrationNoise {
   /// m: distance of one encoder pulse. Each end of an interval is quantised to it, a bounded
   /// error (variance resolution^2 / 12 per end) that does not grow with the interval.
   double odometer_resolution_m = 0.0;
-  /// s: the IMU's sample period (0: unknown). A longer step bridges missing samples by
-  /// interpolating between the two around the gap; their noise is not averaged down over the
-  /// step but held through it, so a step's white-noise variance is density^2 / min(dt, period)
-  /// rather than density^2 / dt, and a 0.5 s dropout is not trusted like 100 real samples.
+  /// s: the IMU's sample period (0: unknown; the Estimator sets it from the rig's IMU rate). A
+  /// longer step bridges missing samples by interpolating between the two around the gap; their
+  /// noise is not averaged down over the step but held through it, so a step's white-noise variance
+  /// is density^2 / min(dt, period) rather than density^2 / dt, and a 0.5 s dropout is not trusted
+  /// like 100 real samples.
   double imu_period_s = 0.0;
 };
 

@@ -228,7 +228,6 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
       r.Read("gravity_mps2", &rig.gravity_mps2);
       r.Finish();
-      if (rig.imu_rate_hz > 0.0) rig.noise.imu_period_s = 1.0 / rig.imu_rate_hz;
     } else {
       root.Fail(root_node, "key 'imu' is required");
     }

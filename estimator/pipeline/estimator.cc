@@ -108,6 +108,8 @@ struct Estimator::NodeExtras {
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
     : config_(config), sinks_(std::move(sinks)) {
+  // The preintegration keeps an interpolated step's noise at one IMU sample period.
+  config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
   for (size_t i = 0; i < config_.rig.lidars.size(); ++i) {
     lidar_topics_[config_.rig.lidars[i].topic] = static_cast<int>(i);
   }
