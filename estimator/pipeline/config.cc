@@ -227,6 +227,9 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       r.Read("accel_noise_density", &rig.noise.accel_noise_density);
       r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
       r.Read("gravity_mps2", &rig.gravity_mps2);
+      if (!(rig.imu_rate_hz >= 1.0 && rig.imu_rate_hz <= 10000.0)) {
+        r.Fail(r.Node("rate_hz"), "key 'imu.rate_hz' must be in [1, 10000] Hz");
+      }
       r.Finish();
     } else {
       root.Fail(root_node, "key 'imu' is required");

@@ -40,6 +40,17 @@ TEST(EstimatorConfig, ReadsTheSimulatorsRig) {
   EXPECT_NE(config.Describe().find("window_size"), std::string::npos);
 }
 
+TEST(EstimatorConfig, RejectsAnImuRateThatIsNotARate) {
+  std::string yaml = DemoRigYaml();
+  const size_t at = yaml.find("rate_hz: 200");
+  ASSERT_NE(at, std::string::npos);
+  yaml.replace(at, 12, "rate_hz: 0");
+  EstimatorConfig config;
+  std::string error;
+  EXPECT_FALSE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("imu.rate_hz"), std::string::npos) << error;
+}
+
 TEST(EstimatorConfig, AnOdometerPointGivenIsKept) {
   std::string yaml = DemoRigYaml();
   const size_t at = yaml.find("odometer:\n");
