@@ -33,6 +33,7 @@ bool FitPlane(
 bool FitLine(const Eigen::Vector3d* pts,
              int n,
              double min_ratio,
+             double max_spread,
              Eigen::Vector3d* point,
              Eigen::Vector3d* direction) {
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
@@ -45,6 +46,9 @@ bool FitLine(const Eigen::Vector3d* pts,
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   if (eig.eigenvalues()(2) < min_ratio * eig.eigenvalues()(1)) return false;
+  // Spread about the line: eigenvalues are sums of squares over the n points.
+  const double spread_sq = (eig.eigenvalues()(0) + eig.eigenvalues()(1)) / n;
+  if (max_spread > 0.0 && spread_sq > max_spread * max_spread) return false;
   *point = centroid;
   *direction = eig.eigenvectors().col(2);
   return true;
@@ -76,7 +80,8 @@ LidarMatches MatchFeatures(const MatchOptions& options,
     const Eigen::Vector3d p_world = T_world_body * p_body;
     if (edge_map.KNearest(p_world, k, options.max_distance_m, nn) < k) continue;
     LineMatch m;
-    if (!FitLine(nn, k, options.line_min_ratio, &m.point, &m.direction)) continue;
+    if (!FitLine(nn, k, options.line_min_ratio, options.line_max_spread_m, &m.point, &m.direction))
+      continue;
     m.p_body = p_body;
     matches.lines.push_back(m);
   }

@@ -37,6 +37,7 @@ struct MatchOptions {
   double max_distance_m = 1.0;        ///< neighbours farther than this are not used
   double plane_max_residual_m = 0.2;  ///< every neighbour within this of its fitted plane
   double line_min_ratio = 3.0;        ///< largest / second eigenvalue of an edge's neighbours
+  double line_max_spread_m = 0.0;     ///< > 0: RMS distance of an edge's neighbours from their line
 };
 
 /// Finds plane and line correspondences for the features moved to the world by T_world_body.

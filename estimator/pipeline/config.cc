@@ -64,6 +64,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("plane_sigma_m", &o->plane_sigma_m);
   r.Read("edge_sigma_m", &o->edge_sigma_m);
   r.Read("max_correspondence_m", &o->max_correspondence_m);
+  r.Read("edge_max_spread_m", &o->edge_max_spread_m);
+  r.Read("map_insert_lag", &o->map_insert_lag);
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
   r.Read("failure_min_edges", &o->failure_min_edges);
@@ -133,6 +135,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(map_radius_m > 10.0)) return fail("map_radius_m must be > 10");
   if (!(plane_sigma_m > 0.0) || !(edge_sigma_m > 0.0)) return fail("LiDAR sigmas must be > 0");
   if (!(max_correspondence_m > 0.0)) return fail("max_correspondence_m must be > 0");
+  if (!(edge_max_spread_m >= 0.0)) return fail("edge_max_spread_m must be >= 0 (0 = no check)");
+  if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
   }
@@ -179,9 +183,13 @@ std::string EstimatorConfig::Describe() const {
   s << "window_size: " << o.window_size << ", registration_rounds: " << o.registration_rounds
     << ", max_solver_iterations: " << o.max_solver_iterations << "\n";
   s << "map: voxel " << o.map_voxel_m << " m, " << o.map_points_per_voxel
-    << " points/voxel, radius " << o.map_radius_m << " m\n";
+    << " points/voxel, radius " << o.map_radius_m << " m, frames go in " << o.map_insert_lag
+    << " states old\n";
   s << "lidar sigmas: plane " << o.plane_sigma_m << " m, edge " << o.edge_sigma_m
-    << " m, correspondences within " << o.max_correspondence_m << " m\n";
+    << " m, correspondences within " << o.max_correspondence_m << " m, edge neighbours' spread "
+    << (o.edge_max_spread_m > 0.0 ? "within " + std::to_string(o.edge_max_spread_m) + " m RMS"
+                                  : std::string("not checked"))
+    << "\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m\n";
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "

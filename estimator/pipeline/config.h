@@ -71,7 +71,12 @@ struct EstimatorOptions {
   int max_solver_iterations = 20;  ///< Ceres iterations per round (most converge in fewer)
   double map_voxel_m = 1.0;        ///< local map voxel edge
   int map_points_per_voxel = 10;   ///< local map cap per voxel
-  double map_radius_m = 200.0;     ///< voxels farther from the vehicle are dropped
+  /// A frame's features go into the local map once this many newer states have refined its
+  /// pose (at the latest when it leaves the window); 0: at once, at its first single-frame
+  /// estimate. Not the default: see the README ("Where the estimator stands") for what it gains
+  /// on the feature-poor runs and costs on the 20 km one.
+  int map_insert_lag = 0;
+  double map_radius_m = 200.0;  ///< voxels farther from the vehicle are dropped
   /// Point-to-plane and point-to-line noise (before the favour factors). Well above the
   /// sensor's 2 cm: a frame's thousands of residuals share their errors (the map is built from
   /// the same trajectory, the deskew from the same prediction), and weighted as independent
@@ -80,7 +85,13 @@ struct EstimatorOptions {
   /// stands").
   double plane_sigma_m = 0.3;
   double edge_sigma_m = 0.45;
-  double max_correspondence_m = 1.0;     ///< neighbour search radius
+  double max_correspondence_m = 1.0;  ///< neighbour search radius
+  /// When > 0, an edge is matched only when its map neighbours lie within this RMS distance of
+  /// their line (0: no such check, LOAM's eigenvalue ratio only). Curvature picks edge points
+  /// around a soft crease (a ballast shoulder) at places that shift with range; matched to the
+  /// scattered far points of the map they turn each frame (0.041 deg of yaw per frame at true
+  /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see the README.
+  double edge_max_spread_m = 0.0;
   double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
   double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
   /// Failure detection (eq. 24): feature counts below these fail a LiDAR.

@@ -104,6 +104,9 @@ struct Estimator::NodeExtras {
   /// Until the world is re-levelled: the link from the previous state, and the final state.
   std::shared_ptr<const Preintegration> preintegration;
   NavState final_state;
+  /// Feature points (body frame) waiting to go into the local map.
+  std::vector<Eigen::Vector3f> map_edges, map_planes;
+  bool in_map = false;
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
@@ -495,6 +498,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
 
   MatchOptions match;
   match.max_distance_m = o.max_correspondence_m;
+  match.line_max_spread_m = o.edge_max_spread_m;
   const bool have_map = !plane_map_->empty();
   for (int round = 0; round < o.registration_rounds && have_map && !first; ++round) {
     const NavState current = window_->Newest();
@@ -561,18 +565,23 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     result.lidars[i].planes = fronts[i].features.planes.size();
   }
 
-  // The local map takes the newest frame at its optimised pose.
+  // The local map takes each frame once it is `map_insert_lag` states old in the window (its
+  // pose refined by that many later frames; by default at once), and every frame while the map
+  // is empty.
   const NavState newest = window_->Newest();
   const Eigen::Isometry3d T_newest = PoseOf(newest);
-  std::vector<Eigen::Vector3d> edges_world, planes_world;
   for (const FrontendResult& f : fronts) {
-    for (const Eigen::Vector3f& p : f.features.edges)
-      edges_world.push_back(T_newest * p.cast<double>());
-    for (const Eigen::Vector3f& p : f.features.planes)
-      planes_world.push_back(T_newest * p.cast<double>());
+    extras->map_edges.insert(
+        extras->map_edges.end(), f.features.edges.begin(), f.features.edges.end());
+    extras->map_planes.insert(
+        extras->map_planes.end(), f.features.planes.begin(), f.features.planes.end());
   }
-  edge_map_->Add(edges_world);
-  plane_map_->Add(planes_world);
+  extras_.push_back(std::move(extras));
+  // extras_[i] belongs to the window's state i (both gain the frame and lose the oldest together).
+  const int lag = plane_map_->empty() ? 0 : o.map_insert_lag;
+  for (int i = 0; i + lag < static_cast<int>(extras_.size()); ++i) {
+    AddToMap(extras_[static_cast<size_t>(i)].get(), PoseOf(window_->State(i)));
+  }
   if (stats_.frames % 10 == 0) {
     edge_map_->RemoveFar(newest.p, o.map_radius_m);
     plane_map_->RemoveFar(newest.p, o.map_radius_m);
@@ -583,8 +592,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   result.T_world_body = T_newest;
   result.v_world = newest.v;
   result.odometer_scale = newest.c;
-  latest_ = result;
-  extras_.push_back(std::move(extras));
+  latest_ = extras_.back()->result;
   if (gravity_pending_ && t_end >= next_gravity_try_s_) AlignGravity(false);
   while (window_->Full()) {
     const Clock::time_point t_pop = Clock::now();
@@ -595,12 +603,29 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   inertial_.Trim(last_node_t_ - 1.0);
 }
 
+void Estimator::AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body) {
+  if (node->in_map) return;
+  std::vector<Eigen::Vector3d> edges_world, planes_world;
+  edges_world.reserve(node->map_edges.size());
+  planes_world.reserve(node->map_planes.size());
+  for (const Eigen::Vector3f& p : node->map_edges)
+    edges_world.push_back(T_world_body * p.cast<double>());
+  for (const Eigen::Vector3f& p : node->map_planes)
+    planes_world.push_back(T_world_body * p.cast<double>());
+  edge_map_->Add(edges_world);
+  plane_map_->Add(planes_world);
+  node->in_map = true;
+  node->map_edges = {};
+  node->map_planes = {};
+}
+
 void Estimator::EmitOldest() {
   double t = 0.0;
   const NavState s = window_->PopOldest(&t);
   std::unique_ptr<NodeExtras> extras = std::move(extras_.front());
   extras_.pop_front();
   FrameResult& result = extras->result;
+  AddToMap(extras.get(), PoseOf(s));
   result.T_world_body = PoseOf(s);
   result.v_world = s.v;
   result.odometer_scale = s.c;

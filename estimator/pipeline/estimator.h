@@ -115,6 +115,8 @@ class Estimator {
   std::shared_ptr<Preintegration> Preintegrate(
       double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) const;
   void EmitOldest();
+  /// Puts a frame's features into the local map at the given pose, once.
+  void AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body);
   /// Hands a final state to the sinks (and picks keyframes).
   void Emit(std::unique_ptr<NodeExtras> extras);
   /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so

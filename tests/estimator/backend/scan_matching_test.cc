@@ -89,6 +89,31 @@ TEST(ScanMatching, FlagsALongCorridorAsDegenerate) {
   EXPECT_GT(std::abs(solution.weakest_direction.x()), 0.99);
 }
 
+TEST(ScanMatching, AnEdgeOnScatteredNeighboursIsNotMatched) {
+  // Two edge lines along x: a sharp one (a mast's corner turned on its side) and a soft crease
+  // whose points scatter by 10 cm across it. Both pass the eigenvalue-ratio test of a line.
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::vector<Eigen::Vector3d> map_points;
+  for (double x = 0.0; x < 10.0; x += 0.3) {
+    map_points.emplace_back(x, 2.0 + 0.003 * n(rng), 0.003 * n(rng));
+    map_points.emplace_back(x, -2.0 + 0.1 * n(rng), 0.1 * n(rng));
+  }
+  LocalMap edges(1.0, 10), planes(1.0, 10);
+  edges.Add(map_points);
+  FeatureSet scan;
+  scan.edges.emplace_back(5.05f, 2.0f, 0.0f);
+  scan.edges.emplace_back(5.05f, -2.0f, 0.0f);
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  EXPECT_EQ(MatchFeatures(MatchOptions{}, scan, I, edges, planes).lines.size(), 2u);
+  MatchOptions tight;
+  tight.line_max_spread_m = 0.05;
+  const LidarMatches m = MatchFeatures(tight, scan, I, edges, planes);
+  ASSERT_EQ(m.lines.size(), 1u);
+  EXPECT_NEAR(m.lines[0].p_body.y(), 2.0, 1e-6);
+  EXPECT_GT(std::abs(m.lines[0].direction.x()), 0.99);
+}
+
 TEST(ScanMatching, NoMatchesAgainstAnEmptyMap) {
   LocalMap edges(1.0, 20), planes(1.0, 20);
   FeatureSet scan;

@@ -88,6 +88,12 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
   EXPECT_FALSE(ParseEstimatorConfig(
       DemoRigYaml() + "estimator:\n  degeneracy_projection: -1\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("degeneracy_projection must be in [0, 1)"), std::string::npos) << error;
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  edge_max_spread_m: -0.1\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("edge_max_spread_m must be >= 0"), std::string::npos) << error;
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  map_insert_lag: -1\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("map_insert_lag must be >= 0"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
@@ -97,12 +103,16 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
 TEST(EstimatorConfig, OverridesTunables) {
   EstimatorConfig config;
   std::string error;
-  const std::string yaml = DemoRigYaml() +
-                           "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  preprocess:\n"
-                           "    min_range_m: 3.5\n";
+  const std::string yaml =
+      DemoRigYaml() +
+      "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
+      "  edge_max_spread_m: 0.2\n  preprocess:\n"
+      "    min_range_m: 3.5\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
   EXPECT_EQ(config.options.window_size, 8);
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
+  EXPECT_EQ(config.options.map_insert_lag, 0);
+  EXPECT_DOUBLE_EQ(config.options.edge_max_spread_m, 0.2);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
 }
 
