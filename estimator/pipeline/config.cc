@@ -186,10 +186,12 @@ std::string EstimatorConfig::Describe() const {
     << " points/voxel, radius " << o.map_radius_m << " m, frames go in " << o.map_insert_lag
     << " states old\n";
   s << "lidar sigmas: plane " << o.plane_sigma_m << " m, edge " << o.edge_sigma_m
-    << " m, correspondences within " << o.max_correspondence_m << " m, edge neighbours' spread "
-    << (o.edge_max_spread_m > 0.0 ? "within " + std::to_string(o.edge_max_spread_m) + " m RMS"
-                                  : std::string("not checked"))
-    << "\n";
+    << " m, correspondences within " << o.max_correspondence_m << " m, edge neighbours' spread ";
+  if (o.edge_max_spread_m > 0.0) {
+    s << "within " << o.edge_max_spread_m << " m RMS\n";
+  } else {
+    s << "not checked\n";
+  }
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m\n";
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "

@@ -104,8 +104,8 @@ struct Estimator::NodeExtras {
   /// Until the world is re-levelled: the link from the previous state, and the final state.
   std::shared_ptr<const Preintegration> preintegration;
   NavState final_state;
-  /// Feature points (body frame) waiting to go into the local map.
-  std::vector<Eigen::Vector3f> map_edges, map_planes;
+  /// Both LiDARs' feature points (body frame) waiting to go into the local map.
+  FeatureSet map_features;
   bool in_map = false;
 };
 
@@ -570,11 +570,12 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   // is empty.
   const NavState newest = window_->Newest();
   const Eigen::Isometry3d T_newest = PoseOf(newest);
+  FeatureSet& pending_map = extras->map_features;
   for (const FrontendResult& f : fronts) {
-    extras->map_edges.insert(
-        extras->map_edges.end(), f.features.edges.begin(), f.features.edges.end());
-    extras->map_planes.insert(
-        extras->map_planes.end(), f.features.planes.begin(), f.features.planes.end());
+    pending_map.edges.insert(
+        pending_map.edges.end(), f.features.edges.begin(), f.features.edges.end());
+    pending_map.planes.insert(
+        pending_map.planes.end(), f.features.planes.begin(), f.features.planes.end());
   }
   extras_.push_back(std::move(extras));
   // extras_[i] belongs to the window's state i (both gain the frame and lose the oldest together).
@@ -605,18 +606,16 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
 
 void Estimator::AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body) {
   if (node->in_map) return;
-  std::vector<Eigen::Vector3d> edges_world, planes_world;
-  edges_world.reserve(node->map_edges.size());
-  planes_world.reserve(node->map_planes.size());
-  for (const Eigen::Vector3f& p : node->map_edges)
-    edges_world.push_back(T_world_body * p.cast<double>());
-  for (const Eigen::Vector3f& p : node->map_planes)
-    planes_world.push_back(T_world_body * p.cast<double>());
-  edge_map_->Add(edges_world);
-  plane_map_->Add(planes_world);
+  auto to_world = [&](const std::vector<Eigen::Vector3f>& body) {
+    std::vector<Eigen::Vector3d> world;
+    world.reserve(body.size());
+    for (const Eigen::Vector3f& p : body) world.push_back(T_world_body * p.cast<double>());
+    return world;
+  };
+  edge_map_->Add(to_world(node->map_features.edges));
+  plane_map_->Add(to_world(node->map_features.planes));
   node->in_map = true;
-  node->map_edges = {};
-  node->map_planes = {};
+  node->map_features = FeatureSet();
 }
 
 void Estimator::EmitOldest() {
