@@ -5,6 +5,8 @@
 
 #include <Eigen/SVD>
 
+#include "estimator/geo/gnss.h"
+
 namespace raillomer::eval {
 
 namespace {
@@ -52,28 +54,14 @@ void AlignSe3(const std::vector<Eigen::Vector3d>& p_est,
   alignment->T_truth_est.translation() = mean_truth - R * mean_est;
 }
 
-// Yaw about z plus translation. z decouples: t_z is the mean z offset. On centred xy the best
-// rotation is yaw = atan2(sum(e x g), sum(e . g)), the 2D Umeyama solution.
+// Yaw about z plus translation: the closed-form 2D Umeyama fit the GNSS alignment uses.
 void AlignFourDof(const std::vector<Eigen::Vector3d>& p_est,
                   const std::vector<Eigen::Vector3d>& p_truth,
                   Alignment* alignment) {
-  const Eigen::Vector3d mean_est = Mean(p_est);
-  const Eigen::Vector3d mean_truth = Mean(p_truth);
-  double dot = 0.0;
-  double cross = 0.0;
-  double scale = 0.0;
-  for (size_t i = 0; i < p_est.size(); ++i) {
-    const Eigen::Vector2d e = (p_est[i] - mean_est).head<2>();
-    const Eigen::Vector2d g = (p_truth[i] - mean_truth).head<2>();
-    dot += e.dot(g);
-    cross += e.x() * g.y() - e.y() * g.x();
-    scale += e.norm() * g.norm();
-  }
-  alignment->degenerate = !(scale > 0.0) || std::hypot(dot, cross) <= kDegenerateRatio * scale;
-  const double yaw = alignment->degenerate ? 0.0 : std::atan2(cross, dot);
-  const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  alignment->T_truth_est.linear() = R;
-  alignment->T_truth_est.translation() = mean_truth - R * mean_est;
+  bool degenerate = false;
+  const geo::FourDof fit = geo::FitFourDof(p_est, p_truth, {}, &degenerate);
+  alignment->degenerate = degenerate;
+  alignment->T_truth_est = fit.Isometry();
 }
 
 }  // namespace

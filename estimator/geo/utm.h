@@ -14,6 +14,9 @@ struct UtmZone {
   std::string Name() const;
 };
 
+/// Parses "50N" / "33S" (zone 1-60, hemisphere N or S); false on anything else.
+bool ParseZone(const std::string& text, UtmZone* zone);
+
 /// The standard UTM zone of a WGS84 position.
 UtmZone StandardZone(double latitude_deg, double longitude_deg);
 

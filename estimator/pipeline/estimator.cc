@@ -133,6 +133,10 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
   gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
                      !config_.rig.odometer_topic.empty() && o.gravity_align_s > 0.0;
+  if (o.switches.use_gnss && !config_.rig.gnss_topic.empty()) {
+    gnss_ = std::make_unique<GnssFusion>(
+        o.gnss, [this](const std::string& m) { Warn(m); }, sinks_.on_info);
+  }
 }
 
 Estimator::~Estimator() = default;
@@ -161,6 +165,8 @@ void Estimator::Add(const io::SensorMessage& message) {
     if (message.topic == config_.rig.odometer_topic && config_.options.switches.use_odometer) {
       AddOdometer(*odo);
     }
+  } else if (const auto* fix = std::get_if<io::GnssFix>(&message.data)) {
+    if (gnss_ && message.topic == config_.rig.gnss_topic) gnss_->AddFix(*fix);
   }
   ProcessReady(false);
 }
@@ -646,8 +652,8 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
   if (have_output_) stats_.distance_m += (position - last_output_position_).norm();
   last_output_position_ = position;
   have_output_ = true;
-  if (sinks_.on_frame) sinks_.on_frame(result);
 
+  std::optional<Keyframe> keyframe;
   const Eigen::Isometry3d delta = last_keyframe_pose_.inverse() * result.T_world_body;
   const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() * 180.0 / M_PI;
   if (!have_keyframe_ || delta.translation().norm() >= config_.options.keyframe_distance_m ||
@@ -661,8 +667,66 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       k.points_body = std::move(extras->cloud);
       k.intensities = std::move(extras->intensities);
       VoxelThin(0.1, &k.points_body, &k.intensities);
-      sinks_.on_keyframe(k);
+      keyframe = std::move(k);
     }
+  }
+  Deliver(std::move(result), std::move(keyframe));
+}
+
+void Estimator::Deliver(FrameResult frame, std::optional<Keyframe> keyframe) {
+  if (gnss_ && !gnss_gave_up_) {
+    gnss_->AddOdometry(frame.stamp_ns, frame.T_world_body);
+    stats_.gnss = gnss_->stats();
+    if (!gnss_->aligned()) {
+      gnss_held_.push_back({std::move(frame), std::move(keyframe)});
+      const double held_s = static_cast<double>(gnss_held_.back().frame.stamp_ns -
+                                                gnss_held_.front().frame.stamp_ns) *
+                            1e-9;
+      const double limit = stats_.gnss.fixes == 0 ? std::min(30.0, config_.options.gnss_max_hold_s)
+                                                  : config_.options.gnss_max_hold_s;
+      if (held_s >= limit) {
+        gnss_gave_up_ = true;
+        Warn("not georeferenced: no GNSS alignment after " + Seconds(held_s) + " (" +
+             gnss_->pending_reason() + "); the whole run stays in the local odometry frame");
+        ReleaseHeld();
+      }
+      return;
+    }
+    if (!gnss_held_.empty()) ReleaseHeld();
+    stats_.georeferenced = true;
+    frame.T_world_body = gnss_->ToEnu(frame.T_world_body);
+    frame.georeferenced = true;
+    frame.origin_utm = gnss_->origin_utm();
+    frame.utm_zone = gnss_->zone().Name();
+    if (keyframe) {
+      keyframe->T_world_body = gnss_->ToEnu(keyframe->T_world_body);
+      keyframe->georeferenced = true;
+      keyframe->origin_utm = frame.origin_utm;
+    }
+  }
+  if (sinks_.on_frame) sinks_.on_frame(frame);
+  if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
+}
+
+void Estimator::ReleaseHeld() {
+  const bool georeferenced = gnss_ && gnss_->aligned() && !gnss_gave_up_;
+  if (georeferenced) stats_.georeferenced = true;
+  while (!gnss_held_.empty()) {
+    HeldOutput h = std::move(gnss_held_.front());
+    gnss_held_.pop_front();
+    if (georeferenced) {
+      h.frame.T_world_body = gnss_->ToEnu(h.frame.T_world_body);
+      h.frame.georeferenced = true;
+      h.frame.origin_utm = gnss_->origin_utm();
+      h.frame.utm_zone = gnss_->zone().Name();
+      if (h.keyframe) {
+        h.keyframe->T_world_body = gnss_->ToEnu(h.keyframe->T_world_body);
+        h.keyframe->georeferenced = true;
+        h.keyframe->origin_utm = h.frame.origin_utm;
+      }
+    }
+    if (sinks_.on_frame) sinks_.on_frame(h.frame);
+    if (h.keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*h.keyframe);
   }
 }
 
@@ -742,6 +806,13 @@ void Estimator::Finish() {
   if (gravity_pending_) AlignGravity(true);
   // Flush the window: every remaining state is final now.
   while (window_->size() > 0 && !extras_.empty()) EmitOldest();
+  if (gnss_) stats_.gnss = gnss_->stats();
+  if (!gnss_held_.empty()) {
+    gnss_gave_up_ = true;
+    Warn("not georeferenced: the run ended before the GNSS alignment (" + gnss_->pending_reason() +
+         "); the output is in the local odometry frame");
+    ReleaseHeld();
+  }
 }
 
 }  // namespace raillomer

@@ -98,10 +98,11 @@ GnssModel::GnssModel(const Scenario& scenario,
 }
 
 bool GnssModel::Sample(double t, int64_t stamp_ns, io::GnssFix* fix) {
-  // The Gauss-Markov error runs on through outages.
-  const double dt = last_t_ >= 0.0 ? t - last_t_ : 0.0;
+  // The Gauss-Markov error runs on through outages. It starts from its stationary spread: a
+  // receiver that has been on for a while is already off by that much at the first epoch (a
+  // start at zero would hand an estimator an almost exact first fix).
+  const double a = last_t_ >= 0.0 ? std::exp(-(t - last_t_) / scenario_.gnss_tau_s) : 0.0;
   last_t_ = t;
-  const double a = std::exp(-dt / scenario_.gnss_tau_s);
   const Eigen::Vector3d sigma(scenario_.gnss_horizontal_sigma_m,
                               scenario_.gnss_horizontal_sigma_m,
                               scenario_.gnss_vertical_sigma_m);

@@ -273,6 +273,8 @@ GnssRun RunGnss(const Scenario& s, double seconds) {
   return run;
 }
 
+double Square(double x) { return x * x; }
+
 double Autocorrelation(const std::vector<Eigen::Vector3d>& e, int axis, size_t lag) {
   double mean = 0.0;
   for (const Eigen::Vector3d& x : e) mean += x[axis];
@@ -331,6 +333,32 @@ TEST(GnssModel, ErrorLevelsCorrelationAndConversion) {
   EXPECT_NEAR(fix.position_covariance[8], 1.0, 1e-12);
   EXPECT_NEAR(fix.latitude_deg, s.origin_latitude_deg, 0.01);
   EXPECT_NEAR(fix.longitude_deg, s.origin_longitude_deg, 0.01);
+}
+
+TEST(GnssModel, TheFirstFixIsAlreadyOffByTheStationarySpread) {
+  // A receiver switched on long before the run: its time-correlated error does not start at
+  // zero (which would give an estimator an almost exact first fix to anchor on).
+  Scenario s = Standstill(10.0);
+  s.gnss_outlier_probability = 0.0;
+  const Alignment alignment(s);
+  const World world(s, alignment);
+  const TruthMotion truth(s, alignment, s.seed);
+  const geo::UtmZone zone = geo::StandardZone(s.origin_latitude_deg, s.origin_longitude_deg);
+  const Eigen::Vector3d origin(500000.0, 4000000.0, 0.0);
+  const int runs = 2000;
+  double east = 0.0, up = 0.0;
+  for (int seed = 1; seed <= runs; ++seed) {
+    GnssModel gnss(s, world, truth, zone, origin, static_cast<uint32_t>(seed));
+    io::GnssFix fix;
+    ASSERT_TRUE(gnss.Sample(0.0, 0, &fix));
+    east += Square(gnss.last_error().x());
+    up += Square(gnss.last_error().z());
+  }
+  const double w = s.gnss_white_sigma_m;
+  const double east_expected = std::sqrt(Square(s.gnss_horizontal_sigma_m) + Square(w));
+  const double up_expected = std::sqrt(Square(s.gnss_vertical_sigma_m) + Square(2.0 * w));
+  EXPECT_NEAR(std::sqrt(east / runs), east_expected, 0.1 * east_expected);
+  EXPECT_NEAR(std::sqrt(up / runs), up_expected, 0.1 * up_expected);
 }
 
 TEST(GnssModel, OutliersOfFiveToThirtyMetres) {
