@@ -25,15 +25,12 @@ std::string CheckFix(const io::GnssFix& fix,
     return std::string("in the ") + (zone.north ? "southern" : "northern") +
            " hemisphere, the run's zone is " + zone.Name();
   }
-  // GeographicLib refuses positions more than about 9 deg of longitude off the zone's central
-  // meridian; such a fix belongs to another zone.
+  // A line may run a little past its zone's edge (3 deg from the central meridian), but
+  // GeographicLib refuses positions more than 9 deg off it: such a fix is in another zone.
   const double central_deg = -183.0 + 6.0 * zone.zone;
   const double off_deg = std::remainder(fix.longitude_deg - central_deg, 360.0);
   if (std::abs(off_deg) > 9.0) return "outside UTM zone " + zone.Name();
   const Eigen::Vector2d en = GeographicToUtm(zone, fix.latitude_deg, fix.longitude_deg);
-  if (!std::isfinite(en.x()) || std::abs(en.x() - 500000.0) > options.max_zone_offset_m) {
-    return "outside UTM zone " + zone.Name();
-  }
   *utm = Eigen::Vector3d(en.x(), en.y(), fix.altitude_m);
   return "";
 }

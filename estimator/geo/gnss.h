@@ -15,14 +15,14 @@ namespace raillomer::geo {
 struct FixCheckOptions {
   double min_altitude_m = -500.0;  ///< below the Dead Sea shore: absurd
   double max_altitude_m = 9000.0;  ///< above any railway
-  double max_zone_offset_m = 3e5;  ///< easting distance from the zone's central meridian
 };
 
 /// Checks a NavSatFix against the run's UTM zone and converts it. Returns an empty string and
 /// sets `utm` (easting, northing, ellipsoidal height) when the fix is usable; otherwise a short
 /// reason, naming what is wrong: no fix status, NaN or infinite coordinates, (0, 0), a latitude
-/// or longitude out of range, an absurd height, the other hemisphere, or a position far outside
-/// the zone.
+/// or longitude out of range, an absurd height, the other hemisphere, or a position more than 9 deg
+/// of longitude from the zone's central meridian (3 deg beyond its edge, as far as UTM
+/// conversion goes).
 std::string CheckFix(const io::GnssFix& fix,
                      const UtmZone& zone,
                      const FixCheckOptions& options,

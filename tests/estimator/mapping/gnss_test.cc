@@ -59,6 +59,9 @@ TEST(GnssFix, UnusableFixesAreRejectedWithTheReason) {
   f.longitude_deg += 20.0;
   EXPECT_NE(reason(f).find("outside UTM zone 50N"), std::string::npos);
   f = good;
+  f.longitude_deg = 121.5;  // 1.5 deg past the zone's edge: a line that runs on is still usable
+  EXPECT_EQ(reason(f), "");
+  f = good;
   f.status = -1;
   EXPECT_NE(reason(f).find("no fix"), std::string::npos);
 }
