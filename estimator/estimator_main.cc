@@ -71,7 +71,8 @@ int main(int argc, char** argv) {
       no_gnss,
       "Ablation: ignore GNSS (odometry only, in the local frame, as part 1 of the estimator)");
   app.add_flag("--no-keyframes", no_keyframes, "Do not write keyframe clouds");
-  app.add_flag("--quiet", quiet, "No progress line or configuration log");
+  app.add_flag(
+      "--quiet", quiet, "No progress line, configuration log or milestones (warnings still print)");
   CLI11_PARSE(app, argc, argv);
 
   // Sensor source and configuration.
@@ -145,7 +146,7 @@ int main(int argc, char** argv) {
   if (config.options.write_keyframes)
     sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
   sinks.on_warning = [&](const std::string& m) {
-    if (!quiet) std::cerr << "\rraillomer-estimator: warning: " << m << "\n";
+    std::cerr << (quiet ? "" : "\r") << "raillomer-estimator: warning: " << m << "\n";
   };
   sinks.on_info = [&](const std::string& m) {
     if (!quiet) std::cerr << "\rraillomer-estimator: " << m << "\n";
@@ -156,7 +157,12 @@ int main(int argc, char** argv) {
   auto last_report = wall_start;
   io::SensorMessage message;
   double first_s = -1.0, last_s = 0.0;
+  api::Trajectory sim_fixes;  // --sim: the receiver's fixes in UTM, written beside the truth
   while (input->Next(&message)) {
+    if (simulator) {
+      if (const auto* fix = std::get_if<io::GnssFix>(&message.data))
+        sim_fixes.poses.push_back(simulator->FixInUtm(*fix));
+    }
     const double t = static_cast<double>(message.receive_ns) * 1e-9;
     if (first_s < 0.0) first_s = t;
     if (bag && duration_s > 0.0 && t - first_s > duration_s) break;
@@ -187,10 +193,12 @@ int main(int argc, char** argv) {
   std::string input_error;
   if (bag && !bag->error().empty()) input_error = bag->error();
   if (simulator) {
-    // The truth beside the estimate, for raillomer-eval.
+    // The truth beside the estimate, for raillomer-eval, and the receiver's fixes (UTM).
     const api::Trajectory truth = simulator->TruthTrajectory(100.0);
+    sim_fixes.utm_zone = truth.utm_zone;
     std::string truth_error;
-    if (!api::WriteFileAtomically(out_dir + "/truth.tum", api::FormatTum(truth), &truth_error)) {
+    if (!api::WriteFileAtomically(out_dir + "/truth.tum", api::FormatTum(truth), &truth_error) ||
+        !api::WriteFileAtomically(out_dir + "/gnss.tum", api::FormatTum(sim_fixes), &truth_error)) {
       return Fail(truth_error);
     }
   }

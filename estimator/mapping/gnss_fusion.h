@@ -20,6 +20,11 @@ struct GnssFusionOptions {
   Eigen::Vector3d p_body_antenna = Eigen::Vector3d::Zero();  ///< antenna lever arm, body frame
   /// A GNSS factor joins the pose graph at most this often (paper: every 10 s).
   double factor_period_s = 10.0;
+  /// The factor's fix is the median of the accepted fixes in a window of this length centred
+  /// on the factor's epoch, each carried to the epoch by the odometry: enough fixes to outvote
+  /// a multipath jump that got through the gate. The factor joins the graph half a window
+  /// after its epoch.
+  double factor_window_s = 10.0;
   /// The noise the factor assumes. The receiver's reported covariance is not used: SPP
   /// receivers claim decimetres while their errors wander by metres over minutes.
   double sigma_horizontal_m = 1.0;
@@ -30,6 +35,11 @@ struct GnssFusionOptions {
   /// Odometry drift assumed per metre travelled: position (fraction) and heading (rad/m).
   double drift_fraction = 0.005;
   double yaw_drift_rad_per_m = 5e-6;
+  /// The graph also estimates the odometry's systematic drift over its window, a scale error
+  /// and a heading drift per metre, with these prior spreads around zero; the newest estimate
+  /// also corrects the poses after the newest node.
+  double scale_prior_sigma = 0.01;
+  double heading_drift_prior_sigma_rad_per_m = 2e-5;
   int max_nodes = 60;  ///< pose-graph nodes kept (one per factor)
   /// After this many consecutive rejected fixes that agree with each other within
   /// 2 * sigma_horizontal_m, the alignment is re-solved on the recent fixes.
@@ -73,6 +83,12 @@ class GnssFusion {
   const Eigen::Vector3d& origin_utm() const { return origin_utm_; }
   /// An odometry pose in the local ENU frame with the newest correction (valid once aligned).
   Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body) const;
+  /// The same for a pose at time t_s, smoothed: a pose between two nodes of the graph is
+  /// carried from both and blended, so the drift between them is spread over the span instead
+  /// of showing as a jump at the newer node. Poses after the newest node are extrapolated.
+  Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body, double t_s) const;
+  /// Poses up to this time lie between nodes of the graph (-inf before the first).
+  double settled_until_s() const;
   const GnssFusionStats& stats() const { return stats_; }
   /// The UTM zone in use (the rig's, or the first fix's standard zone).
   const geo::UtmZone& zone() const { return options_.zone; }
@@ -82,22 +98,44 @@ class GnssFusion {
  private:
   struct Pair {
     double t_s;
-    Eigen::Vector3d antenna_odom;  ///< odometry antenna position at the fix epoch
+    Eigen::Isometry3d T_odom_body;  ///< odometry pose at the fix epoch
+    Eigen::Vector3d antenna_odom;   ///< odometry antenna position at the fix epoch
     Eigen::Vector3d fix_enu;
-    double distance_m;  ///< odometry path length at the fix epoch
+    double distance_m;     ///< odometry path length at the fix epoch
+    bool outlier = false;  ///< gated out as multipath
   };
   struct Node {
     double x[4];             ///< georeferenced [x, y, z, yaw] (ENU)
     Eigen::Vector3d p_odom;  ///< odometry position
     double yaw_odom = 0.0;   ///< odometry yaw
     double distance_m = 0.0;
+    double t_s = 0.0;
     Eigen::Vector3d fix_enu;           ///< the node's GNSS fix
     Eigen::Vector3d antenna_levelled;  ///< lever arm rotated by roll and pitch
   };
-  void Process(const Pair& pair, const Eigen::Isometry3d& T_odom_body);
+  /// Odometry -> ENU: the newest node's 4-DoF pose, with the odometry's estimated drift
+  /// removed from the motion since that node (u: signed path length from the anchor, taken as
+  /// the chord length, negative behind it).
+  struct Correction {
+    Eigen::Vector3d anchor_odom = Eigen::Vector3d::Zero();
+    Eigen::Vector3d anchor_enu = Eigen::Vector3d::Zero();
+    double anchor_yaw_odom = 0.0;
+    double yaw_rad = 0.0;   ///< ENU yaw minus odometry yaw at the anchor
+    double ln_scale = 0.0;  ///< odometry scale error (log)
+    double yaw_rate = 0.0;  ///< heading correction per metre from the anchor
+    double SignedLength(const Eigen::Vector3d& p_odom) const;
+    Eigen::Vector3d Apply(const Eigen::Vector3d& p_odom) const;
+    Eigen::Isometry3d Apply(const Eigen::Isometry3d& T_odom) const;
+  };
+  Correction NodeCorrection(const Node& n) const;
+  void Process(const Pair& pair);
+  /// Gates a fix against the prediction and, at a factor epoch, adds a node and re-solves.
+  /// Returns the horizontal innovation, or NaN for an outlier.
+  Eigen::Vector2d Fuse(const Pair& pair);
+  double Gate(const Pair& pair) const;
   bool OdometryAt(double t_s, Eigen::Isometry3d* T, double* distance_m) const;
   void Align(const std::vector<Pair>& pairs, bool resolve);
-  void AddNode(const Pair& pair, const Eigen::Isometry3d& T_odom_body);
+  void AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu);
   void Optimize();
   void Warn(const std::string& key, const std::string& message);
 
@@ -116,11 +154,14 @@ class GnssFusion {
 
   bool aligned_ = false;
   std::string pending_reason_ = "no usable GNSS fix yet";
-  geo::FourDof correction_;  ///< odometry frame -> ENU, from the newest node
+  Correction correction_;
+  double drift_[2] = {0.0, 0.0};  ///< [ln scale, heading rate] of the odometry (window)
   std::deque<Node> nodes_;
-  bool nodes_dropped_ = false;  ///< the graph has slid: the oldest node carries a prior
-  double last_factor_t_s_ = -1e300;
-  std::vector<Eigen::Vector3d> period_innovations_;  ///< accepted since the last factor
+  bool nodes_dropped_ = false;          ///< the graph has slid: the oldest node carries a prior
+  double last_factor_period_ = -1e300;  ///< floor(t / factor_period_s) of the newest factor
+  std::deque<Pair> accepted_;           ///< accepted fixes of the last factor_window_s
+  bool node_pending_ = false;           ///< a factor epoch waits for the fixes after it
+  Pair pending_epoch_{};
   double last_accept_distance_m_ = 0.0;
   std::vector<Eigen::Vector2d> rejected_innovations_;
 };

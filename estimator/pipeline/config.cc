@@ -91,6 +91,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("drift_fraction", &o->gnss.drift_fraction);
     g.Read("align_distance_m", &o->gnss.alignment.min_extent_m);
     g.Read("max_hold_s", &o->gnss_max_hold_s);
+    g.Read("max_latency_s", &o->gnss_max_latency_s);
+    g.Read("factor_window_s", &o->gnss.factor_window_s);
     g.Finish();
   }
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
@@ -150,6 +152,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("gnss.drift_fraction must be in [0, 0.5)");
   if (!(gnss.alignment.min_extent_m >= 10.0)) return fail("gnss.align_distance_m must be >= 10 m");
   if (!(gnss_max_hold_s >= 10.0)) return fail("gnss.max_hold_s must be >= 10 s");
+  if (!(gnss_max_latency_s >= 0.0 && gnss_max_latency_s <= 600.0))
+    return fail("gnss.max_latency_s must be in [0, 600] s");
+  if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
+    return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
@@ -235,7 +241,8 @@ std::string EstimatorConfig::Describe() const {
   s << "gnss: " << (o.switches.use_gnss ? "on" : "off") << ", a factor every "
     << o.gnss.factor_period_s << " s, sigma " << o.gnss.sigma_horizontal_m << " / "
     << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, aligned after "
-    << o.gnss.alignment.min_extent_m << " m\n";
+    << o.gnss.alignment.min_extent_m << " m, poses held up to " << o.gnss_max_latency_s
+    << " s for smoothing\n";
   return s.str();
 }
 

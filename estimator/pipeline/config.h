@@ -125,6 +125,10 @@ struct EstimatorOptions {
   /// is not aligned by then stays in the local frame and says so.
   GnssFusionOptions gnss;
   double gnss_max_hold_s = 180.0;
+  /// Once aligned, a pose is held until the GNSS graph has a node after it (about
+  /// gnss.factor_period_s plus half gnss.factor_window_s), so that it comes out smoothed
+  /// between two nodes; through a GNSS outage at most this long, then it is extrapolated.
+  double gnss_max_latency_s = 60.0;
 
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;

@@ -135,7 +135,9 @@ class Estimator {
   /// then, and gives up after gnss_max_hold_s (the run then stays in the local frame).
   void Deliver(FrameResult frame, std::optional<Keyframe> keyframe);
   /// Hands the held frames to the sinks, georeferenced or (after giving up) local.
-  void ReleaseHeld();
+  /// Sends the held frames the GNSS fusion has settled (all of them with flush).
+  void ReleaseHeld(bool flush);
+  void Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe);
   /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so
   /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
   /// `last_chance` it settles for whatever data there is.
