@@ -40,6 +40,7 @@ int main(int argc, char** argv) {
   int64_t seed = -1;
   bool no_odometer = false, no_rail_plane = false, no_height = false, no_favour = false;
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
+  bool no_gnss = false;
   auto* source = app.add_option_group("source", "Where the sensor data comes from");
   source->add_option("--bag", bag_path, "ROS1 bag of the sensor data contract");
   source->add_option(
@@ -65,8 +66,13 @@ int main(int argc, char** argv) {
   app.add_flag("--lidar-only",
                lidar_only,
                "Ablation: LiDAR odometry alone (no IMU, odometer or rail factors)");
+  app.add_flag(
+      "--no-gnss",
+      no_gnss,
+      "Ablation: ignore GNSS (odometry only, in the local frame, as part 1 of the estimator)");
   app.add_flag("--no-keyframes", no_keyframes, "Do not write keyframe clouds");
-  app.add_flag("--quiet", quiet, "No progress line or configuration log");
+  app.add_flag(
+      "--quiet", quiet, "No progress line, configuration log or milestones (warnings still print)");
   CLI11_PARSE(app, argc, argv);
 
   // Sensor source and configuration.
@@ -102,7 +108,7 @@ int main(int argc, char** argv) {
     for (const LidarRig& l : config.rig.lidars) topics.lidar.push_back(l.topic);
     topics.imu = config.rig.imu_topic;
     topics.odometer = config.rig.odometer_topic;
-    topics.gnss.clear();
+    topics.gnss = no_gnss ? std::string() : config.rig.gnss_topic;
     if (lidar_only) topics.imu.clear();
     if (lidar_only || lidar_inertial || no_odometer) topics.odometer.clear();
     auto reader = io::BagReader::Open(bag_path, topics, &error);
@@ -118,6 +124,7 @@ int main(int argc, char** argv) {
   if (no_height || lidar_inertial || lidar_only) sw.use_height_descriptor = false;
   if (no_favour || lidar_only) sw.use_favour_factors = false;
   if (lidar_only) sw.use_imu = false;
+  if (no_gnss) sw.use_gnss = false;
   if (no_keyframes) config.options.write_keyframes = false;
   if (!quiet) {
     std::cerr << "raillomer-estimator: " << (bag ? "bag " + bag_path : "simulator " + sim_scenario)
@@ -139,7 +146,10 @@ int main(int argc, char** argv) {
   if (config.options.write_keyframes)
     sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
   sinks.on_warning = [&](const std::string& m) {
-    if (!quiet) std::cerr << "\rraillomer-estimator: warning: " << m << "\n";
+    std::cerr << (quiet ? "" : "\r") << "raillomer-estimator: warning: " << m << "\n";
+  };
+  sinks.on_info = [&](const std::string& m) {
+    if (!quiet) std::cerr << "\rraillomer-estimator: " << m << "\n";
   };
   Estimator estimator(config, sinks);
 
@@ -147,7 +157,12 @@ int main(int argc, char** argv) {
   auto last_report = wall_start;
   io::SensorMessage message;
   double first_s = -1.0, last_s = 0.0;
+  api::Trajectory sim_fixes;  // --sim: the receiver's fixes in UTM, written beside the truth
   while (input->Next(&message)) {
+    if (simulator) {
+      if (const auto* fix = std::get_if<io::GnssFix>(&message.data))
+        sim_fixes.poses.push_back(simulator->FixInUtm(*fix));
+    }
     const double t = static_cast<double>(message.receive_ns) * 1e-9;
     if (first_s < 0.0) first_s = t;
     if (bag && duration_s > 0.0 && t - first_s > duration_s) break;
@@ -178,10 +193,12 @@ int main(int argc, char** argv) {
   std::string input_error;
   if (bag && !bag->error().empty()) input_error = bag->error();
   if (simulator) {
-    // The truth beside the estimate, for raillomer-eval.
+    // The truth beside the estimate, for raillomer-eval, and the receiver's fixes (UTM).
     const api::Trajectory truth = simulator->TruthTrajectory(100.0);
+    sim_fixes.utm_zone = truth.utm_zone;
     std::string truth_error;
-    if (!api::WriteFileAtomically(out_dir + "/truth.tum", api::FormatTum(truth), &truth_error)) {
+    if (!api::WriteFileAtomically(out_dir + "/truth.tum", api::FormatTum(truth), &truth_error) ||
+        !api::WriteFileAtomically(out_dir + "/gnss.tum", api::FormatTum(sim_fixes), &truth_error)) {
       return Fail(truth_error);
     }
   }

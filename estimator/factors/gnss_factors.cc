@@ -37,24 +37,29 @@ bool GnssPositionFactor::Evaluate(double const* const* parameters,
   return true;
 }
 
-FourDofBetweenFactor::FourDofBetweenFactor(const Eigen::Vector3d& dp,
-                                           double dyaw,
-                                           double sigma_p,
-                                           double sigma_yaw)
-    : dp_(dp), dyaw_(dyaw), wp_(1.0 / sigma_p), wyaw_(1.0 / sigma_yaw) {}
+FourDofBetweenFactor::FourDofBetweenFactor(
+    const Eigen::Vector3d& dp, double dyaw, double path_length_m, double sigma_p, double sigma_yaw)
+    : dp_(dp), dyaw_(dyaw), length_(path_length_m), wp_(1.0 / sigma_p), wyaw_(1.0 / sigma_yaw) {}
 
 bool FourDofBetweenFactor::Evaluate(double const* const* parameters,
                                     double* residuals,
                                     double** jacobians) const {
   const double* xi = parameters[0];
   const double* xj = parameters[1];
+  const double* drift = parameters[2];
   const double c = std::cos(xi[3]), s = std::sin(xi[3]);
   const Eigen::Vector3d d(xj[0] - xi[0], xj[1] - xi[1], xj[2] - xi[2]);
   // R_z(yaw_i)^T d
   const Eigen::Vector3d local(c * d.x() + s * d.y(), -s * d.x() + c * d.y(), d.z());
+  // The odometry's displacement with its drift removed: scale * R_z(half_turn) * dp.
+  const double scale = std::exp(drift[0]);
+  const double half_turn = 0.5 * drift[1] * length_;
+  const double ch = std::cos(half_turn), sh = std::sin(half_turn);
+  const Eigen::Vector3d turned(ch * dp_.x() - sh * dp_.y(), sh * dp_.x() + ch * dp_.y(), dp_.z());
+  const Eigen::Vector3d predicted = scale * turned;
   Eigen::Map<Eigen::Vector4d> r(residuals);
-  r.head<3>() = wp_ * (local - dp_);
-  r(3) = wyaw_ * WrapAngle(xj[3] - xi[3] - dyaw_);
+  r.head<3>() = wp_ * (local - predicted);
+  r(3) = wyaw_ * WrapAngle(xj[3] - xi[3] - dyaw_ - drift[1] * length_);
   if (jacobians) {
     Eigen::Matrix3d Rt;
     Rt << c, s, 0, -s, c, 0, 0, 0, 1;
@@ -72,6 +77,15 @@ bool FourDofBetweenFactor::Evaluate(double const* const* parameters,
       J.setZero();
       J.block<3, 3>(0, 0) = wp_ * Rt;
       J(3, 3) = wyaw_;
+    }
+    if (jacobians[2]) {
+      Eigen::Map<Eigen::Matrix<double, 4, 2, Eigen::RowMajor>> J(jacobians[2]);
+      J.setZero();
+      J.block<3, 1>(0, 0) = -wp_ * predicted;
+      // d(turned)/d(half_turn) * d(half_turn)/dk
+      const Eigen::Vector3d dturned(-sh * dp_.x() - ch * dp_.y(), ch * dp_.x() - sh * dp_.y(), 0.0);
+      J.block<3, 1>(0, 1) = -wp_ * scale * 0.5 * length_ * dturned;
+      J(3, 1) = -wyaw_ * length_;
     }
   }
   return true;

@@ -25,19 +25,28 @@ class GnssPositionFactor : public ceres::SizedCostFunction<3, 4> {
   Eigen::Vector3d z_, a_, w_;
 };
 
-/// Relative motion between two 4-DoF nodes from the odometry: the position of j in i's
-/// yaw-only frame and the yaw change, r = [(R_z(yaw_i)^T (p_j - p_i) - dp) / sigma_p;
-/// wrap(yaw_j - yaw_i - dyaw) / sigma_yaw].
-class FourDofBetweenFactor : public ceres::SizedCostFunction<4, 4, 4> {
+/// Relative motion between two 4-DoF nodes from the odometry, corrected for the odometry's
+/// systematic drift over the window: a scale error (wheel wear, calibration) and a heading
+/// drift per metre travelled (gyro bias). With the drift block d = [ln s, k] and the path
+/// length L between the nodes, the odometry's displacement dp (in i's yaw-only frame) becomes
+/// s R_z(k L / 2) dp (a heading error growing along the path turns the chord by half its end
+/// value) and its yaw change dyaw + k L:
+/// r = [(R_z(yaw_i)^T (p_j - p_i) - s R_z(k L / 2) dp) / sigma_p;
+///      wrap(yaw_j - yaw_i - dyaw - k L) / sigma_yaw].
+class FourDofBetweenFactor : public ceres::SizedCostFunction<4, 4, 4, 2> {
  public:
-  FourDofBetweenFactor(const Eigen::Vector3d& dp, double dyaw, double sigma_p, double sigma_yaw);
+  FourDofBetweenFactor(const Eigen::Vector3d& dp,
+                       double dyaw,
+                       double path_length_m,
+                       double sigma_p,
+                       double sigma_yaw);
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override;
 
  private:
   Eigen::Vector3d dp_;
-  double dyaw_, wp_, wyaw_;
+  double dyaw_, length_, wp_, wyaw_;
 };
 
 /// Wraps an angle to (-pi, pi].

@@ -4,6 +4,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "estimator/geo/utm.h"
 #include "estimator/io/yaml_map_reader.h"
 
 namespace raillomer {
@@ -81,6 +82,19 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("write_keyframes", &o->write_keyframes);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
+  if (r.Has("gnss")) {
+    MapReader g(r.Node("gnss"), r.Path("gnss"), root.source());
+    g.Read("factor_period_s", &o->gnss.factor_period_s);
+    g.Read("sigma_horizontal_m", &o->gnss.sigma_horizontal_m);
+    g.Read("sigma_vertical_m", &o->gnss.sigma_vertical_m);
+    g.Read("gate_m", &o->gnss.gate_m);
+    g.Read("drift_fraction", &o->gnss.drift_fraction);
+    g.Read("align_distance_m", &o->gnss.alignment.min_extent_m);
+    g.Read("max_hold_s", &o->gnss_max_hold_s);
+    g.Read("max_latency_s", &o->gnss_max_latency_s);
+    g.Read("factor_window_s", &o->gnss.factor_window_s);
+    g.Finish();
+  }
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
   r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
   r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
@@ -129,6 +143,19 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("init_gravity_s must be in [0.1, 10] s");
   if (!(gravity_align_s == 0.0 || (gravity_align_s >= 3.0 && gravity_align_s <= 120.0)))
     return fail("gravity_align_s must be 0 (off) or in [3, 120] s");
+  if (!(gnss.factor_period_s >= 0.5 && gnss.factor_period_s <= 600.0))
+    return fail("gnss.factor_period_s must be in [0.5, 600] s");
+  if (!(gnss.sigma_horizontal_m > 0.0 && gnss.sigma_vertical_m > 0.0))
+    return fail("gnss.sigma_horizontal_m and gnss.sigma_vertical_m must be > 0");
+  if (!(gnss.gate_m > 0.0)) return fail("gnss.gate_m must be > 0");
+  if (!(gnss.drift_fraction >= 0.0 && gnss.drift_fraction < 0.5))
+    return fail("gnss.drift_fraction must be in [0, 0.5)");
+  if (!(gnss.alignment.min_extent_m >= 10.0)) return fail("gnss.align_distance_m must be >= 10 m");
+  if (!(gnss_max_hold_s >= 10.0)) return fail("gnss.max_hold_s must be >= 10 s");
+  if (!(gnss_max_latency_s >= 0.0 && gnss_max_latency_s <= 600.0))
+    return fail("gnss.max_latency_s must be in [0, 600] s");
+  if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
+    return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
@@ -211,6 +238,11 @@ std::string EstimatorConfig::Describe() const {
     << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
   s << "initial levelling: " << o.init_gravity_s << " s of IMU data, re-levelled after "
     << o.gravity_align_s << " s\n";
+  s << "gnss: " << (o.switches.use_gnss ? "on" : "off") << ", a factor every "
+    << o.gnss.factor_period_s << " s, sigma " << o.gnss.sigma_horizontal_m << " / "
+    << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, aligned after "
+    << o.gnss.alignment.min_extent_m << " m, poses held up to " << o.gnss_max_latency_s
+    << " s for smoothing\n";
   return s.str();
 }
 
@@ -294,6 +326,11 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
   }
   c.options.rail.body_above_rail_top_m = rig.body_above_rail_top_m;
   c.options.rail.gauge_m = rig.gauge_m;
+  c.options.gnss.p_body_antenna = rig.p_body_antenna;
+  if (!rig.utm_zone.empty() && !geo::ParseZone(rig.utm_zone, &c.options.gnss.zone)) {
+    if (error) *error = source_name + ": utm_zone '" + rig.utm_zone + "' is not a zone like 50N";
+    return false;
+  }
   std::string why;
   if (!c.options.IsValid(&why)) {
     if (error) *error = source_name + ": estimator." + why;

@@ -9,6 +9,7 @@
 #include "estimator/features/height_descriptor.h"
 #include "estimator/features/loam_features.h"
 #include "estimator/features/rail_extraction.h"
+#include "estimator/mapping/gnss_fusion.h"
 #include "estimator/preprocess/filters.h"
 
 namespace raillomer {
@@ -54,6 +55,9 @@ struct AblationSwitches {
   bool use_rail_plane = true;         ///< false: --no-rail-plane
   bool use_height_descriptor = true;  ///< false: --no-height-descriptor
   bool use_favour_factors = true;     ///< false: --no-favour-factors (eq. 23 weights all 1)
+  /// false: --no-gnss (odometry only, in the local frame; not part of Name(): the odometry
+  /// ablations above are compared without GNSS)
+  bool use_gnss = true;
   /// Ablation name for logs and tables, e.g. "full", "lidar-only".
   std::string Name() const;
 };
@@ -116,6 +120,15 @@ struct EstimatorOptions {
   /// are held back until then. 0 disables.
   double gravity_align_s = 10.0;
   bool write_keyframes = true;
+  /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
+  /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that
+  /// is not aligned by then stays in the local frame and says so.
+  GnssFusionOptions gnss;
+  double gnss_max_hold_s = 180.0;
+  /// Once aligned, a pose is held until the GNSS graph has a node after it (about
+  /// gnss.factor_period_s plus half gnss.factor_window_s), so that it comes out smoothed
+  /// between two nodes; through a GNSS outage at most this long, then it is extrapolated.
+  double gnss_max_latency_s = 60.0;
 
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;

@@ -47,6 +47,8 @@ Eigen::Isometry3d Interpolate(const Eigen::Isometry3d& a, const Eigen::Isometry3
   return T;
 }
 
+double StampSeconds(int64_t stamp_ns) { return static_cast<double>(stamp_ns) * 1e-9; }
+
 std::string Seconds(double t) {
   std::ostringstream s;
   s.setf(std::ios::fixed);
@@ -133,6 +135,10 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
   gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
                      !config_.rig.odometer_topic.empty() && o.gravity_align_s > 0.0;
+  if (o.switches.use_gnss && !config_.rig.gnss_topic.empty()) {
+    gnss_ = std::make_unique<GnssFusion>(
+        o.gnss, [this](const std::string& m) { Warn(m); }, sinks_.on_info);
+  }
 }
 
 Estimator::~Estimator() = default;
@@ -161,6 +167,8 @@ void Estimator::Add(const io::SensorMessage& message) {
     if (message.topic == config_.rig.odometer_topic && config_.options.switches.use_odometer) {
       AddOdometer(*odo);
     }
+  } else if (const auto* fix = std::get_if<io::GnssFix>(&message.data)) {
+    if (gnss_ && message.topic == config_.rig.gnss_topic) gnss_->AddFix(*fix);
   }
   ProcessReady(false);
 }
@@ -288,9 +296,9 @@ bool Estimator::Initialize(double t_end) {
     const auto& imu = inertial_.imu();
     if (imu.empty() || imu.back().t - imu.front().t < span - 1e-3 ||
         t_end - imu.front().t < span - 1e-3) {
-      if (warning_counts_["init-imu"]++ == 0) {
-        Warn("initialising: levelling on the first " + Seconds(span) +
-             " of IMU data; no poses before that");
+      if (warning_counts_["init-imu"]++ == 0 && sinks_.on_info) {
+        sinks_.on_info("initialising: levelling on the first " + Seconds(span) +
+                       " of IMU data; no poses before that");
       }
       return false;
     }
@@ -646,8 +654,8 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
   if (have_output_) stats_.distance_m += (position - last_output_position_).norm();
   last_output_position_ = position;
   have_output_ = true;
-  if (sinks_.on_frame) sinks_.on_frame(result);
 
+  std::optional<Keyframe> keyframe;
   const Eigen::Isometry3d delta = last_keyframe_pose_.inverse() * result.T_world_body;
   const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() * 180.0 / M_PI;
   if (!have_keyframe_ || delta.translation().norm() >= config_.options.keyframe_distance_m ||
@@ -661,9 +669,69 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       k.points_body = std::move(extras->cloud);
       k.intensities = std::move(extras->intensities);
       VoxelThin(0.1, &k.points_body, &k.intensities);
-      sinks_.on_keyframe(k);
+      keyframe = std::move(k);
     }
   }
+  Deliver(std::move(result), std::move(keyframe));
+}
+
+void Estimator::Deliver(FrameResult frame, std::optional<Keyframe> keyframe) {
+  if (!gnss_ || gnss_gave_up_) {
+    Output(frame, keyframe);
+    return;
+  }
+  gnss_->AddOdometry(frame.stamp_ns, frame.T_world_body);
+  stats_.gnss = gnss_->stats();
+  gnss_held_.push_back({std::move(frame), std::move(keyframe)});
+  ReleaseHeld(false);
+}
+
+void Estimator::ReleaseHeld(bool flush) {
+  if (gnss_held_.empty()) return;
+  const double newest_s = StampSeconds(gnss_held_.back().frame.stamp_ns);
+  const double held_s = newest_s - StampSeconds(gnss_held_.front().frame.stamp_ns);
+  if (!gnss_->aligned()) {
+    // Waiting for the alignment, at most gnss_max_hold_s (30 s when no fix has come at all).
+    const double limit = stats_.gnss.fixes == 0 ? std::min(30.0, config_.options.gnss_max_hold_s)
+                                                : config_.options.gnss_max_hold_s;
+    if (!flush && held_s < limit) return;
+    gnss_gave_up_ = true;
+    Warn("not georeferenced: " +
+         (flush ? std::string("the run ended before the GNSS alignment")
+                : "no GNSS alignment after " + Seconds(held_s)) +
+         " (" + gnss_->pending_reason() + "); the output stays in the local odometry frame");
+    while (!gnss_held_.empty()) {
+      Output(gnss_held_.front().frame, gnss_held_.front().keyframe);
+      gnss_held_.pop_front();
+    }
+    return;
+  }
+  // Aligned: a pose goes out once the GNSS graph has a node after it (it is then smoothed
+  // between two nodes), or when it has waited gnss_max_latency_s (a GNSS outage), or at the
+  // end of the run; those are extrapolated from the newest node.
+  stats_.georeferenced = true;
+  const double settled_s = gnss_->settled_until_s();
+  while (!gnss_held_.empty()) {
+    HeldOutput& h = gnss_held_.front();
+    const double t = StampSeconds(h.frame.stamp_ns);
+    if (t > settled_s && !flush && newest_s - t < config_.options.gnss_max_latency_s) break;
+    h.frame.T_world_body = gnss_->ToEnu(h.frame.T_world_body, t);
+    h.frame.georeferenced = true;
+    h.frame.origin_utm = gnss_->origin_utm();
+    h.frame.utm_zone = gnss_->zone().Name();
+    if (h.keyframe) {
+      h.keyframe->T_world_body = gnss_->ToEnu(h.keyframe->T_world_body, t);
+      h.keyframe->georeferenced = true;
+      h.keyframe->origin_utm = h.frame.origin_utm;
+    }
+    Output(h.frame, h.keyframe);
+    gnss_held_.pop_front();
+  }
+}
+
+void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe) {
+  if (sinks_.on_frame) sinks_.on_frame(frame);
+  if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
 }
 
 void Estimator::AlignGravity(bool last_chance) {
@@ -710,12 +778,12 @@ void Estimator::AlignGravity(bool last_chance) {
         h->result.T_world_body.translation() = R * h->result.T_world_body.translation();
         h->result.v_world = R * h->result.v_world;
       }
-      if (sinks_.on_warning) {
+      if (sinks_.on_info) {
         std::ostringstream m;
         m.precision(3);
         m << "re-levelled the world frame by " << angle_deg << " deg on gravity from " << duration
           << " s of IMU data (|g| " << g_est.norm() << " m/s^2)";
-        sinks_.on_warning(m.str());
+        sinks_.on_info(m.str());
       }
       aligned = true;
     } else {
@@ -742,6 +810,8 @@ void Estimator::Finish() {
   if (gravity_pending_) AlignGravity(true);
   // Flush the window: every remaining state is final now.
   while (window_->size() > 0 && !extras_.empty()) EmitOldest();
+  if (gnss_) stats_.gnss = gnss_->stats();
+  if (gnss_ && !gnss_gave_up_) ReleaseHeld(true);
 }
 
 }  // namespace raillomer

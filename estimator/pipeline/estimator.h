@@ -12,6 +12,7 @@
 
 #include "estimator/features/height_descriptor.h"
 #include "estimator/io/sensor_messages.h"
+#include "estimator/mapping/gnss_fusion.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/inertial_buffer.h"
 
@@ -34,7 +35,12 @@ struct LidarDiagnostics {
 /// The estimate and timing of one processed frame (both LiDARs on one time base).
 struct FrameResult {
   int64_t stamp_ns = 0;  ///< frame end (the reference time of the deskewed points)
+  /// In the local odometry frame, or, when georeferenced, in the local ENU frame whose origin
+  /// is origin_utm (UTM = origin_utm + position; the zone is the rig's utm_zone).
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+  bool georeferenced = false;
+  Eigen::Vector3d origin_utm = Eigen::Vector3d::Zero();
+  std::string utm_zone;  ///< "50N" when georeferenced
   Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
   double odometer_scale = 1.0;
   Eigen::Vector3d gyro_bias = Eigen::Vector3d::Zero();
@@ -53,7 +59,9 @@ struct FrameResult {
 /// A keyframe for mapping: its final (marginalised) pose and its deskewed cloud (body frame).
 struct Keyframe {
   int64_t stamp_ns = 0;
-  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();  ///< frame as FrameResult's
+  bool georeferenced = false;
+  Eigen::Vector3d origin_utm = Eigen::Vector3d::Zero();
   std::vector<Eigen::Vector3f> points_body;
   std::vector<float> intensities;
 };
@@ -65,6 +73,8 @@ struct EstimatorSinks {
   std::function<void(const Keyframe&)> on_keyframe;
   /// A problem with the input (gap, rewind, missing sensor): a human-readable line.
   std::function<void(const std::string&)> on_warning;
+  /// Milestones worth a line in the log (e.g. the GNSS alignment).
+  std::function<void(const std::string&)> on_info;
 };
 
 /// Counters over the whole run.
@@ -75,6 +85,8 @@ struct EstimatorStats {
   uint64_t odometer_samples = 0, odometer_rejected = 0, odometer_outliers = 0;
   uint64_t warnings = 0;
   double distance_m = 0.0;
+  bool georeferenced = false;  ///< the output is in UTM
+  GnssFusionStats gnss;
 };
 
 /// raillomer-estimator's core: feeds on a time-ordered stream of sensor messages and estimates
@@ -119,6 +131,13 @@ class Estimator {
   void AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body);
   /// Hands a final state to the sinks (and picks keyframes).
   void Emit(std::unique_ptr<NodeExtras> extras);
+  /// Georeferences a final frame (and its keyframe) once GNSS is aligned; holds them until
+  /// then, and gives up after gnss_max_hold_s (the run then stays in the local frame).
+  void Deliver(FrameResult frame, std::optional<Keyframe> keyframe);
+  /// Hands the held frames to the sinks, georeferenced or (after giving up) local.
+  /// Sends the held frames the GNSS fusion has settled (all of them with flush).
+  void ReleaseHeld(bool flush);
+  void Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe);
   /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so
   /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
   /// `last_chance` it settles for whatever data there is.
@@ -149,6 +168,13 @@ class Estimator {
   Eigen::Vector3d last_output_position_ = Eigen::Vector3d::Zero();
   bool have_output_ = false;
   std::optional<FrameResult> latest_;
+  struct HeldOutput {
+    FrameResult frame;
+    std::optional<Keyframe> keyframe;
+  };
+  std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
+  std::deque<HeldOutput> gnss_held_;
+  bool gnss_gave_up_ = false;
   std::map<std::string, uint64_t> warning_counts_;
 };
 

@@ -61,8 +61,7 @@ bool RunWriter::Open(const std::string& out_dir,
   };
   if (!open("trajectory.tum", &trajectory_) || !open("timing.csv", &timing_)) return false;
   if (write_keyframes && !open("keyframes.tum", &keyframes_)) return false;
-  std::fprintf(trajectory_, "%s", header.c_str());
-  std::fflush(trajectory_);
+  header_ = header;
   std::fprintf(timing_,
                "stamp_s,frontend_ms,backend_ms,total_ms,solver_iterations,odometer_used,rail_plane,"
                "height_shift,degeneracy,projected,odometer_scale,speed_mps,gyro_bias_x,gyro_bias_y,"
@@ -84,8 +83,26 @@ bool RunWriter::Open(const std::string& out_dir,
   return true;
 }
 
+void RunWriter::WriteHeader(const FrameResult* first) {
+  if (header_written_ || !trajectory_) return;
+  header_written_ = true;
+  if (first && first->georeferenced) {
+    std::fprintf(trajectory_,
+                 "# utm_zone %s\n# raillomer-estimator: body pose at every LiDAR frame in UTM zone "
+                 "%s (easting, northing, ellipsoidal height), georeferenced with GNSS\n",
+                 first->utm_zone.c_str(),
+                 first->utm_zone.c_str());
+  } else {
+    std::fprintf(trajectory_, "%s", header_.c_str());
+  }
+  std::fflush(trajectory_);
+}
+
 void RunWriter::WriteFrame(const FrameResult& f) {
-  const std::string line = PoseLine(f.stamp_ns, f.T_world_body);
+  WriteHeader(&f);
+  Eigen::Isometry3d T = f.T_world_body;
+  if (f.georeferenced) T.translation() += f.origin_utm;
+  const std::string line = PoseLine(f.stamp_ns, T);
   std::fputs(line.c_str(), trajectory_);
   std::fflush(trajectory_);
   const double total = f.frontend_ms + f.backend_ms;
@@ -139,8 +156,10 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
   if (!write_keyframes_) return;
   const std::string stamp = api::FormatStampSeconds(k.stamp_ns);
   const std::string name = out_dir_ + "/keyframes/" + stamp + ".pcd";
-  const Eigen::Quaterniond q(k.T_world_body.linear());
-  const Eigen::Vector3d t = k.T_world_body.translation();
+  Eigen::Isometry3d T = k.T_world_body;
+  if (k.georeferenced) T.translation() += k.origin_utm;
+  const Eigen::Quaterniond q(T.linear());
+  const Eigen::Vector3d t = T.translation();
   std::string pcd;
   char head[512];
   std::snprintf(head,
@@ -175,7 +194,7 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
     failure_ = error;
     return;
   }
-  std::fputs(PoseLine(k.stamp_ns, k.T_world_body).c_str(), keyframes_);
+  std::fputs(PoseLine(k.stamp_ns, T).c_str(), keyframes_);
   std::fflush(keyframes_);
   ++keyframe_count_;
 }
@@ -188,6 +207,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                       double wall_s,
                       const std::string& extra_json,
                       std::string* error) {
+  WriteHeader(nullptr);
   for (std::FILE** f : {&trajectory_, &timing_, &keyframes_}) {
     if (*f) std::fclose(*f);
     *f = nullptr;
@@ -202,7 +222,9 @@ bool RunWriter::Close(const EstimatorStats& s,
                 "  \"backend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
                 "  \"warnings\": %llu,\n  \"lidar_frames_dropped\": %llu,\n  \"imu_gaps\": %llu,\n"
                 "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  "
-                "\"odometer_rejected\": %llu%s%s\n}\n",
+                "\"odometer_rejected\": %llu,\n  \"georeferenced\": %s,\n  \"gnss\": {\"fixes\": "
+                "%llu, \"rejected\": %llu, \"outliers\": %llu, \"factors\": %llu, "
+                "\"realignments\": %llu}%s%s\n}\n",
                 frame_ms_.size(),
                 keyframe_count_,
                 s.distance_m,
@@ -222,6 +244,12 @@ bool RunWriter::Close(const EstimatorStats& s,
                 static_cast<unsigned long long>(s.imu_rejected),
                 static_cast<unsigned long long>(s.odometer_outliers),
                 static_cast<unsigned long long>(s.odometer_rejected),
+                s.georeferenced ? "true" : "false",
+                static_cast<unsigned long long>(s.gnss.fixes),
+                static_cast<unsigned long long>(s.gnss.rejected),
+                static_cast<unsigned long long>(s.gnss.outliers),
+                static_cast<unsigned long long>(s.gnss.factors),
+                static_cast<unsigned long long>(s.gnss.realignments),
                 extra_json.empty() ? "" : ",\n  ",
                 extra_json.c_str());
   if (!api::WriteFileAtomically(out_dir_ + "/summary.json", text, error)) return false;

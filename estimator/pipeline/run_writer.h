@@ -18,12 +18,15 @@ namespace raillomer {
 class RunWriter {
  public:
   ~RunWriter();
-  /// Creates the folder and the files; false with a message naming the path on failure.
+  /// Creates the folder and the files; false with a message naming the path on failure. The
+  /// trajectory's header goes in with the first frame: `header` for a local frame, or, for a
+  /// georeferenced run, `# utm_zone <zone>` and a line saying the poses are in UTM.
   bool Open(const std::string& out_dir,
             bool write_keyframes,
             const std::string& header,
             std::string* error);
   void WriteFrame(const FrameResult& frame);
+  /// Keyframes after their frame (a georeferenced keyframe takes that frame's UTM origin).
   void WriteKeyframe(const Keyframe& keyframe);
   /// Writes summary.json; `extra_json` members (without braces) are added to it.
   bool Close(const EstimatorStats& stats,
@@ -45,6 +48,9 @@ class RunWriter {
   std::FILE* timing_ = nullptr;
   std::FILE* keyframes_ = nullptr;
   bool write_keyframes_ = false;
+  std::string header_;
+  bool header_written_ = false;
+  void WriteHeader(const FrameResult* first);
   std::vector<double> frame_ms_, frontend_ms_, backend_ms_;
   size_t keyframe_count_ = 0;
   bool failed_ = false;

@@ -12,7 +12,6 @@
 
 #include "api/atomic_file.h"
 #include "api/trajectory.h"
-#include "estimator/geo/utm.h"
 #include "estimator/io/bag_writer.h"
 #include "estimator/sim/scenario.h"
 #include "estimator/sim/simulator.h"
@@ -26,18 +25,6 @@ namespace io = raillomer::io;
 int Fail(const std::string& message) {
   std::cerr << "raillomer-sim: error: " << message << "\n";
   return 2;
-}
-
-/// The receiver's fixes as a TUM trajectory in UTM (orientation unknown: identity).
-void AddGnssPose(const sim::Simulator& simulator,
-                 const io::GnssFix& fix,
-                 raillomer::api::Trajectory* gnss) {
-  const Eigen::Vector2d en =
-      raillomer::geo::GeographicToUtm(simulator.utm_zone(), fix.latitude_deg, fix.longitude_deg);
-  raillomer::api::StampedPose pose;
-  pose.stamp_ns = fix.stamp_ns;
-  pose.p_world = Eigen::Vector3d(en.x(), en.y(), fix.altitude_m);
-  gnss->poses.push_back(pose);
 }
 
 }  // namespace
@@ -120,7 +107,7 @@ int main(int argc, char** argv) {
   auto last_report = std::chrono::steady_clock::now();
   while (simulator->Next(&message)) {
     if (const auto* fix = std::get_if<io::GnssFix>(&message.data)) {
-      AddGnssPose(*simulator, *fix, &gnss);
+      gnss.poses.push_back(simulator->FixInUtm(*fix));
     }
     if (!bag->Write(message, &error)) return Fail(error);
     const auto now = std::chrono::steady_clock::now();

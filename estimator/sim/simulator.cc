@@ -158,6 +158,14 @@ api::StampedPose Simulator::TruthPose(double t) const {
   return pose;
 }
 
+api::StampedPose Simulator::FixInUtm(const io::GnssFix& fix) const {
+  const Eigen::Vector2d en = geo::GeographicToUtm(zone_, fix.latitude_deg, fix.longitude_deg);
+  api::StampedPose pose;
+  pose.stamp_ns = fix.stamp_ns;
+  pose.p_world = Eigen::Vector3d(en.x(), en.y(), fix.altitude_m);
+  return pose;
+}
+
 api::Trajectory Simulator::TruthTrajectory(double rate_hz) const {
   api::Trajectory trajectory;
   trajectory.utm_zone = zone_.Name();

@@ -58,6 +58,8 @@ class Simulator : public io::SensorSource {
   api::StampedPose TruthPose(double t) const;
   /// Ground truth at `rate_hz` over the run, in UTM with the zone set.
   api::Trajectory TruthTrajectory(double rate_hz) const;
+  /// A fix of the simulated receiver as a pose in UTM (orientation unknown: identity).
+  api::StampedPose FixInUtm(const io::GnssFix& fix) const;
   /// The estimator's configuration for this rig (rig.yaml).
   std::string RigYaml() const;
   /// The corridor edits of a changed run, in UTM and WGS84 (changes.json).

@@ -57,13 +57,15 @@ class EstimatorCli : public ::testing::Test {
   /// Runs the estimator on the test bag with the rig's `from` replaced by `to`.
   CommandResult EstimateWithEditedRig(const std::string& from,
                                       const std::string& to,
-                                      const std::string& name) const {
+                                      const std::string& name,
+                                      const std::string& extra_args = "") const {
     std::string rig = ReadText(Rig());
     rig.replace(rig.find(from), from.size(), to);
     const fs::path edited = Dir() / (name + ".yaml");
     std::ofstream(edited) << rig;
     return Estimate("--bag " + ShellQuote(Bag().string()) + " --config " +
-                    ShellQuote(edited.string()) + " --out " + ShellQuote((Dir() / name).string()));
+                    ShellQuote(edited.string()) + " --out " + ShellQuote((Dir() / name).string()) +
+                    " " + extra_args);
   }
   static size_t CountLines(const fs::path& path) {
     std::ifstream in(path);
@@ -112,6 +114,47 @@ TEST_F(EstimatorCli, ShortSimulatedRunTracksTheTruth) {
   EXPECT_LT(eval["end_drift_pct"].get<double>(), 0.5);
 }
 
+TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
+  // The whole demo (0.3 km): aligned to UTM after 100 m, then a GNSS factor every 10 s.
+  const fs::path out = Dir() / "utm";
+  const CommandResult r = Estimate("--sim demo --no-keyframes --out " + ShellQuote(out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(ReadText(out / "trajectory.tum").rfind("# utm_zone 50N\n", 0), 0u);
+  const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
+  EXPECT_TRUE(summary["georeferenced"].get<bool>());
+  EXPECT_GE(summary["gnss"]["factors"].get<int>(), 2);
+  // Scored in UTM with no alignment at all. The simulated receiver is single-point (errors of
+  // 1-2.5 m that wander over minutes), and the run sits on its fixes: a metre or two, not the
+  // hundreds of kilometres between the odometry frame and UTM.
+  const CommandResult e =
+      Shell(Bin("raillomer-eval") + " --estimate " + ShellQuote((out / "trajectory.tum").string()) +
+            " --truth " + ShellQuote((out / "truth.tum").string()) + " --align none --json " +
+            ShellQuote((out / "eval.json").string()));
+  ASSERT_EQ(e.exit_code, 0) << e.err;
+  const nlohmann::json eval = nlohmann::json::parse(ReadText(out / "eval.json"));
+  EXPECT_LT(eval["ate_rmse_m"].get<double>(), 2.0);
+  EXPECT_LT(eval["ate_max_m"].get<double>(), 3.0);
+}
+
+TEST_F(EstimatorCli, ARunWithoutAFixSaysItIsNotGeoreferenced) {
+  // The receiver never gets a fix: the odometry still comes out, in the local frame.
+  std::ofstream(Dir() / "no_fix.yaml")
+      << Shell(Bin("raillomer-sim") + " --scenario demo --print-scenario").out
+      << "events:\n  - {type: gnss_outage, at_s: 0, duration_s: 1000}\n";
+  const fs::path out = Dir() / "no_fix";
+  const CommandResult r =
+      Estimate("--sim " + ShellQuote((Dir() / "no_fix.yaml").string()) +
+               " --duration 12 --no-keyframes --out " + ShellQuote(out.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("not georeferenced"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("no usable GNSS fix"), std::string::npos) << r.err;
+  EXPECT_EQ(ReadText(out / "trajectory.tum").find("utm_zone"), std::string::npos);
+  EXPECT_GT(CountLines(out / "trajectory.tum"), 60u);
+  const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
+  EXPECT_FALSE(summary["georeferenced"].get<bool>());
+  EXPECT_EQ(summary["gnss"]["fixes"].get<int>(), 0);
+}
+
 TEST_F(EstimatorCli, RecordedBagGivesAPoseForEveryFrameAfterLevelling) {
   const fs::path out = Dir() / "from_bag";
   const CommandResult r =
@@ -144,8 +187,10 @@ TEST_F(EstimatorCli, MissingTopicIsNamed) {
 }
 
 TEST_F(EstimatorCli, WrongMessageTypeIsNamed) {
-  // The IMU topic pointed at the GNSS receiver's NavSatFix messages.
-  const CommandResult r = EstimateWithEditedRig("topic: /imu/data", "topic: /gnss/fix", "type");
+  // The IMU topic pointed at the GNSS receiver's NavSatFix messages (GNSS off: with it on, the
+  // topic would be configured twice, which is an error of its own).
+  const CommandResult r =
+      EstimateWithEditedRig("topic: /imu/data", "topic: /gnss/fix", "type", "--no-gnss");
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("sensor_msgs/NavSatFix"), std::string::npos) << r.err;
 }

@@ -1,0 +1,386 @@
+#include "estimator/mapping/gnss_fusion.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include <ceres/ceres.h>
+#include <ceres/normal_prior.h>
+
+#include "estimator/factors/gnss_factors.h"
+
+namespace raillomer {
+
+namespace {
+
+double YawOf(const Eigen::Matrix3d& R) { return std::atan2(R(1, 0), R(0, 0)); }
+
+Eigen::Matrix3d Rz(double yaw) {
+  return Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+}
+
+}  // namespace
+
+double GnssFusion::Correction::SignedLength(const Eigen::Vector3d& p_odom) const {
+  const Eigen::Vector3d chord = p_odom - anchor_odom;
+  const double along =
+      chord.x() * std::cos(anchor_yaw_odom) + chord.y() * std::sin(anchor_yaw_odom);
+  return along >= 0.0 ? chord.norm() : -chord.norm();
+}
+
+Eigen::Vector3d GnssFusion::Correction::Apply(const Eigen::Vector3d& p_odom) const {
+  const double u = SignedLength(p_odom);
+  return anchor_enu +
+         std::exp(ln_scale) * (Rz(yaw_rad + 0.5 * yaw_rate * u) * (p_odom - anchor_odom));
+}
+
+Eigen::Isometry3d GnssFusion::Correction::Apply(const Eigen::Isometry3d& T_odom) const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Rz(yaw_rad + yaw_rate * SignedLength(T_odom.translation())) * T_odom.linear();
+  T.translation() = Apply(T_odom.translation());
+  return T;
+}
+
+GnssFusion::GnssFusion(const GnssFusionOptions& options,
+                       std::function<void(const std::string&)> warn,
+                       std::function<void(const std::string&)> info)
+    : options_(options), warn_(std::move(warn)), info_(std::move(info)) {}
+
+void GnssFusion::Warn(const std::string& key, const std::string& message) {
+  const uint64_t n = ++warning_counts_[key];
+  // The first few of a kind in full, then every 100th, with the count.
+  if (!warn_) return;
+  if (n <= 3) {
+    warn_(message);
+  } else if (n % 100 == 0) {
+    warn_(message + " (" + std::to_string(n) + " so far)");
+  }
+}
+
+void GnssFusion::AddFix(const io::GnssFix& fix) {
+  if (options_.zone.zone == 0 && std::isfinite(fix.latitude_deg) &&
+      std::isfinite(fix.longitude_deg) && std::abs(fix.latitude_deg) <= 84.0 &&
+      std::abs(fix.longitude_deg) <= 180.0 &&
+      (fix.latitude_deg != 0.0 || fix.longitude_deg != 0.0)) {
+    // No zone in the rig: the standard zone of the first plausible fix.
+    options_.zone = geo::StandardZone(fix.latitude_deg, fix.longitude_deg);
+  }
+  Eigen::Vector3d utm;
+  const std::string reason = geo::CheckFix(fix, options_.zone, options_.check, &utm);
+  const double t = static_cast<double>(fix.stamp_ns) * 1e-9;
+  if (!reason.empty()) {
+    ++stats_.rejected;
+    std::ostringstream m;
+    m.precision(3);
+    m << std::fixed << "GNSS fix at " << t << " s rejected: " << reason;
+    Warn("rejected", m.str());
+    return;
+  }
+  ++stats_.fixes;
+  if (!have_origin_) {
+    // The local ENU frame's origin: the first fix, rounded to whole metres.
+    origin_utm_ = utm.array().round().matrix();
+    have_origin_ = true;
+  }
+  pending_fixes_.emplace_back(t, utm);
+}
+
+bool GnssFusion::OdometryAt(double t_s, Eigen::Isometry3d* T, double* distance_m) const {
+  if (odometry_.size() < 2 || t_s < odometry_.front().first || t_s > odometry_.back().first)
+    return false;
+  size_t k = 1;
+  while (k + 1 < odometry_.size() && odometry_[k].first < t_s) ++k;
+  const auto& [t0, T0] = odometry_[k - 1];
+  const auto& [t1, T1] = odometry_[k];
+  const double f = t1 > t0 ? (t_s - t0) / (t1 - t0) : 0.0;
+  *T = Eigen::Isometry3d::Identity();
+  T->translation() = (1.0 - f) * T0.translation() + f * T1.translation();
+  T->linear() = Eigen::Quaterniond(T0.linear())
+                    .slerp(f, Eigen::Quaterniond(T1.linear()))
+                    .normalized()
+                    .toRotationMatrix();
+  *distance_m = (1.0 - f) * odometry_distance_m_[k - 1] + f * odometry_distance_m_[k];
+  return true;
+}
+
+void GnssFusion::AddOdometry(int64_t stamp_ns, const Eigen::Isometry3d& T_odom_body) {
+  const double t = static_cast<double>(stamp_ns) * 1e-9;
+  if (!odometry_.empty()) {
+    if (t <= odometry_.back().first) return;
+    distance_m_ += (T_odom_body.translation() - odometry_.back().second.translation()).norm();
+  }
+  odometry_.emplace_back(t, T_odom_body);
+  odometry_distance_m_.push_back(distance_m_);
+  while (odometry_.size() > 2 && odometry_.front().first < t - 5.0) {
+    odometry_.pop_front();
+    odometry_distance_m_.pop_front();
+  }
+  while (!pending_fixes_.empty() && pending_fixes_.front().first <= t) {
+    const auto [t_fix, utm] = pending_fixes_.front();
+    pending_fixes_.pop_front();
+    Eigen::Isometry3d T_fix;
+    double distance = 0.0;
+    if (!OdometryAt(t_fix, &T_fix, &distance)) continue;  // before the odometry started
+    Pair pair{t_fix, T_fix, T_fix * options_.p_body_antenna, utm - origin_utm_, distance};
+    Process(pair);
+  }
+}
+
+void GnssFusion::Process(const Pair& pair) {
+  pairs_.push_back(pair);
+  while (!pairs_.empty() &&
+         pairs_.front().t_s < pair.t_s - std::max(600.0, options_.resolve_window_s))
+    pairs_.pop_front();
+  if (!aligned_) {
+    Align(std::vector<Pair>(pairs_.begin(), pairs_.end()), false);
+    return;
+  }
+  const Eigen::Vector2d innovation = Fuse(pair);
+  if (innovation.allFinite()) {
+    rejected_innovations_.clear();
+    return;
+  }
+  // An outlier.
+  pairs_.back().outlier = true;
+  ++stats_.outliers;
+  const Eigen::Vector3d off = pair.fix_enu - correction_.Apply(pair.antenna_odom);
+  std::ostringstream m;
+  m.precision(1);
+  m << std::fixed << "GNSS fix at " << pair.t_s << " s is " << off.head<2>().norm()
+    << " m off the odometry (gate " << Gate(pair) << " m): ignored as multipath";
+  Warn("outlier", m.str());
+  rejected_innovations_.push_back(off.head<2>());
+  if (static_cast<int>(rejected_innovations_.size()) < options_.resolve_after_rejections) return;
+  // Many fixes in a row off the prediction, but in agreement with each other: the odometry
+  // or the alignment has degraded (e.g. after a long outage). Re-solve on the recent fixes.
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& v : rejected_innovations_) mean += v;
+  mean /= static_cast<double>(rejected_innovations_.size());
+  double spread = 0.0;
+  for (const auto& v : rejected_innovations_) spread = std::max(spread, (v - mean).norm());
+  if (spread < 2.0 * options_.sigma_horizontal_m) {
+    std::vector<Pair> recent;
+    for (const Pair& p : pairs_) {
+      if (p.t_s >= pair.t_s - options_.resolve_window_s) recent.push_back(p);
+    }
+    for (Pair& p : recent) p.outlier = false;
+    Align(recent, true);
+  }
+  if (!rejected_innovations_.empty()) rejected_innovations_.erase(rejected_innovations_.begin());
+}
+
+double GnssFusion::Gate(const Pair& pair) const {
+  const double drift = options_.drift_fraction * (pair.distance_m - last_accept_distance_m_);
+  return options_.gate_m + 3.0 * std::max(0.0, drift);
+}
+
+Eigen::Vector2d GnssFusion::Fuse(const Pair& pair) {
+  const Eigen::Vector3d innovation = pair.fix_enu - correction_.Apply(pair.antenna_odom);
+  const double gate = Gate(pair);
+  if (innovation.head<2>().norm() > gate ||
+      std::abs(innovation.z()) > gate + 3.0 * options_.sigma_vertical_m) {
+    return Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
+  }
+  last_accept_distance_m_ = pair.distance_m;
+  accepted_.push_back(pair);
+  // Factors on a fixed grid of epochs (the first accepted fix of each period), so that the
+  // graph does not depend on when the alignment happened or which fixes were outliers.
+  const double period = std::floor(pair.t_s / options_.factor_period_s + 1e-9);
+  if (period > last_factor_period_ && !node_pending_) {
+    last_factor_period_ = period;
+    node_pending_ = true;
+    pending_epoch_ = pair;
+  }
+  const double half = 0.5 * options_.factor_window_s;
+  if (node_pending_ && pair.t_s >= pending_epoch_.t_s + half - 1e-6) {
+    // The factor's fix: the epoch's prediction plus the median innovation (against the
+    // newest correction) of the accepted fixes within half a window of the epoch. The
+    // median outvotes the smaller multipath jumps that got through the gate; centring the
+    // window cancels the odometry's drift across it.
+    node_pending_ = false;
+    Eigen::Vector3d m;
+    for (int axis = 0; axis < 3; ++axis) {
+      std::vector<double> v;
+      for (const Pair& p : accepted_) {
+        if (std::abs(p.t_s - pending_epoch_.t_s) <= half + 1e-6)
+          v.push_back(p.fix_enu[axis] - correction_.Apply(p.antenna_odom)[axis]);
+      }
+      std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+      m[axis] = v[v.size() / 2];
+    }
+    AddNode(pending_epoch_, correction_.Apply(pending_epoch_.antenna_odom) + m);
+    ++stats_.factors;
+    Optimize();
+  }
+  while (!accepted_.empty() && accepted_.front().t_s < pair.t_s - options_.factor_window_s)
+    accepted_.pop_front();
+  return innovation.head<2>();
+}
+
+void GnssFusion::Align(const std::vector<Pair>& pairs, bool resolve) {
+  std::vector<Eigen::Vector3d> odom, enu;
+  for (const Pair& p : pairs) {
+    if (p.outlier) continue;
+    odom.push_back(p.antenna_odom);
+    enu.push_back(p.fix_enu);
+  }
+  const geo::GnssAlignment a = geo::AlignToGnss(odom, enu, options_.alignment);
+  if (!a.ok) {
+    pending_reason_ = a.reason;
+    return;
+  }
+  const Eigen::Vector3d before = correction_.Apply(pairs.back().antenna_odom);
+  correction_ = Correction();
+  correction_.anchor_enu = a.T_enu_odom.t;
+  correction_.yaw_rad = a.T_enu_odom.yaw_rad;
+  drift_[0] = drift_[1] = 0.0;
+  aligned_ = true;
+  pending_reason_.clear();
+  nodes_.clear();
+  nodes_dropped_ = false;
+  accepted_.clear();
+  node_pending_ = false;
+  last_factor_period_ = -1e300;
+  last_accept_distance_m_ = pairs.front().distance_m;
+  rejected_innovations_.clear();
+  // The fixes the alignment was solved on seed the pose graph, one factor per period as if
+  // they had come in aligned: the graph starts with their whole baseline, not a single node.
+  for (const Pair& p : pairs) {
+    if (!p.outlier) Fuse(p);
+  }
+  std::ostringstream m;
+  m.precision(2);
+  m << std::fixed;
+  if (resolve) {
+    ++stats_.realignments;
+    m << "GNSS alignment re-solved on " << a.inliers << " fixes: the position moved by "
+      << (correction_.Apply(pairs.back().antenna_odom) - before).norm() << " m";
+  } else {
+    m << "aligned to UTM zone " << options_.zone.Name() << " on " << a.inliers << " fixes over "
+      << a.extent_m << " m (" << a.outliers << " outliers): heading "
+      << a.T_enu_odom.yaw_rad * 180.0 / M_PI << " deg, RMS " << a.rms_m << " m";
+  }
+  if (info_) info_(m.str());
+}
+
+void GnssFusion::AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu) {
+  const Eigen::Isometry3d& T_odom_body = pair.T_odom_body;
+  Node n;
+  n.p_odom = T_odom_body.translation();
+  n.yaw_odom = YawOf(T_odom_body.linear());
+  n.distance_m = pair.distance_m;
+  n.t_s = pair.t_s;
+  n.fix_enu = fix_enu;
+  n.antenna_levelled = Rz(-n.yaw_odom) * T_odom_body.linear() * options_.p_body_antenna;
+  const Eigen::Isometry3d T = correction_.Apply(T_odom_body);
+  n.x[0] = T.translation().x();
+  n.x[1] = T.translation().y();
+  n.x[2] = T.translation().z();
+  n.x[3] = YawOf(T.linear());
+  nodes_.push_back(n);
+  while (static_cast<int>(nodes_.size()) > options_.max_nodes) {
+    nodes_.pop_front();
+    nodes_dropped_ = true;
+  }
+}
+
+void GnssFusion::Optimize() {
+  if (nodes_.size() >= 2) {
+    ceres::Problem::Options problem_options;
+    ceres::Problem problem(problem_options);
+    for (Node& n : nodes_) problem.AddParameterBlock(n.x, 4);
+    // The odometry's systematic drift over the window, with a weak prior at zero.
+    problem.AddResidualBlock(
+        new ceres::NormalPrior(Eigen::Vector2d(1.0 / options_.scale_prior_sigma,
+                                               1.0 / options_.heading_drift_prior_sigma_rad_per_m)
+                                   .asDiagonal()
+                                   .toDenseMatrix(),
+                               ceres::Vector::Zero(2)),
+        nullptr,
+        drift_);
+    // Every node is free: its fix places it, the odometry links orient it. Once older nodes
+    // have left the graph, the oldest keeps what they told it as a soft prior.
+    if (nodes_dropped_) {
+      const Node& o = nodes_.front();
+      problem.AddResidualBlock(new GnssPositionFactor(Eigen::Vector3d(o.x[0], o.x[1], o.x[2]),
+                                                      Eigen::Vector3d::Zero(),
+                                                      0.5 * options_.sigma_horizontal_m,
+                                                      0.5 * options_.sigma_vertical_m),
+                               nullptr,
+                               nodes_.front().x);
+    }
+    for (size_t k = 0; k < nodes_.size(); ++k) {
+      Node& n = nodes_[k];
+      problem.AddResidualBlock(new GnssPositionFactor(n.fix_enu,
+                                                      n.antenna_levelled,
+                                                      options_.sigma_horizontal_m,
+                                                      options_.sigma_vertical_m),
+                               new ceres::CauchyLoss(2.0),
+                               n.x);
+      if (k == 0) continue;
+      Node& prev = nodes_[k - 1];
+      const double dist = std::max(0.0, n.distance_m - prev.distance_m);
+      const Eigen::Vector3d dp = Rz(-prev.yaw_odom) * (n.p_odom - prev.p_odom);
+      problem.AddResidualBlock(new FourDofBetweenFactor(dp,
+                                                        WrapAngle(n.yaw_odom - prev.yaw_odom),
+                                                        dist,
+                                                        options_.drift_fraction * dist + 0.05,
+                                                        options_.yaw_drift_rad_per_m * dist + 1e-4),
+                               nullptr,
+                               prev.x,
+                               n.x,
+                               drift_);
+    }
+    ceres::Solver::Options solver_options;
+    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    solver_options.max_num_iterations = 20;
+    solver_options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(solver_options, &problem, &summary);
+  }
+  // The correction maps the newest node's odometry pose onto its georeferenced one.
+  const Node& n = nodes_.back();
+  correction_ = NodeCorrection(n);
+}
+
+GnssFusion::Correction GnssFusion::NodeCorrection(const Node& n) const {
+  Correction c;
+  c.anchor_odom = n.p_odom;
+  c.anchor_enu = Eigen::Vector3d(n.x[0], n.x[1], n.x[2]);
+  c.anchor_yaw_odom = n.yaw_odom;
+  c.yaw_rad = WrapAngle(n.x[3] - n.yaw_odom);
+  c.ln_scale = drift_[0];
+  c.yaw_rate = drift_[1];
+  return c;
+}
+
+Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body) const {
+  return correction_.Apply(T_odom_body);
+}
+
+Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double t_s) const {
+  if (nodes_.size() < 2 || t_s >= nodes_.back().t_s) return correction_.Apply(T_odom_body);
+  if (t_s <= nodes_.front().t_s) return NodeCorrection(nodes_.front()).Apply(T_odom_body);
+  size_t k = 1;
+  while (nodes_[k].t_s < t_s) ++k;
+  // Between two nodes: each carries the pose with the drift-corrected odometry, and the two
+  // are blended by time, so the trajectory runs smoothly from one node to the next.
+  const Node& a = nodes_[k - 1];
+  const Node& b = nodes_[k];
+  const Correction ca = NodeCorrection(a), cb = NodeCorrection(b);
+  const Eigen::Isometry3d A = ca.Apply(T_odom_body), B = cb.Apply(T_odom_body);
+  const double w = (t_s - a.t_s) / (b.t_s - a.t_s);
+  const double yaw_a = YawOf(A.linear() * T_odom_body.linear().transpose());
+  const double yaw_b = YawOf(B.linear() * T_odom_body.linear().transpose());
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Rz(yaw_a + w * WrapAngle(yaw_b - yaw_a)) * T_odom_body.linear();
+  T.translation() = (1.0 - w) * A.translation() + w * B.translation();
+  return T;
+}
+
+double GnssFusion::settled_until_s() const {
+  return aligned_ && !nodes_.empty() ? nodes_.back().t_s : -std::numeric_limits<double>::infinity();
+}
+
+}  // namespace raillomer

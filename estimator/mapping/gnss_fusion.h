@@ -1,0 +1,169 @@
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "estimator/geo/gnss.h"
+#include "estimator/io/sensor_messages.h"
+
+namespace raillomer {
+
+/// Options of the GNSS fusion (paper IV.A and IV.D).
+struct GnssFusionOptions {
+  geo::UtmZone zone;                                         ///< the run's zone (rig utm_zone)
+  Eigen::Vector3d p_body_antenna = Eigen::Vector3d::Zero();  ///< antenna lever arm, body frame
+  /// A GNSS factor joins the pose graph at most this often (paper: every 10 s).
+  double factor_period_s = 10.0;
+  /// The factor's fix is the median of the accepted fixes in a window of this length centred
+  /// on the factor's epoch, each carried to the epoch by the odometry: enough fixes to outvote
+  /// a multipath jump that got through the gate. The factor joins the graph half a window
+  /// after its epoch.
+  double factor_window_s = 10.0;
+  /// The noise the factor assumes. The receiver's reported covariance is not used: SPP
+  /// receivers claim decimetres while their errors wander by metres over minutes.
+  double sigma_horizontal_m = 1.0;
+  double sigma_vertical_m = 2.5;
+  /// Fixes whose horizontal distance from the prediction exceeds gate_m plus three times the
+  /// odometry drift since the last accepted fix are multipath outliers.
+  double gate_m = 5.0;
+  /// Odometry drift assumed per metre travelled: position (fraction) and heading (rad/m).
+  double drift_fraction = 0.005;
+  double yaw_drift_rad_per_m = 5e-6;
+  /// The graph also estimates the odometry's systematic drift over its window, a scale error
+  /// and a heading drift per metre, with these prior spreads around zero; the newest estimate
+  /// also corrects the poses after the newest node.
+  double scale_prior_sigma = 0.01;
+  double heading_drift_prior_sigma_rad_per_m = 2e-5;
+  int max_nodes = 60;  ///< pose-graph nodes kept (one per factor)
+  /// After this many consecutive rejected fixes that agree with each other within
+  /// 2 * sigma_horizontal_m, the alignment is re-solved on the recent fixes.
+  int resolve_after_rejections = 8;
+  double resolve_window_s = 60.0;
+  geo::GnssAlignmentOptions alignment;
+  geo::FixCheckOptions check;
+};
+
+/// Counters of the GNSS fusion.
+struct GnssFusionStats {
+  uint64_t fixes = 0;     ///< usable fixes received
+  uint64_t rejected = 0;  ///< unusable fixes (see warnings for the reasons)
+  uint64_t outliers = 0;  ///< usable fixes gated out as multipath
+  uint64_t factors = 0;   ///< GNSS factors added
+  uint64_t realignments = 0;
+};
+
+/// Georeferences the odometry with GNSS: aligns the odometry frame to UTM in 4-DoF once the
+/// train has moved far enough (eq. 3-6), then keeps a 4-DoF pose graph of the odometry at the
+/// fix epochs with a GNSS factor every factor_period_s (eq. 31, robust Cauchy loss behind an
+/// innovation gate; its fix is the median of the period's accepted fixes, carried to the
+/// factor's epoch by the odometry), and maps each odometry pose into a local ENU frame (UTM minus
+/// origin_utm) with the newest correction. The odometry itself is not changed: its local map stays
+/// consistent, and the correction is a smooth 4-DoF drift removal on top.
+class GnssFusion {
+ public:
+  /// `warn` gets problems (rejected fixes, outliers), `info` the alignments; either may be
+  /// empty.
+  GnssFusion(const GnssFusionOptions& options,
+             std::function<void(const std::string&)> warn,
+             std::function<void(const std::string&)> info);
+
+  /// A fix from the receiver (any order relative to the odometry, within a few seconds).
+  void AddFix(const io::GnssFix& fix);
+  /// A final odometry pose (time order). Fixes up to this time are processed.
+  void AddOdometry(int64_t stamp_ns, const Eigen::Isometry3d& T_odom_body);
+
+  bool aligned() const { return aligned_; }
+  /// UTM (easting, northing, height) of the local ENU frame's origin; valid once aligned.
+  const Eigen::Vector3d& origin_utm() const { return origin_utm_; }
+  /// An odometry pose in the local ENU frame with the newest correction (valid once aligned).
+  Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body) const;
+  /// The same for a pose at time t_s, smoothed: a pose between two nodes of the graph is
+  /// carried from both and blended, so the drift between them is spread over the span instead
+  /// of showing as a jump at the newer node. Poses after the newest node are extrapolated.
+  Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body, double t_s) const;
+  /// Poses up to this time lie between nodes of the graph (-inf before the first).
+  double settled_until_s() const;
+  const GnssFusionStats& stats() const { return stats_; }
+  /// The UTM zone in use (the rig's, or the first fix's standard zone).
+  const geo::UtmZone& zone() const { return options_.zone; }
+  /// Why the alignment has not happened yet (empty once aligned).
+  const std::string& pending_reason() const { return pending_reason_; }
+
+ private:
+  struct Pair {
+    double t_s;
+    Eigen::Isometry3d T_odom_body;  ///< odometry pose at the fix epoch
+    Eigen::Vector3d antenna_odom;   ///< odometry antenna position at the fix epoch
+    Eigen::Vector3d fix_enu;
+    double distance_m;     ///< odometry path length at the fix epoch
+    bool outlier = false;  ///< gated out as multipath
+  };
+  struct Node {
+    double x[4];             ///< georeferenced [x, y, z, yaw] (ENU)
+    Eigen::Vector3d p_odom;  ///< odometry position
+    double yaw_odom = 0.0;   ///< odometry yaw
+    double distance_m = 0.0;
+    double t_s = 0.0;
+    Eigen::Vector3d fix_enu;           ///< the node's GNSS fix
+    Eigen::Vector3d antenna_levelled;  ///< lever arm rotated by roll and pitch
+  };
+  /// Odometry -> ENU: the newest node's 4-DoF pose, with the odometry's estimated drift
+  /// removed from the motion since that node (u: signed path length from the anchor, taken as
+  /// the chord length, negative behind it).
+  struct Correction {
+    Eigen::Vector3d anchor_odom = Eigen::Vector3d::Zero();
+    Eigen::Vector3d anchor_enu = Eigen::Vector3d::Zero();
+    double anchor_yaw_odom = 0.0;
+    double yaw_rad = 0.0;   ///< ENU yaw minus odometry yaw at the anchor
+    double ln_scale = 0.0;  ///< odometry scale error (log)
+    double yaw_rate = 0.0;  ///< heading correction per metre from the anchor
+    double SignedLength(const Eigen::Vector3d& p_odom) const;
+    Eigen::Vector3d Apply(const Eigen::Vector3d& p_odom) const;
+    Eigen::Isometry3d Apply(const Eigen::Isometry3d& T_odom) const;
+  };
+  Correction NodeCorrection(const Node& n) const;
+  void Process(const Pair& pair);
+  /// Gates a fix against the prediction and, at a factor epoch, adds a node and re-solves.
+  /// Returns the horizontal innovation, or NaN for an outlier.
+  Eigen::Vector2d Fuse(const Pair& pair);
+  double Gate(const Pair& pair) const;
+  bool OdometryAt(double t_s, Eigen::Isometry3d* T, double* distance_m) const;
+  void Align(const std::vector<Pair>& pairs, bool resolve);
+  void AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu);
+  void Optimize();
+  void Warn(const std::string& key, const std::string& message);
+
+  GnssFusionOptions options_;
+  std::function<void(const std::string&)> warn_, info_;
+  GnssFusionStats stats_;
+  std::map<std::string, uint64_t> warning_counts_;
+
+  std::deque<std::pair<double, Eigen::Vector3d>> pending_fixes_;  ///< (t, utm) not yet paired
+  std::deque<std::pair<double, Eigen::Isometry3d>> odometry_;     ///< recent poses
+  std::deque<double> odometry_distance_m_;
+  double distance_m_ = 0.0;
+  bool have_origin_ = false;
+  Eigen::Vector3d origin_utm_ = Eigen::Vector3d::Zero();
+  std::deque<Pair> pairs_;  ///< recent fixes with their odometry (alignment and re-solving)
+
+  bool aligned_ = false;
+  std::string pending_reason_ = "no usable GNSS fix yet";
+  Correction correction_;
+  double drift_[2] = {0.0, 0.0};  ///< [ln scale, heading rate] of the odometry (window)
+  std::deque<Node> nodes_;
+  bool nodes_dropped_ = false;          ///< the graph has slid: the oldest node carries a prior
+  double last_factor_period_ = -1e300;  ///< floor(t / factor_period_s) of the newest factor
+  std::deque<Pair> accepted_;           ///< accepted fixes of the last factor_window_s
+  bool node_pending_ = false;           ///< a factor epoch waits for the fixes after it
+  Pair pending_epoch_{};
+  double last_accept_distance_m_ = 0.0;
+  std::vector<Eigen::Vector2d> rejected_innovations_;
+};
+
+}  // namespace raillomer

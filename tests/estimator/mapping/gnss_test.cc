@@ -1,0 +1,278 @@
+// GNSS georeferencing on generated data with known answers.
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "estimator/factors/gnss_factors.h"
+#include "estimator/geo/gnss.h"
+#include "estimator/mapping/gnss_fusion.h"
+
+namespace raillomer {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+io::GnssFix FixAt(const geo::UtmZone& zone, const Eigen::Vector3d& utm, int64_t stamp_ns) {
+  io::GnssFix fix;
+  fix.stamp_ns = stamp_ns;
+  const Eigen::Vector2d ll = geo::UtmToGeographic(zone, utm.x(), utm.y());
+  fix.latitude_deg = ll.x();
+  fix.longitude_deg = ll.y();
+  fix.altitude_m = utm.z();
+  return fix;
+}
+
+TEST(GnssFix, UnusableFixesAreRejectedWithTheReason) {
+  geo::UtmZone zone;
+  ASSERT_TRUE(geo::ParseZone("50N", &zone));
+  EXPECT_EQ(zone.zone, 50);
+  EXPECT_TRUE(zone.north);
+  geo::UtmZone bad;
+  EXPECT_FALSE(geo::ParseZone("61N", &bad));
+  EXPECT_FALSE(geo::ParseZone("50X", &bad));
+  EXPECT_FALSE(geo::ParseZone("N", &bad));
+
+  const geo::FixCheckOptions options;
+  const io::GnssFix good = FixAt(zone, {432000.0, 3585000.0, 30.0}, 0);
+  Eigen::Vector3d utm;
+  EXPECT_EQ(geo::CheckFix(good, zone, options, &utm), "");
+  EXPECT_NEAR(utm.x(), 432000.0, 1e-3);
+  EXPECT_NEAR(utm.y(), 3585000.0, 1e-3);
+
+  auto reason = [&](io::GnssFix f) { return geo::CheckFix(f, zone, options, &utm); };
+  io::GnssFix f = good;
+  f.latitude_deg = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(reason(f).find("NaN"), std::string::npos);
+  f = good;
+  f.latitude_deg = 0.0;
+  f.longitude_deg = 0.0;
+  EXPECT_NE(reason(f).find("both 0"), std::string::npos);
+  f = good;
+  f.altitude_m = 1e6;
+  EXPECT_NE(reason(f).find("absurd height"), std::string::npos);
+  f = good;
+  f.latitude_deg = -f.latitude_deg;
+  EXPECT_NE(reason(f).find("southern hemisphere"), std::string::npos);
+  f = good;
+  f.longitude_deg += 20.0;
+  EXPECT_NE(reason(f).find("outside UTM zone 50N"), std::string::npos);
+  f = good;
+  f.longitude_deg = 121.5;  // 1.5 deg past the zone's edge: a line that runs on is still usable
+  EXPECT_EQ(reason(f), "");
+  f = good;
+  f.status = -1;
+  EXPECT_NE(reason(f).find("no fix"), std::string::npos);
+}
+
+TEST(GnssAlignment, RecoversAKnownYawAndOffsetDespiteMultipath) {
+  // Odometry along a gentle curve; the fixes are the same path turned by 37 deg, shifted, with
+  // 0.3 m noise and every 7th fix thrown 5-30 m by multipath.
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  const geo::FourDof truth{37.0 * kDeg, Eigen::Vector3d(120.0, -45.0, 3.0)};
+  std::vector<Eigen::Vector3d> odom, enu;
+  for (int k = 0; k < 60; ++k) {
+    const double s = 5.0 * k;
+    const Eigen::Vector3d p(s, 0.0005 * s * s, 0.01 * s);
+    odom.push_back(p);
+    Eigen::Vector3d z = truth.Apply(p) + Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+    if (k % 7 == 3) {
+      const double a = 2.0 * M_PI * uniform(rng), m = 5.0 + 25.0 * uniform(rng);
+      z += Eigen::Vector3d(m * std::cos(a), m * std::sin(a), 0.0);
+    }
+    enu.push_back(z);
+  }
+  const geo::GnssAlignment a = geo::AlignToGnss(odom, enu, geo::GnssAlignmentOptions());
+  ASSERT_TRUE(a.ok) << a.reason;
+  EXPECT_NEAR(a.T_enu_odom.yaw_rad, truth.yaw_rad, 0.1 * kDeg);
+  EXPECT_LT((a.T_enu_odom.t - truth.t).head<2>().norm(), 0.5);
+  EXPECT_NEAR(a.T_enu_odom.t.z(), truth.t.z(), 0.2);
+  EXPECT_EQ(a.outliers, 9);
+  EXPECT_LT(a.rms_m, 0.6);
+
+  // Too short a baseline: no alignment, and the reason says how far the train has moved.
+  std::vector<Eigen::Vector3d> short_odom(odom.begin(), odom.begin() + 12);
+  std::vector<Eigen::Vector3d> short_enu(enu.begin(), enu.begin() + 12);
+  const geo::GnssAlignment s = geo::AlignToGnss(short_odom, short_enu, geo::GnssAlignmentOptions());
+  EXPECT_FALSE(s.ok);
+  EXPECT_NE(s.reason.find("has moved 55 m of the 100 m"), std::string::npos) << s.reason;
+}
+
+/// Central differences of a cost over plain (Euclidean) parameter blocks.
+void ExpectJacobiansMatchNumeric(const ceres::CostFunction& cost,
+                                 std::vector<std::vector<double>> blocks) {
+  const int m = cost.num_residuals();
+  std::vector<double*> params;
+  for (auto& b : blocks) params.push_back(b.data());
+  std::vector<std::vector<double>> analytic(blocks.size());
+  std::vector<double*> jac;
+  for (size_t k = 0; k < blocks.size(); ++k) {
+    analytic[k].resize(static_cast<size_t>(m) * blocks[k].size());
+    jac.push_back(analytic[k].data());
+  }
+  std::vector<double> r(static_cast<size_t>(m)), rp(r), rm(r);
+  ASSERT_TRUE(cost.Evaluate(params.data(), r.data(), jac.data()));
+  const double h = 1e-6;
+  for (size_t k = 0; k < blocks.size(); ++k) {
+    for (size_t c = 0; c < blocks[k].size(); ++c) {
+      const double x = blocks[k][c];
+      blocks[k][c] = x + h;
+      cost.Evaluate(params.data(), rp.data(), nullptr);
+      blocks[k][c] = x - h;
+      cost.Evaluate(params.data(), rm.data(), nullptr);
+      blocks[k][c] = x;
+      for (int i = 0; i < m; ++i) {
+        const double numeric = (rp[i] - rm[i]) / (2.0 * h);
+        EXPECT_NEAR(analytic[k][static_cast<size_t>(i) * blocks[k].size() + c], numeric, 1e-6)
+            << "block " << k << " row " << i << " column " << c;
+      }
+    }
+  }
+}
+
+TEST(GnssFactors, JacobiansMatchNumericDifferentiation) {
+  const GnssPositionFactor gnss(
+      Eigen::Vector3d(10.0, -3.0, 2.0), Eigen::Vector3d(0.4, -0.2, 0.3), 1.0, 2.5);
+  ExpectJacobiansMatchNumeric(gnss, {{9.0, -2.5, 1.0, 0.7}});
+  const FourDofBetweenFactor between(Eigen::Vector3d(30.0, 1.0, 0.3), 0.02, 31.0, 0.2, 1e-3);
+  ExpectJacobiansMatchNumeric(between,
+                              {{1.0, 2.0, 0.5, 2.9}, {-20.0, 27.0, 0.9, 3.05}, {0.003, 2e-3}});
+}
+
+TEST(GnssFactors, TheGnssFactorIsZeroAtTheAntenna) {
+  // The antenna 0.3 m up and 1 m forward of a body at yaw 90 deg sits 1 m north of it.
+  const GnssPositionFactor f(
+      Eigen::Vector3d(5.0, 6.0, 7.3), Eigen::Vector3d(1.0, 0.0, 0.3), 1.0, 2.0);
+  const double x[4] = {5.0, 5.0, 7.0, M_PI / 2.0};
+  const double* p[1] = {x};
+  double r[3];
+  ASSERT_TRUE(f.Evaluate(p, r, nullptr));
+  EXPECT_NEAR(Eigen::Vector3d(r[0], r[1], r[2]).norm(), 0.0, 1e-12);
+}
+
+/// A run through GnssFusion: odometry along a 6 km line with a curve, drifting in heading
+/// (0.3 deg over the run) and scale (0.1 %), and 1 Hz fixes of the true antenna position with
+/// 0.3 m noise; `outlier_every` > 0 throws every n-th fix 5-30 m off. Returns the georeferenced
+/// positions at every odometry pose after the alignment, and the truth beside them.
+struct FusionRun {
+  std::vector<Eigen::Vector3d> estimate, truth;
+  /// After the run: the poses between the first and the newest node, smoothed, and the truth.
+  std::vector<Eigen::Vector3d> smoothed, smoothed_truth;
+  GnssFusionStats stats;
+};
+
+FusionRun RunFusion(int outlier_every) {
+  GnssFusionOptions options;
+  options.zone.zone = 50;
+  options.zone.north = true;
+  options.p_body_antenna = Eigen::Vector3d(0.0, 0.0, 0.3);
+  FusionRun run;
+  GnssFusion fusion(options, nullptr, nullptr);
+  const Eigen::Vector3d origin(432000.0, 3585000.0, 30.0);
+  const double speed = 30.0, heading0 = 0.6;
+  // Separate generators: the runs with and without outliers see the same receiver noise.
+  std::mt19937 rng(11), multipath_rng(12);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  auto true_pose = [&](double t) {
+    // Straight, then a 2 km curve of radius 3 km, then straight.
+    const double s = speed * t;
+    double heading = heading0, x = 0.0, y = 0.0;
+    const double ds = 1.0;
+    for (double u = 0.0; u < s; u += ds) {
+      const double step = std::min(ds, s - u);
+      if (u > 1500.0 && u < 3500.0) heading += step / 3000.0;
+      x += step * std::cos(heading);
+      y += step * std::sin(heading);
+    }
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T.translation() = Eigen::Vector3d(x, y, 0.002 * s);
+    return T;
+  };
+  int fix_count = 0;
+  std::vector<std::pair<double, Eigen::Isometry3d>> odometry;
+  std::vector<Eigen::Vector3d> truth;
+  Eigen::Isometry3d odom = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d prev_truth = true_pose(0.0);
+  for (int k = 0; k <= 2000; ++k) {  // 200 s at 10 Hz
+    const double t = 0.1 * k;
+    const int64_t stamp = static_cast<int64_t>(std::llround(t * 1e9));
+    const Eigen::Isometry3d T = true_pose(t);
+    // Odometry: the true increment, 0.1 % long and turning 1e-6 rad per metre too much.
+    Eigen::Isometry3d inc = prev_truth.inverse() * T;
+    inc.translation() *= 1.001;
+    inc.linear() =
+        Eigen::AngleAxisd(1e-6 * inc.translation().norm(), Eigen::Vector3d::UnitZ()) * inc.linear();
+    odom = odom * inc;
+    prev_truth = T;
+    if (k % 10 == 0) {
+      Eigen::Vector3d z =
+          origin + T * options.p_body_antenna + Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+      if (outlier_every > 0 && ++fix_count % outlier_every == 0) {
+        const double a = 2.0 * M_PI * uniform(multipath_rng);
+        const double m = 5.0 + 25.0 * uniform(multipath_rng);
+        z += Eigen::Vector3d(m * std::cos(a), m * std::sin(a), 0.0);
+      }
+      fusion.AddFix(FixAt(options.zone, z, stamp));
+    }
+    fusion.AddOdometry(stamp, odom);
+    odometry.emplace_back(t, odom);
+    truth.push_back(origin + T.translation());
+    if (fusion.aligned()) {
+      run.estimate.push_back(fusion.ToEnu(odom).translation() + fusion.origin_utm());
+      run.truth.push_back(origin + T.translation());
+    }
+  }
+  run.stats = fusion.stats();
+  for (size_t i = 0; i < odometry.size(); ++i) {
+    if (!fusion.aligned() || odometry[i].first > fusion.settled_until_s()) continue;
+    run.smoothed.push_back(fusion.ToEnu(odometry[i].second, odometry[i].first).translation() +
+                           fusion.origin_utm());
+    run.smoothed_truth.push_back(truth[i]);
+  }
+  return run;
+}
+
+double MaxError(const std::vector<Eigen::Vector3d>& estimate,
+                const std::vector<Eigen::Vector3d>& truth) {
+  double worst = 0.0;
+  for (size_t i = 0; i < estimate.size(); ++i)
+    worst = std::max(worst, (estimate[i] - truth[i]).norm());
+  return worst;
+}
+
+TEST(GnssFusion, KeepsADriftingOdometryOnTheFixes) {
+  const FusionRun run = RunFusion(0);
+
+  ASSERT_GT(run.estimate.size(), 1900u);  // aligned within the first 100 m or so
+  EXPECT_GE(run.stats.factors, 18u);
+  EXPECT_EQ(run.stats.outliers, 0u);
+  // Without GNSS the odometry is about 20 m off after 6 km; with it, within a metre as the
+  // poses come (extrapolated from the newest node), and within half that once smoothed
+  // between nodes.
+  EXPECT_LT(MaxError(run.estimate, run.truth), 1.0);
+  ASSERT_GT(run.smoothed.size(), 1800u);
+  EXPECT_LT(MaxError(run.smoothed, run.smoothed_truth), 0.5);
+}
+
+TEST(GnssFusion, MultipathJumpsLeaveTheTrajectoryAlone) {
+  const FusionRun clean = RunFusion(0);
+  const FusionRun jumpy = RunFusion(5);  // every 5th fix 5-30 m off
+  // The outliers may delay the alignment by a few fixes: compare the poses both runs have.
+  ASSERT_GT(jumpy.estimate.size(), 1800u);
+  EXPECT_GE(jumpy.stats.outliers, 30u);
+  const size_t offset = clean.estimate.size() - jumpy.estimate.size();
+  double worst = 0.0;
+  for (size_t i = 0; i < jumpy.estimate.size(); ++i)
+    worst = std::max(worst, (clean.estimate[i + offset] - jumpy.estimate[i]).norm());
+  EXPECT_LT(worst, 0.5);
+  EXPECT_LT(MaxError(jumpy.estimate, jumpy.truth), 1.0);
+  EXPECT_LT(MaxError(jumpy.smoothed, jumpy.smoothed_truth), 0.5);
+}
+
+}  // namespace
+}  // namespace raillomer

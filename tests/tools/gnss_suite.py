@@ -1,0 +1,239 @@
+#!/usr/bin/python3
+"""Runs raillomer-estimator with GNSS on simulated scenarios and scores each run in UTM against
+the truth with no post-alignment (raillomer-eval --align none): ATE RMSE and MAX, the largest
+error inside GNSS outages, and beside them the GNSS bound of the run.
+
+The GNSS bound is what an estimator with perfect odometry would reach: the truth moved by the
+4-DoF transform (yaw and offset) that best fits the receiver's fixes, multipath excluded, scored
+like the estimate. With a single-point receiver whose error wanders by a metre over minutes,
+this is the floor for any estimator that has no other absolute reference; the estimate can only
+come near it.
+
+Usage:
+  /usr/bin/python3 tests/tools/gnss_suite.py [--build build] [--out runs/gnss]
+      [--scenarios all|extra|NAME[,NAME...]] [--seed N] [--duration S] [--markdown FILE]
+      [--check]
+
+With --check the exit status is 1 when a run misses a target of issue 4 (ATE RMSE 0.25 m,
+MAX 1.0 m, MAX 1.5 m inside an outage) or is not georeferenced.
+"""
+import argparse
+import bisect
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from estimator_suite import ROOT, builtin_scenarios, extra_scenarios  # noqa: E402
+
+ATE_TARGET_M, MAX_TARGET_M, OUTAGE_MAX_TARGET_M = 0.25, 1.0, 1.5
+OUTAGE_GAP_S = 5.0  # no fix for this long: the receiver is out
+
+
+def read_tum(path):
+    poses = []
+    with open(path) as f:
+        for line in f:
+            if line.startswith("#") or not line.strip():
+                continue
+            v = line.split()
+            poses.append((float(v[0]), (float(v[1]), float(v[2]), float(v[3]))))
+    return poses
+
+
+class Interpolator:
+    def __init__(self, poses):
+        self.poses = poses
+        self.stamps = [t for t, _ in poses]
+
+    def at(self, t):
+        """Position at t, or None outside the span."""
+        if not self.poses or t < self.stamps[0] or t > self.stamps[-1]:
+            return None
+        i = min(max(bisect.bisect_left(self.stamps, t), 1), len(self.stamps) - 1)
+        (t0, a), (t1, b) = self.poses[i - 1], self.poses[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 0.0
+        return tuple(a[k] + f * (b[k] - a[k]) for k in range(3))
+
+
+def fit_four_dof(src, dst):
+    """Yaw and offset taking src onto dst (least squares; horizontal rotation only)."""
+    n = len(src)
+    ms = [sum(p[k] for p in src) / n for k in range(3)]
+    md = [sum(p[k] for p in dst) / n for k in range(3)]
+    sxx = sxy = syx = syy = 0.0
+    for s, d in zip(src, dst):
+        ax, ay, bx, by = s[0] - ms[0], s[1] - ms[1], d[0] - md[0], d[1] - md[1]
+        sxx += ax * bx
+        sxy += ax * by
+        syx += ay * bx
+        syy += ay * by
+    yaw = math.atan2(sxy - syx, sxx + syy)
+    c, s_ = math.cos(yaw), math.sin(yaw)
+    t = (md[0] - (c * ms[0] - s_ * ms[1]), md[1] - (s_ * ms[0] + c * ms[1]), md[2] - ms[2])
+    return yaw, t
+
+
+def apply(yaw, t, p):
+    c, s = math.cos(yaw), math.sin(yaw)
+    return (c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1], p[2] + t[2])
+
+
+def gnss_bound(truth, fixes, antenna_up_m):
+    """ATE RMSE and MAX (m) of the truth moved by its best 4-DoF fit to the fixes."""
+    ti = Interpolator(truth)
+    src, dst = [], []
+    for t, p in fixes:
+        q = ti.at(t)
+        if q is not None:
+            src.append((q[0], q[1], q[2] + antenna_up_m))
+            dst.append(p)
+    if len(src) < 3:
+        return None
+    keep = list(range(len(src)))
+    for _ in range(4):  # drop multipath (5-30 m) and refit
+        yaw, t = fit_four_dof([src[i] for i in keep], [dst[i] for i in keep])
+        r = [math.dist(apply(yaw, t, src[i])[:2], dst[i][:2]) for i in range(len(src))]
+        keep = [i for i in range(len(src)) if r[i] < 4.0] or keep
+    errors = [math.dist(apply(yaw, t, p), p) for _, p in truth[::10]]
+    return math.sqrt(sum(e * e for e in errors) / len(errors)), max(errors)
+
+
+def outage_max(estimate, truth, fixes):
+    """Largest 3D error of the estimate while the receiver had no fix for OUTAGE_GAP_S, or None."""
+    stamps = [t for t, _ in fixes]
+    gaps = [(a, b) for a, b in zip(stamps, stamps[1:]) if b - a > OUTAGE_GAP_S]
+    if stamps and estimate and estimate[-1][0] - stamps[-1] > OUTAGE_GAP_S:
+        gaps.append((stamps[-1], estimate[-1][0] + 1.0))
+    if not gaps:
+        return None
+    ti = Interpolator(truth)
+    worst = 0.0
+    for t, p in estimate:
+        if any(a < t < b for a, b in gaps):
+            q = ti.at(t)
+            if q is not None:
+                worst = max(worst, math.dist(p, q))
+    return worst
+
+
+def antenna_up(rig_yaml_text):
+    # The simulator's antenna sits straight above the body origin (gnss.antenna_m: [0, 0, h]).
+    for line in rig_yaml_text.splitlines():
+        if "antenna_m:" in line:
+            return float(line.split("[")[1].split("]")[0].split(",")[2])
+    return 0.0
+
+
+def run_one(build, out_root, scenario, seed, duration):
+    label = os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
+    out = os.path.join(out_root, label)
+    cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
+           "--quiet", "--no-keyframes"]
+    if seed is not None:
+        cmd += ["--seed", str(seed)]
+    if duration:
+        cmd += ["--duration", str(duration)]
+    t0 = time.time()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0 and duration and "exceeds the scenario's motion profile" in proc.stderr:
+        cmd = cmd[:cmd.index("--duration")] + cmd[cmd.index("--duration") + 2:]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+    row = {"scenario": label, "wall_s": time.time() - t0}
+    if proc.returncode != 0:
+        row["error"] = proc.stderr.strip().splitlines()[-2:] if proc.stderr else ["exit %d" % proc.returncode]
+        return row
+    with open(os.path.join(out, "summary.json")) as f:
+        s = json.load(f)
+    row.update(georeferenced=s.get("georeferenced", False), gnss=s.get("gnss", {}), rtf=s["real_time_factor"],
+               peak_rss_mb=s["peak_rss_mb"])
+    if not row["georeferenced"]:
+        row["error"] = ["not georeferenced"]
+        return row
+    ev = subprocess.run([os.path.join(build, "bin", "raillomer-eval"), "--estimate", os.path.join(out, "trajectory.tum"),
+                         "--truth", os.path.join(out, "truth.tum"), "--align", "none",
+                         "--json", os.path.join(out, "eval.json"), "--plot", os.path.join(out, "eval.svg")],
+                        capture_output=True, text=True)
+    if ev.returncode != 0:
+        row["error"] = [ev.stderr.strip()]
+        return row
+    with open(os.path.join(out, "eval.json")) as f:
+        e = json.load(f)
+    truth = read_tum(os.path.join(out, "truth.tum"))
+    fixes = read_tum(os.path.join(out, "gnss.tum"))
+    estimate = read_tum(os.path.join(out, "trajectory.tum"))
+    rig = subprocess.run([os.path.join(build, "bin", "raillomer-sim"), "--scenario", scenario, "--print-scenario"],
+                         capture_output=True, text=True).stdout if not scenario.endswith(".yaml") else open(scenario).read()
+    bound = gnss_bound(truth, fixes, antenna_up(rig) if "antenna_m" in rig else 0.3)
+    row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
+               outage_max_m=outage_max(estimate, truth, fixes),
+               bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None)
+    return row
+
+
+def fmt(v, digits=2):
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def markdown(rows):
+    lines = ["| scenario | distance (km) | ATE RMSE (m) | MAX (m) | MAX in outage (m) | GNSS bound RMSE / MAX (m) "
+             "| GNSS factors | multipath rejected | RTF | peak RSS (MB) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['scenario']} | failed: {' '.join(r['error'])} | | | | | | | | |")
+            continue
+        lines.append(f"| {r['scenario']} | {r['distance_m'] / 1000:.2f} | {r['ate_m']:.2f} | {r['max_m']:.2f} | "
+                     f"{fmt(r['outage_max_m'])} | {fmt(r['bound_ate_m'])} / {fmt(r['bound_max_m'])} | "
+                     f"{r['gnss'].get('factors', 0)} | {r['gnss'].get('outliers', 0)} | {r['rtf']:.2f} | "
+                     f"{r['peak_rss_mb']:.0f} |")
+    return "\n".join(lines)
+
+
+def misses(row):
+    if "error" in row:
+        return True
+    return (row["ate_m"] > ATE_TARGET_M or row["max_m"] > MAX_TARGET_M or
+            (row["outage_max_m"] is not None and row["outage_max_m"] > OUTAGE_MAX_TARGET_M))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
+    ap.add_argument("--out", default=os.path.join(ROOT, "runs", "gnss"))
+    ap.add_argument("--scenarios", default="all")
+    ap.add_argument("--seed", type=int)
+    ap.add_argument("--duration", type=float)
+    ap.add_argument("--markdown")
+    ap.add_argument("--check", action="store_true")
+    a = ap.parse_args()
+    if a.scenarios == "all":
+        runs = [(n, None) for n in builtin_scenarios(a.build)] + extra_scenarios()
+    elif a.scenarios == "extra":
+        runs = extra_scenarios()
+    else:
+        runs = [(n, a.seed) for n in a.scenarios.split(",")]
+    rows = []
+    for scenario, seed in runs:
+        row = run_one(a.build, a.out, scenario, seed, a.duration)
+        rows.append(row)
+        if "error" in row:
+            print(f"{row['scenario']:34s} FAILED {' '.join(row['error'])}", flush=True)
+        else:
+            print(f"{row['scenario']:34s} {row['distance_m'] / 1000:6.2f} km  ATE {row['ate_m']:.2f} m  "
+                  f"MAX {row['max_m']:.2f} m  outage MAX {fmt(row['outage_max_m'])} m  "
+                  f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  RTF {row['rtf']:.2f}", flush=True)
+    table = markdown(rows)
+    print(table)
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write(table + "\n")
+    if a.check:
+        sys.exit(1 if any(misses(r) for r in rows) else 0)
+
+
+if __name__ == "__main__":
+    main()
