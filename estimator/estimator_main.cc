@@ -14,6 +14,7 @@
 #include "api/atomic_file.h"
 #include "api/trajectory.h"
 #include "estimator/io/bag_reader.h"
+#include "estimator/mapping/map_export.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/estimator.h"
 #include "estimator/pipeline/run_writer.h"
@@ -34,13 +35,15 @@ int main(int argc, char** argv) {
   CLI::App app{
       "raillomer-estimator: dual-LiDAR / IMU / wheel-odometer sliding-window odometry with rail "
       "constraints (RailLoMer section IV). Reads a ROS1 bag (or runs the built-in simulator) and "
-      "writes trajectory.tum, timing.csv, keyframes and summary.json to --out."};
+      "writes trajectory.tum, timing.csv, keyframes, submaps and summary.json to --out."};
   std::string bag_path, sim_scenario, config_path, out_dir;
   double duration_s = -1.0;
   int64_t seed = -1;
   bool no_odometer = false, no_rail_plane = false, no_height = false, no_favour = false;
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
-  bool no_gnss = false;
+  bool no_gnss = false, no_submaps = false;
+  std::string map_path, map_box_text;
+  double map_voxel_m = 0.1;
   auto* source = app.add_option_group("source", "Where the sensor data comes from");
   source->add_option("--bag", bag_path, "ROS1 bag of the sensor data contract");
   source->add_option(
@@ -71,6 +74,18 @@ int main(int argc, char** argv) {
       no_gnss,
       "Ablation: ignore GNSS (odometry only, in the local frame, as part 1 of the estimator)");
   app.add_flag("--no-keyframes", no_keyframes, "Do not write keyframe clouds");
+  app.add_flag("--no-submaps", no_submaps, "Do not write submaps (submaps/)");
+  app.add_option("--map",
+                 map_path,
+                 "Write the global map of the whole run to this .ply or .pcd file (double x y z: "
+                 "UTM when georeferenced, float intensity)");
+  app.add_option(
+         "--map-voxel", map_voxel_m, "With --map: one point per voxel of this size (0: all)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--map-box",
+                 map_box_text,
+                 "With --map: only points inside the horizontal box x0,y0,x1,y1 (UTM easting, "
+                 "northing when georeferenced)");
   app.add_flag(
       "--quiet", quiet, "No progress line, configuration log or milestones (warnings still print)");
   CLI11_PARSE(app, argc, argv);
@@ -141,7 +156,45 @@ int main(int argc, char** argv) {
   if (!writer.Open(out_dir, config.options.write_keyframes, header.str(), &error))
     return Fail(error);
 
+  // Submaps go to submaps/ and, with --map, into the global map as they complete.
+  MapExportOptions map_options;
+  map_options.voxel_m = map_voxel_m;
+  if (!map_box_text.empty()) {
+    double v[4];
+    char tail = 0;
+    if (std::sscanf(map_box_text.c_str(), "%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3], &tail) !=
+            4 ||
+        !(v[0] < v[2] && v[1] < v[3])) {
+      return Fail("--map-box '" + map_box_text + "' is not x0,y0,x1,y1 with x0 < x1 and y0 < y1");
+    }
+    map_options.has_box = true;
+    map_options.box_min = Eigen::Vector2d(v[0], v[1]);
+    map_options.box_max = Eigen::Vector2d(v[2], v[3]);
+  }
+  if (map_path.empty() && (!map_box_text.empty() || app.count("--map-voxel") > 0))
+    return Fail("--map-voxel and --map-box need --map <file.ply|file.pcd>");
+  std::unique_ptr<MapExporter> map;
+  if (!map_path.empty()) {
+    map = MapExporter::Open(map_path, map_options, &error);
+    if (!map) return Fail(error);
+  }
+  if (!no_submaps && !writer.OpenSubmaps(&error)) return Fail(error);
+  struct Stream : api::StreamSink {
+    RunWriter* writer;
+    MapExporter* map;
+    bool write_submaps;
+    void OnPose(const api::StreamPose&) override {}
+    void OnSubmap(const api::Submap& s) override {
+      if (write_submaps) writer->WriteSubmap(s);
+      if (map) map->Add(s);
+    }
+  } stream;
+  stream.writer = &writer;
+  stream.map = map.get();
+  stream.write_submaps = !no_submaps;
+
   EstimatorSinks sinks;
+  if (!no_submaps || map) sinks.stream = &stream;
   sinks.on_frame = [&](const FrameResult& f) { writer.WriteFrame(f); };
   if (config.options.write_keyframes)
     sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
@@ -208,6 +261,14 @@ int main(int argc, char** argv) {
   extra << "\"ablation\": \"" << sw.Name() << "\",\n  \"source\": \"" << (bag ? "bag" : "sim")
         << "\",\n  \"peak_rss_mb\": " << static_cast<double>(usage.ru_maxrss) / 1024.0;
   if (!writer.Close(estimator.stats(), data_s, wall_s, extra.str(), &error)) return Fail(error);
+  if (map) {
+    if (!map->Close(&error)) return Fail(error);
+    if (map->skipped_submaps() > 0) {
+      std::cerr << "raillomer-estimator: warning: " << map->skipped_submaps()
+                << " submaps in another frame than the first were left out of " << map_path << "\n";
+    }
+    if (!quiet) std::cerr << "  map: " << map->points() << " points -> " << map_path << "\n";
+  }
   if (!quiet) {
     std::fprintf(stderr,
                  "\r  done: %zu frames, %.2f km in %.1f s (%.2fx real time), median %.1f ms/frame, "

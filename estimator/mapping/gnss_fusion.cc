@@ -199,16 +199,7 @@ Eigen::Vector2d GnssFusion::Fuse(const Pair& pair) {
     // median outvotes the smaller multipath jumps that got through the gate; centring the
     // window cancels the odometry's drift across it.
     node_pending_ = false;
-    Eigen::Vector3d m;
-    for (int axis = 0; axis < 3; ++axis) {
-      std::vector<double> v;
-      for (const Pair& p : accepted_) {
-        if (std::abs(p.t_s - pending_epoch_.t_s) <= half + 1e-6)
-          v.push_back(p.fix_enu[axis] - correction_.Apply(p.antenna_odom)[axis]);
-      }
-      std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-      m[axis] = v[v.size() / 2];
-    }
+    const Eigen::Vector3d m = MedianInnovation(pending_epoch_.t_s);
     AddNode(pending_epoch_, correction_.Apply(pending_epoch_.antenna_odom) + m);
     ++stats_.factors;
     Optimize();
@@ -216,6 +207,41 @@ Eigen::Vector2d GnssFusion::Fuse(const Pair& pair) {
   while (!accepted_.empty() && accepted_.front().t_s < pair.t_s - options_.factor_window_s)
     accepted_.pop_front();
   return innovation.head<2>();
+}
+
+Eigen::Vector3d GnssFusion::MedianInnovation(double epoch_s) const {
+  const double half = 0.5 * options_.factor_window_s;
+  Eigen::Vector3d m;
+  for (int axis = 0; axis < 3; ++axis) {
+    std::vector<double> v;
+    for (const Pair& p : accepted_) {
+      if (std::abs(p.t_s - epoch_s) <= half + 1e-6)
+        v.push_back(p.fix_enu[axis] - correction_.Apply(p.antenna_odom)[axis]);
+    }
+    if (v.empty()) return Eigen::Vector3d::Zero();
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+    m[axis] = v[v.size() / 2];
+  }
+  return m;
+}
+
+void GnssFusion::Finish() {
+  if (!aligned_ || accepted_.empty()) return;
+  // The run ends before the next factor's window is complete: a last node on the newest fix
+  // (its window is the fixes before it), so that the poses after the previous node come out
+  // between two nodes instead of extrapolated.
+  if (node_pending_) {  // its window is cut short by the end
+    node_pending_ = false;
+    AddNode(pending_epoch_,
+            correction_.Apply(pending_epoch_.antenna_odom) + MedianInnovation(pending_epoch_.t_s));
+    ++stats_.factors;
+    Optimize();
+  }
+  const Pair& last = accepted_.back();
+  if (!nodes_.empty() && last.t_s <= nodes_.back().t_s + 1e-6) return;
+  AddNode(last, correction_.Apply(last.antenna_odom) + MedianInnovation(last.t_s));
+  ++stats_.factors;
+  Optimize();
 }
 
 void GnssFusion::Align(const std::vector<Pair>& pairs, bool resolve) {

@@ -78,6 +78,9 @@ class GnssFusion {
   /// A final odometry pose (time order). Fixes up to this time are processed.
   void AddOdometry(int64_t stamp_ns, const Eigen::Isometry3d& T_odom_body);
 
+  /// The end of the run: a last factor on the newest fixes, if any came after the newest one.
+  void Finish();
+
   bool aligned() const { return aligned_; }
   /// UTM (easting, northing, height) of the local ENU frame's origin; valid once aligned.
   const Eigen::Vector3d& origin_utm() const { return origin_utm_; }
@@ -133,6 +136,9 @@ class GnssFusion {
   /// Returns the horizontal innovation, or NaN for an outlier.
   Eigen::Vector2d Fuse(const Pair& pair);
   double Gate(const Pair& pair) const;
+  /// Median innovation (against the newest correction) of the accepted fixes within half a
+  /// factor window of epoch_s.
+  Eigen::Vector3d MedianInnovation(double epoch_s) const;
   bool OdometryAt(double t_s, Eigen::Isometry3d* T, double* distance_m) const;
   void Align(const std::vector<Pair>& pairs, bool resolve);
   void AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu);

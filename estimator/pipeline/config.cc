@@ -80,6 +80,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
+  r.Read("submap_keyframes", &o->submap_keyframes);
+  r.Read("submap_voxel_m", &o->submap_voxel_m);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
   if (r.Has("gnss")) {
@@ -157,6 +159,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
     return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
+  if (submap_keyframes < 1 || submap_keyframes > 1000)
+    return fail("submap_keyframes must be in [1, 1000]");
+  if (!(submap_voxel_m >= 0.0 && submap_voxel_m <= 5.0))
+    return fail("submap_voxel_m must be in [0, 5] m (0: every point)");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
   if (!(map_radius_m > 10.0)) return fail("map_radius_m must be > 10");

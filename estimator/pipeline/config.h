@@ -120,6 +120,9 @@ struct EstimatorOptions {
   /// are held back until then. 0 disables.
   double gravity_align_s = 10.0;
   bool write_keyframes = true;
+  /// Keyframes per submap (paper IV.E: 10), thinned to one point per voxel of submap_voxel_m.
+  int submap_keyframes = 10;
+  double submap_voxel_m = 0.1;
   /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
   /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that
   /// is not aligned by then stays in the local frame and says so.

@@ -112,7 +112,9 @@ struct Estimator::NodeExtras {
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
-    : config_(config), sinks_(std::move(sinks)) {
+    : config_(config),
+      sinks_(std::move(sinks)),
+      submaps_(config.options.submap_keyframes, config.options.submap_voxel_m) {
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
   for (size_t i = 0; i < config_.rig.lidars.size(); ++i) {
@@ -407,7 +409,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
 
   // Frontend, one LiDAR per thread.
   std::vector<FrontendResult> fronts(rig.lidars.size());
-  const bool keep_cloud = o.write_keyframes || static_cast<bool>(sinks_.on_keyframe);
+  const bool keep_cloud =
+      o.write_keyframes || static_cast<bool>(sinks_.on_keyframe) || sinks_.stream != nullptr;
   auto frontend = [&](int index) {
     const io::LidarFrame& frame = pending.frames.at(index);
     const LidarRig& lidar = rig.lidars[static_cast<size_t>(index)];
@@ -662,7 +665,7 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       angle_deg >= config_.options.keyframe_angle_deg) {
     have_keyframe_ = true;
     last_keyframe_pose_ = result.T_world_body;
-    if (sinks_.on_keyframe && !extras->cloud.empty()) {
+    if ((sinks_.on_keyframe || sinks_.stream) && !extras->cloud.empty()) {
       Keyframe k;
       k.stamp_ns = result.stamp_ns;
       k.T_world_body = result.T_world_body;
@@ -732,6 +735,28 @@ void Estimator::ReleaseHeld(bool flush) {
 void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe) {
   if (sinks_.on_frame) sinks_.on_frame(frame);
   if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
+  if (!sinks_.stream) return;
+  api::StreamPose pose;
+  pose.sequence = stream_sequence_++;
+  pose.stamp_ns = frame.stamp_ns;
+  pose.georeferenced = frame.georeferenced;
+  pose.utm_zone = frame.utm_zone;
+  pose.p = frame.T_world_body.translation() +
+           (frame.georeferenced ? frame.origin_utm : Eigen::Vector3d::Zero());
+  pose.q = Eigen::Quaterniond(frame.T_world_body.linear()).normalized();
+  sinks_.stream->OnPose(pose);
+  if (!keyframe) return;
+  Eigen::Isometry3d T = keyframe->T_world_body;
+  if (keyframe->georeferenced) T.translation() += keyframe->origin_utm;
+  for (api::Submap& s : submaps_.Add(keyframe->stamp_ns,
+                                     T,
+                                     keyframe->georeferenced,
+                                     keyframe->georeferenced ? frame.utm_zone : std::string(),
+                                     keyframe->points_body,
+                                     keyframe->intensities)) {
+    s.sequence = stream_sequence_++;
+    sinks_.stream->OnSubmap(s);
+  }
 }
 
 void Estimator::AlignGravity(bool last_chance) {
@@ -811,7 +836,16 @@ void Estimator::Finish() {
   // Flush the window: every remaining state is final now.
   while (window_->size() > 0 && !extras_.empty()) EmitOldest();
   if (gnss_) stats_.gnss = gnss_->stats();
-  if (gnss_ && !gnss_gave_up_) ReleaseHeld(true);
+  if (gnss_ && !gnss_gave_up_) {
+    gnss_->Finish();
+    ReleaseHeld(true);
+  }
+  if (sinks_.stream) {
+    if (std::optional<api::Submap> s = submaps_.Flush()) {
+      s->sequence = stream_sequence_++;
+      sinks_.stream->OnSubmap(*s);
+    }
+  }
 }
 
 }  // namespace raillomer

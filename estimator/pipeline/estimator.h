@@ -10,9 +10,11 @@
 
 #include <Eigen/Geometry>
 
+#include "api/stream.h"
 #include "estimator/features/height_descriptor.h"
 #include "estimator/io/sensor_messages.h"
 #include "estimator/mapping/gnss_fusion.h"
+#include "estimator/mapping/submap_builder.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/inertial_buffer.h"
 
@@ -75,6 +77,9 @@ struct EstimatorSinks {
   std::function<void(const std::string&)> on_warning;
   /// Milestones worth a line in the log (e.g. the GNSS alignment).
   std::function<void(const std::string&)> on_info;
+  /// The stream for the server (optional, not owned): every final pose and every submap of
+  /// `submap_keyframes` keyframes, in UTM once georeferenced, with one monotonic sequence.
+  api::StreamSink* stream = nullptr;
 };
 
 /// Counters over the whole run.
@@ -173,6 +178,8 @@ class Estimator {
     std::optional<Keyframe> keyframe;
   };
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
+  SubmapBuilder submaps_;
+  uint64_t stream_sequence_ = 0;
   std::deque<HeldOutput> gnss_held_;
   bool gnss_gave_up_ = false;
   std::map<std::string, uint64_t> warning_counts_;

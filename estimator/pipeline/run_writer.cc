@@ -30,7 +30,7 @@ std::string PoseLine(int64_t stamp_ns, const Eigen::Isometry3d& T) {
 }  // namespace
 
 RunWriter::~RunWriter() {
-  for (std::FILE* f : {trajectory_, timing_, keyframes_}) {
+  for (std::FILE* f : {trajectory_, timing_, keyframes_, submap_index_}) {
     if (f) std::fclose(f);
   }
 }
@@ -81,6 +81,52 @@ bool RunWriter::Open(const std::string& out_dir,
   }
   std::fprintf(timing_, "\n");
   return true;
+}
+
+bool RunWriter::OpenSubmaps(std::string* error) {
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir_ + "/submaps", ec);
+  if (ec) {
+    *error = "cannot create " + out_dir_ + "/submaps: " + ec.message();
+    return false;
+  }
+  const std::string index = out_dir_ + "/submaps/index.csv";
+  submap_index_ = std::fopen(index.c_str(), "w");
+  if (!submap_index_) {
+    *error = "cannot write " + index;
+    return false;
+  }
+  std::fprintf(submap_index_,
+               "sequence,index,file,first_stamp_s,last_stamp_s,keyframes,points,frame,origin_x,"
+               "origin_y,origin_z\n");
+  std::fflush(submap_index_);
+  return true;
+}
+
+void RunWriter::WriteSubmap(const api::Submap& s) {
+  if (!submap_index_) return;
+  char name[32];
+  std::snprintf(name, sizeof(name), "%06u.pcd", s.index);
+  std::string error;
+  if (!api::WriteFileAtomically(out_dir_ + "/submaps/" + name, api::EncodeSubmapPcd(s), &error)) {
+    failed_ = true;
+    failure_ = error;
+    return;
+  }
+  std::fprintf(submap_index_,
+               "%llu,%u,%s,%s,%s,%zu,%zu,%s,%.4f,%.4f,%.4f\n",
+               static_cast<unsigned long long>(s.sequence),
+               s.index,
+               name,
+               api::FormatStampSeconds(s.first_stamp_ns).c_str(),
+               api::FormatStampSeconds(s.last_stamp_ns).c_str(),
+               s.keyframes.size(),
+               s.points.size(),
+               s.georeferenced ? s.utm_zone.c_str() : "local",
+               s.origin.x(),
+               s.origin.y(),
+               s.origin.z());
+  std::fflush(submap_index_);
 }
 
 void RunWriter::WriteHeader(const FrameResult* first) {

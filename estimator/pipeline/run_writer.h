@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "api/stream.h"
 #include "estimator/pipeline/estimator.h"
 
 namespace raillomer {
@@ -14,6 +15,8 @@ namespace raillomer {
 ///   timing.csv      per-frame frontend / backend milliseconds and diagnostics
 ///   keyframes.tum   keyframe poses; keyframes/<stamp>.pcd their deskewed clouds (body frame,
 ///                   binary PCD, the pose also in VIEWPOINT)
+///   submaps/<index>.pcd, submaps/index.csv  submaps as they complete (OpenSubmaps): float
+///                   offsets from a double origin, the origin in the index and the PCD header
 ///   summary.json    counts, timing percentiles and the real-time factor (at Close)
 class RunWriter {
  public:
@@ -25,6 +28,9 @@ class RunWriter {
             bool write_keyframes,
             const std::string& header,
             std::string* error);
+  /// Creates submaps/ and its index; false with a message on failure.
+  bool OpenSubmaps(std::string* error);
+  void WriteSubmap(const api::Submap& submap);
   void WriteFrame(const FrameResult& frame);
   /// Keyframes after their frame (a georeferenced keyframe takes that frame's UTM origin).
   void WriteKeyframe(const Keyframe& keyframe);
@@ -47,6 +53,7 @@ class RunWriter {
   std::FILE* trajectory_ = nullptr;
   std::FILE* timing_ = nullptr;
   std::FILE* keyframes_ = nullptr;
+  std::FILE* submap_index_ = nullptr;
   bool write_keyframes_ = false;
   std::string header_;
   bool header_written_ = false;

@@ -53,7 +53,7 @@ def run_one(build, out_root, scenario, seed, ablation, duration):
     label = os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
     out = os.path.join(out_root, ablation, label)
     cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
-           "--quiet", "--no-keyframes", "--no-gnss"] + ABLATION_FLAGS[ablation]
+           "--quiet", "--no-keyframes", "--no-submaps", "--no-gnss"] + ABLATION_FLAGS[ablation]
     if seed is not None:
         cmd += ["--seed", str(seed)]
     if duration:

@@ -132,7 +132,7 @@ def run_one(build, out_root, scenario, seed, duration):
     label = os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
     out = os.path.join(out_root, label)
     cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
-           "--quiet", "--no-keyframes"]
+           "--quiet", "--no-keyframes", "--no-submaps"]
     if seed is not None:
         cmd += ["--seed", str(seed)]
     if duration:

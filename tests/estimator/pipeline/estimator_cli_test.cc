@@ -8,7 +8,9 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "api/stream.h"
 #include "api/trajectory.h"
+#include "estimator/mapping/map_export.h"
 #include "tests/support/process.h"
 
 namespace {
@@ -115,9 +117,12 @@ TEST_F(EstimatorCli, ShortSimulatedRunTracksTheTruth) {
 }
 
 TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
-  // The whole demo (0.3 km): aligned to UTM after 100 m, then a GNSS factor every 10 s.
+  // The whole demo (0.3 km): aligned to UTM after 100 m, then a GNSS factor every 10 s; its
+  // submaps and the global map in UTM.
   const fs::path out = Dir() / "utm";
-  const CommandResult r = Estimate("--sim demo --no-keyframes --out " + ShellQuote(out.string()));
+  const CommandResult r =
+      Estimate("--sim demo --no-keyframes --out " + ShellQuote(out.string()) + " --map " +
+               ShellQuote((out / "map.ply").string()) + " --map-voxel 0.2");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(ReadText(out / "trajectory.tum").rfind("# utm_zone 50N\n", 0), 0u);
   const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
@@ -134,6 +139,38 @@ TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
   const nlohmann::json eval = nlohmann::json::parse(ReadText(out / "eval.json"));
   EXPECT_LT(eval["ate_rmse_m"].get<double>(), 2.0);
   EXPECT_LT(eval["ate_max_m"].get<double>(), 3.0);
+
+  // Submaps of 10 keyframes, in UTM, with sequence numbers that only grow.
+  raillomer::api::Trajectory trajectory;
+  std::string error;
+  ASSERT_TRUE(raillomer::api::ReadTum((out / "trajectory.tum").string(), &trajectory, &error));
+  std::ifstream index(out / "submaps" / "index.csv");
+  std::string line;
+  std::getline(index, line);
+  EXPECT_EQ(line.rfind("sequence,index,file,", 0), 0u) << line;
+  uint64_t last_sequence = 0;
+  int submaps = 0;
+  while (std::getline(index, line)) {
+    raillomer::api::Submap s;
+    const std::string file = line.substr(line.find(',', line.find(',') + 1) + 1, 10);
+    ASSERT_TRUE(raillomer::api::DecodeSubmapPcd(ReadText(out / "submaps" / file), &s, &error))
+        << file << ": " << error;
+    EXPECT_EQ(std::to_string(s.sequence) + ",", line.substr(0, line.find(',') + 1));
+    EXPECT_TRUE(submaps == 0 || s.sequence > last_sequence);
+    last_sequence = s.sequence;
+    EXPECT_EQ(s.utm_zone, "50N");
+    EXPECT_LT((s.origin - trajectory.poses.front().p_world).head<2>().norm(), 400.0);
+    ++submaps;
+  }
+  EXPECT_GE(submaps, 3);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<float> intensities;
+  ASSERT_TRUE(
+      raillomer::ReadMapFile((out / "map.ply").string(), &points, &intensities, nullptr, &error))
+      << error;
+  EXPECT_GT(points.size(), 10000u);
+  for (size_t i = 0; i < points.size(); i += 97)
+    ASSERT_LT((points[i] - trajectory.poses.front().p_world).head<2>().norm(), 600.0);
 }
 
 TEST_F(EstimatorCli, ARunWithoutAFixSaysItIsNotGeoreferenced) {
@@ -224,6 +261,12 @@ TEST_F(EstimatorCli, UsageErrorsAreClear) {
                ShellQuote((Dir() / "y").string()));
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("/nonexistent/run.bag"), std::string::npos) << r.err;
+  r = Estimate("--sim demo --out " + ShellQuote((Dir() / "m").string()) + " --map map.las");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find(".ply or .pcd"), std::string::npos) << r.err;
+  r = Estimate("--sim demo --out " + ShellQuote((Dir() / "m").string()) + " --map-voxel 0.5");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("need --map"), std::string::npos) << r.err;
   r = Estimate("--sim no_such_scenario --out " + ShellQuote((Dir() / "z").string()));
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("no_such_scenario"), std::string::npos) << r.err;

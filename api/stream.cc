@@ -1,0 +1,134 @@
+#include "api/stream.h"
+
+#include <cinttypes>
+#include <cstdio>
+#include <cstring>
+#include <sstream>
+
+namespace raillomer::api {
+
+std::string EncodeSubmapPcd(const Submap& s) {
+  std::ostringstream h;
+  h << "# .PCD v0.7 - RailLoMer submap: offsets from the origin below ("
+    << (s.georeferenced ? "UTM zone " + s.utm_zone : std::string("local odometry frame")) << ")\n";
+  char line[256];
+  std::snprintf(line,
+                sizeof(line),
+                "# raillomer sequence %" PRIu64 " index %u keyframes %zu\n",
+                s.sequence,
+                s.index,
+                s.keyframes.size());
+  h << line;
+  h << "# raillomer stamps " << FormatStampSeconds(s.first_stamp_ns) << " "
+    << FormatStampSeconds(s.last_stamp_ns) << "\n";
+  h << "# raillomer zone " << (s.georeferenced ? s.utm_zone : std::string("local")) << "\n";
+  std::snprintf(line,
+                sizeof(line),
+                "# raillomer origin %.4f %.4f %.4f\n",
+                s.origin.x(),
+                s.origin.y(),
+                s.origin.z());
+  h << line;
+  for (const StampedPose& k : s.keyframes) h << "# raillomer keyframe " << FormatTumLine(k) << "\n";
+  h << "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+    << "WIDTH " << s.points.size() << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS "
+    << s.points.size() << "\nDATA binary\n";
+  std::string out = h.str();
+  const size_t offset = out.size();
+  out.resize(offset + 16 * s.points.size());
+  for (size_t i = 0; i < s.points.size(); ++i) {
+    const float v[4] = {s.points[i].x(),
+                        s.points[i].y(),
+                        s.points[i].z(),
+                        i < s.intensities.size() ? s.intensities[i] : 0.f};
+    std::memcpy(&out[offset + 16 * i], v, sizeof(v));
+  }
+  return out;
+}
+
+bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = "submap PCD: " + m;
+    return false;
+  };
+  *s = Submap();
+  size_t pos = 0;
+  size_t points = 0;
+  bool have_points = false, have_origin = false, have_fields = false;
+  while (pos < bytes.size()) {
+    const size_t end = bytes.find('\n', pos);
+    if (end == std::string::npos) return fail("the header has no DATA line");
+    const std::string line = bytes.substr(pos, end - pos);
+    pos = end + 1;
+    std::istringstream in(line);
+    std::string key;
+    in >> key;
+    if (key == "#") {
+      std::string tag, what;
+      in >> tag >> what;
+      if (tag != "raillomer") continue;
+      if (what == "sequence") {
+        std::string k1, k2;
+        size_t keyframes = 0;
+        if (!(in >> s->sequence >> k1 >> s->index >> k2 >> keyframes))
+          return fail("bad line '" + line + "'");
+      } else if (what == "stamps") {
+        std::string a, b;
+        if (!(in >> a >> b) || !ParseStampSeconds(a, &s->first_stamp_ns) ||
+            !ParseStampSeconds(b, &s->last_stamp_ns))
+          return fail("bad line '" + line + "'");
+      } else if (what == "zone") {
+        std::string zone;
+        in >> zone;
+        s->georeferenced = zone != "local";
+        if (s->georeferenced) {
+          int z = 0;
+          bool north = true;
+          if (!ParseUtmZoneName(zone, &z, &north)) return fail("bad UTM zone '" + zone + "'");
+          s->utm_zone = zone;
+        }
+      } else if (what == "origin") {
+        if (!(in >> s->origin.x() >> s->origin.y() >> s->origin.z()))
+          return fail("bad line '" + line + "'");
+        have_origin = true;
+      } else if (what == "keyframe") {
+        Trajectory t;
+        std::string rest;
+        std::getline(in, rest);
+        if (!ParseTum(rest, &t, error) || t.poses.size() != 1)
+          return fail("bad line '" + line + "'");
+        s->keyframes.push_back(t.poses[0]);
+      }
+    } else if (key == "FIELDS") {
+      std::string rest;
+      std::getline(in, rest);
+      if (rest != " x y z intensity") return fail("fields are '" + rest + "', not x y z intensity");
+      have_fields = true;
+    } else if (key == "POINTS") {
+      if (!(in >> points)) return fail("bad POINTS line");
+      have_points = true;
+    } else if (key == "DATA") {
+      std::string kind;
+      in >> kind;
+      if (kind != "binary") return fail("DATA is '" + kind + "', not binary");
+      break;
+    }
+  }
+  if (!have_fields || !have_points || !have_origin)
+    return fail("the header lacks FIELDS, POINTS or the raillomer origin");
+  if (bytes.size() - pos != 16 * points) {
+    return fail("expected " + std::to_string(16 * points) + " bytes of points, found " +
+                std::to_string(bytes.size() - pos) + " (truncated?)");
+  }
+  s->points.resize(points);
+  s->intensities.resize(points);
+  for (size_t i = 0; i < points; ++i) {
+    float v[4];
+    std::memcpy(v, &bytes[pos + 16 * i], sizeof(v));
+    s->points[i] = Eigen::Vector3f(v[0], v[1], v[2]);
+    s->intensities[i] = v[3];
+  }
+  return true;
+}
+
+}  // namespace raillomer::api

@@ -1,0 +1,55 @@
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "api/trajectory.h"
+
+namespace raillomer::api {
+
+/// A pose as the estimator streams it, once it is final.
+struct StreamPose {
+  uint64_t sequence = 0;  ///< monotonic over the run, one counter for poses and submaps
+  int64_t stamp_ns = 0;
+  bool georeferenced = false;  ///< false: the estimator's local odometry frame
+  std::string utm_zone;        ///< "50N" when georeferenced
+  /// Body position: UTM easting, northing, ellipsoidal height when georeferenced.
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();  ///< body to world (UTM grid axes)
+};
+
+/// A submap: the deskewed clouds of consecutive keyframes in one frame. Positions are float
+/// offsets from a double-precision origin (UTM coordinates never go into a float).
+struct Submap {
+  uint64_t sequence = 0;  ///< see StreamPose::sequence
+  uint32_t index = 0;     ///< 0, 1, 2, ... within the run
+  int64_t first_stamp_ns = 0, last_stamp_ns = 0;
+  bool georeferenced = false;
+  std::string utm_zone;
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();  ///< UTM when georeferenced
+  std::vector<Eigen::Vector3f> points;               ///< offsets from origin, world axes
+  std::vector<float> intensities;                    ///< one per point
+  std::vector<StampedPose> keyframes;                ///< body poses, absolute (double)
+};
+
+/// Receives what the estimator produces, in order: each pose as it becomes final and each
+/// submap as it completes. The server's ingest client implements it.
+class StreamSink {
+ public:
+  virtual ~StreamSink() = default;
+  virtual void OnPose(const StreamPose& pose) = 0;
+  virtual void OnSubmap(const Submap& submap) = 0;
+};
+
+/// A submap as a binary PCD file (fields x y z intensity, float offsets from the origin), with
+/// the origin, zone, sequence and stamps in `# raillomer` header comments; PCL and CloudCompare
+/// read it as a local cloud.
+std::string EncodeSubmapPcd(const Submap& submap);
+/// Parses EncodeSubmapPcd's output; false with a message naming what is wrong.
+bool DecodeSubmapPcd(const std::string& bytes, Submap* submap, std::string* error);
+
+}  // namespace raillomer::api

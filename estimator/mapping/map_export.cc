@@ -1,0 +1,220 @@
+#include "estimator/mapping/map_export.h"
+
+#include "estimator/mapping/voxel_centroids.h"
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace raillomer {
+
+namespace {
+
+constexpr size_t kRecordBytes = 3 * sizeof(double) + sizeof(float);
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() &&
+         s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+}  // namespace
+
+std::unique_ptr<MapExporter> MapExporter::Open(const std::string& path,
+                                               const MapExportOptions& options,
+                                               std::string* error) {
+  std::unique_ptr<MapExporter> e(new MapExporter());
+  if (EndsWith(path, ".ply")) {
+    e->ply_ = true;
+  } else if (EndsWith(path, ".pcd")) {
+    e->ply_ = false;
+  } else {
+    *error = "--map " + path + ": the file must end in .ply or .pcd";
+    return nullptr;
+  }
+  if (!(options.voxel_m >= 0.0)) {
+    *error = "--map-voxel must be >= 0 m";
+    return nullptr;
+  }
+  e->path_ = path;
+  e->options_ = options;
+  e->body_path_ = path + ".points.tmp";
+  e->body_ = std::fopen(e->body_path_.c_str(), "wb");
+  if (!e->body_) {
+    *error = "cannot write " + e->body_path_ + " (next to the map " + path + ")";
+    return nullptr;
+  }
+  return e;
+}
+
+MapExporter::~MapExporter() {
+  if (body_) {
+    std::fclose(body_);
+    std::remove(body_path_.c_str());
+  }
+}
+
+void MapExporter::Add(const api::Submap& s) {
+  if (!body_) return;
+  if (!have_frame_) {
+    have_frame_ = true;
+    georeferenced_ = s.georeferenced;
+    utm_zone_ = s.utm_zone;
+  } else if (s.georeferenced != georeferenced_ || s.utm_zone != utm_zone_) {
+    ++skipped_submaps_;
+    return;
+  }
+  auto inside = [&](const Eigen::Vector3d& p) {
+    return !options_.has_box || (p.x() >= options_.box_min.x() && p.x() <= options_.box_max.x() &&
+                                 p.y() >= options_.box_min.y() && p.y() <= options_.box_max.y());
+  };
+  char record[kRecordBytes];
+  auto write = [&](const Eigen::Vector3d& p, float intensity) {
+    std::memcpy(record, p.data(), 3 * sizeof(double));
+    std::memcpy(record + 3 * sizeof(double), &intensity, sizeof(float));
+    std::fwrite(record, 1, kRecordBytes, body_);
+    ++points_;
+  };
+  if (options_.voxel_m <= 0.0) {
+    for (size_t i = 0; i < s.points.size(); ++i) {
+      const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
+      if (inside(p)) write(p, i < s.intensities.size() ? s.intensities[i] : 0.f);
+    }
+    return;
+  }
+  // One point per voxel: the centroid of the submap's points in it, unless a recent submap
+  // already filled that voxel.
+  VoxelCentroids grid(options_.voxel_m);
+  for (size_t i = 0; i < s.points.size(); ++i) {
+    const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
+    if (inside(p)) grid.Add(p, i < s.intensities.size() ? s.intensities[i] : 0.f);
+  }
+  std::unordered_set<uint64_t> mine;
+  grid.ForEach([&](uint64_t key, const Eigen::Vector3d& p, float intensity) {
+    mine.insert(key);
+    for (const auto& set : recent_voxels_) {
+      if (set.count(key)) return;
+    }
+    write(p, intensity);
+  });
+  recent_voxels_.push_back(std::move(mine));
+  while (static_cast<int>(recent_voxels_.size()) > options_.remembered_submaps)
+    recent_voxels_.pop_front();
+}
+
+bool MapExporter::Close(std::string* error) {
+  if (!body_) return true;
+  const bool write_failed = std::ferror(body_) != 0;
+  std::fclose(body_);
+  body_ = nullptr;
+  if (write_failed) {
+    *error = "writing " + body_path_ + " failed (disk full?)";
+    std::remove(body_path_.c_str());
+    return false;
+  }
+  const std::string frame =
+      georeferenced_ ? "UTM zone " + utm_zone_ + " (easting, northing, ellipsoidal height)"
+                     : std::string("the estimator's local odometry frame (not georeferenced)");
+  std::ostringstream h;
+  if (ply_) {
+    h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer map in " << frame << "\n"
+      << "element vertex " << points_ << "\nproperty double x\nproperty double y\n"
+      << "property double z\nproperty float intensity\nend_header\n";
+  } else {
+    h << "# .PCD v0.7 - RailLoMer map in " << frame << "\nVERSION 0.7\nFIELDS x y z intensity\n"
+      << "SIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH " << points_
+      << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << points_ << "\nDATA binary\n";
+  }
+  const std::string tmp = path_ + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    std::ifstream body(body_path_, std::ios::binary);
+    out << h.str();
+    if (points_ > 0) out << body.rdbuf();
+    if (!out) {
+      *error = "cannot write " + tmp;
+      std::remove(body_path_.c_str());
+      return false;
+    }
+  }
+  std::remove(body_path_.c_str());
+  std::error_code ec;
+  std::filesystem::rename(tmp, path_, ec);
+  if (ec) {
+    *error = "cannot move " + tmp + " to " + path_ + ": " + ec.message();
+    return false;
+  }
+  return true;
+}
+
+bool ReadMapFile(const std::string& path,
+                 std::vector<Eigen::Vector3d>* points,
+                 std::vector<float>* intensities,
+                 std::string* comment,
+                 std::string* error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    *error = "cannot read " + path;
+    return false;
+  }
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto fail = [&](const std::string& m) {
+    *error = path + ": " + m;
+    return false;
+  };
+  size_t pos = 0, count = 0;
+  bool have_count = false, header_done = false;
+  const bool ply = bytes.rfind("ply\n", 0) == 0;
+  while (pos < bytes.size()) {
+    const size_t end = bytes.find('\n', pos);
+    if (end == std::string::npos) break;
+    const std::string line = bytes.substr(pos, end - pos);
+    pos = end + 1;
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    if (comment && (key == "comment" || key == "#")) {
+      std::getline(ls, *comment);
+    } else if (ply && key == "element") {
+      std::string what;
+      ls >> what >> count;
+      have_count = what == "vertex";
+    } else if (ply && key == "format") {
+      std::string format;
+      ls >> format;
+      if (format != "binary_little_endian") return fail("not binary little-endian PLY");
+    } else if (ply && key == "property") {
+      std::string type, name;
+      ls >> type >> name;
+      if ((name == "intensity" && type != "float") || (name != "intensity" && type != "double"))
+        return fail("property " + name + " is " + type + ", not the exporter's layout");
+    } else if (!ply && key == "SIZE") {
+      std::string rest;
+      std::getline(ls, rest);
+      if (rest != " 8 8 8 4") return fail("SIZE is '" + rest + "', not the exporter's 8 8 8 4");
+    } else if (!ply && key == "POINTS") {
+      ls >> count;
+      have_count = true;
+    } else if ((ply && key == "end_header") || (!ply && key == "DATA")) {
+      header_done = true;
+      break;
+    }
+  }
+  if (!header_done || !have_count) return fail("no complete PLY or PCD header");
+  if (bytes.size() - pos != count * kRecordBytes) {
+    return fail("expected " + std::to_string(count) + " points (" +
+                std::to_string(count * kRecordBytes) + " bytes), found " +
+                std::to_string(bytes.size() - pos) + " bytes");
+  }
+  points->resize(count);
+  intensities->resize(count);
+  for (size_t i = 0; i < count; ++i) {
+    const char* r = bytes.data() + pos + i * kRecordBytes;
+    std::memcpy((*points)[i].data(), r, 3 * sizeof(double));
+    std::memcpy(&(*intensities)[i], r + 3 * sizeof(double), sizeof(float));
+  }
+  return true;
+}
+
+}  // namespace raillomer

@@ -1,0 +1,211 @@
+// Submaps and the global map export: keyframes grouped in tens, points carried into UTM with a
+// double origin and float offsets, the submap file codec and the map file round trip.
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "api/stream.h"
+#include "estimator/mapping/map_export.h"
+#include "estimator/mapping/submap_builder.h"
+#include "tests/support/process.h"
+
+namespace raillomer {
+namespace {
+
+Eigen::Isometry3d Pose(double e, double n, double h, double yaw) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(e, n, h);
+  return T;
+}
+
+/// A keyframe cloud: a 5 x 5 grid of points 1 m apart in the body frame, 2 m ahead.
+std::vector<Eigen::Vector3f> Grid() {
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j)
+      points.emplace_back(2.0f, static_cast<float>(i), static_cast<float>(j));
+  return points;
+}
+
+TEST(SubmapBuilder, TenKeyframesMakeASubmapInUtm) {
+  SubmapBuilder builder(10, 0.0);
+  std::vector<api::Submap> done;
+  const std::vector<float> intensity(25, 7.f);
+  for (int k = 0; k < 25; ++k) {
+    // Along a line heading north (yaw 90 deg), 2 m apart, at northing 3.6e6.
+    for (api::Submap& s : builder.Add(1'600'000'000'000'000'000 + k * 100'000'000LL,
+                                      Pose(432000.3, 3585000.7 + 2.0 * k, 30.2, M_PI / 2.0),
+                                      true,
+                                      "50N",
+                                      Grid(),
+                                      intensity)) {
+      done.push_back(std::move(s));
+    }
+  }
+  ASSERT_EQ(done.size(), 2u);
+  const std::optional<api::Submap> rest = builder.Flush();
+  ASSERT_TRUE(rest.has_value());
+  EXPECT_EQ(rest->keyframes.size(), 5u);
+  EXPECT_EQ(rest->index, 2u);
+  EXPECT_FALSE(builder.Flush().has_value());
+
+  const api::Submap& s = done[1];
+  EXPECT_EQ(s.index, 1u);
+  EXPECT_EQ(s.keyframes.size(), 10u);
+  EXPECT_EQ(s.points.size(), 250u);
+  EXPECT_EQ(s.utm_zone, "50N");
+  EXPECT_EQ(s.first_stamp_ns, 1'600'000'001'000'000'000);
+  // The origin is the first keyframe's position rounded to whole metres.
+  EXPECT_EQ(s.origin, Eigen::Vector3d(432000.0, 3585021.0, 30.0));
+  // Body (2, 0, 0) at yaw 90 deg is 2 m north of the keyframe: exact to well below a millimetre
+  // once the float offset is added to the double origin.
+  const Eigen::Vector3d first = s.origin + s.points[0].cast<double>();
+  EXPECT_NEAR(first.x(), 432000.3, 1e-4);
+  EXPECT_NEAR(first.y(), 3585000.7 + 20.0 + 2.0, 1e-4);
+  EXPECT_NEAR(first.z(), 30.2, 1e-4);
+  EXPECT_FLOAT_EQ(s.intensities[0], 7.f);
+}
+
+TEST(SubmapBuilder, OverlappingKeyframesAreThinnedToOnePointPerVoxel) {
+  SubmapBuilder builder(2, 0.1);
+  const std::vector<float> intensity(25, 1.f);
+  builder.Add(1, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity);
+  const std::vector<api::Submap> done =
+      builder.Add(2, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity);
+  ASSERT_EQ(done.size(), 1u);
+  EXPECT_EQ(done[0].points.size(), 25u);  // the same 25 points twice
+  EXPECT_FALSE(done[0].georeferenced);
+}
+
+TEST(SubmapBuilder, TheFrameChangingClosesTheOpenSubmap) {
+  SubmapBuilder builder(10, 0.0);
+  builder.Add(1, Pose(1.0, 2.0, 3.0, 0.0), false, "", Grid(), {});
+  const std::vector<api::Submap> done =
+      builder.Add(2, Pose(432000.0, 3585000.0, 30.0, 0.0), true, "50N", Grid(), {});
+  ASSERT_EQ(done.size(), 1u);
+  EXPECT_FALSE(done[0].georeferenced);
+  EXPECT_EQ(builder.Flush()->utm_zone, "50N");
+}
+
+api::Submap SampleSubmap() {
+  SubmapBuilder builder(3, 0.0);
+  const std::vector<float> intensity(25, 3.5f);
+  for (int k = 0; k < 2; ++k) {
+    builder.Add(1'600'000'000'100'000'000 + k * 100'000'000LL,
+                Pose(432000.3 + 2.0 * k, 3585000.7 + 1.0 * k, 30.2, 0.3),
+                true,
+                "50N",
+                Grid(),
+                intensity);
+  }
+  api::Submap s = builder.Flush().value();
+  s.sequence = 41;
+  return s;
+}
+
+TEST(SubmapCodec, RoundTripKeepsEverything) {
+  const api::Submap s = SampleSubmap();
+  api::Submap back;
+  std::string error;
+  ASSERT_TRUE(api::DecodeSubmapPcd(api::EncodeSubmapPcd(s), &back, &error)) << error;
+  EXPECT_EQ(back.sequence, 41u);
+  EXPECT_EQ(back.index, s.index);
+  EXPECT_EQ(back.first_stamp_ns, s.first_stamp_ns);
+  EXPECT_EQ(back.last_stamp_ns, s.last_stamp_ns);
+  EXPECT_TRUE(back.georeferenced);
+  EXPECT_EQ(back.utm_zone, "50N");
+  EXPECT_EQ(back.origin, s.origin);
+  ASSERT_EQ(back.keyframes.size(), 2u);
+  EXPECT_NEAR((back.keyframes[1].p_world - s.keyframes[1].p_world).norm(), 0.0, 1e-6);
+  ASSERT_EQ(back.points.size(), s.points.size());
+  for (size_t i = 0; i < s.points.size(); ++i) {
+    EXPECT_EQ(back.points[i], s.points[i]);
+    EXPECT_EQ(back.intensities[i], s.intensities[i]);
+  }
+  // A cut file is named as such.
+  const std::string bytes = api::EncodeSubmapPcd(s);
+  EXPECT_FALSE(api::DecodeSubmapPcd(bytes.substr(0, bytes.size() - 5), &back, &error));
+  EXPECT_NE(error.find("truncated"), std::string::npos) << error;
+}
+
+class MapExport : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(MapExport, RoundTripKeepsUtmCoordinatesWithinAMillimetre) {
+  const test::ScratchDir dir("raillomer_map_export_");
+  const std::string path = (dir.path() / (std::string("map.") + GetParam())).string();
+  const api::Submap s = SampleSubmap();
+  MapExportOptions options;
+  options.voxel_m = 0.0;
+  std::string error;
+  std::unique_ptr<MapExporter> map = MapExporter::Open(path, options, &error);
+  ASSERT_TRUE(map) << error;
+  map->Add(s);
+  ASSERT_TRUE(map->Close(&error)) << error;
+  EXPECT_FALSE(std::filesystem::exists(path + ".points.tmp"));
+  std::vector<Eigen::Vector3d> points;
+  std::vector<float> intensities;
+  std::string comment;
+  ASSERT_TRUE(ReadMapFile(path, &points, &intensities, &comment, &error)) << error;
+  EXPECT_NE(comment.find("UTM zone 50N"), std::string::npos) << comment;
+  ASSERT_EQ(points.size(), s.points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d expected = s.origin + s.points[i].cast<double>();
+    EXPECT_LT((points[i] - expected).norm(), 1e-3);
+    EXPECT_EQ(intensities[i], 3.5f);
+  }
+  // Truth independent of the codec: the first point is body (2, 0, 0) of the first keyframe.
+  const Eigen::Vector3d first =
+      Pose(432000.3, 3585000.7, 30.2, 0.3) * Eigen::Vector3d(2.0, 0.0, 0.0);
+  EXPECT_LT((points[0] - first).norm(), 1e-3);
+}
+
+TEST_P(MapExport, VoxelAndBoxThinTheMap) {
+  const test::ScratchDir dir("raillomer_map_export_");
+  const std::string path = (dir.path() / (std::string("map.") + GetParam())).string();
+  MapExportOptions options;
+  options.voxel_m = 0.5;
+  options.has_box = true;
+  options.box_min = Eigen::Vector2d(431990.0, 3584990.0);
+  options.box_max = Eigen::Vector2d(432003.0, 3585010.0);
+  std::string error;
+  std::unique_ptr<MapExporter> map = MapExporter::Open(path, options, &error);
+  ASSERT_TRUE(map) << error;
+  const api::Submap s = SampleSubmap();
+  map->Add(s);
+  map->Add(s);  // the same submap again: its voxels are already in the map
+  ASSERT_TRUE(map->Close(&error)) << error;
+  std::vector<Eigen::Vector3d> points;
+  std::vector<float> intensities;
+  ASSERT_TRUE(ReadMapFile(path, &points, &intensities, nullptr, &error)) << error;
+  EXPECT_GT(points.size(), 10u);
+  EXPECT_LT(points.size(), s.points.size());
+  for (const Eigen::Vector3d& p : points) {
+    EXPECT_GE(p.x(), 431990.0);
+    EXPECT_LE(p.x(), 432003.0);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Formats, MapExport, ::testing::Values("ply", "pcd"));
+
+TEST(MapExportErrors, NameWhatIsWrong) {
+  std::string error;
+  EXPECT_FALSE(MapExporter::Open("/tmp/map.las", MapExportOptions(), &error));
+  EXPECT_NE(error.find(".ply or .pcd"), std::string::npos) << error;
+  EXPECT_FALSE(MapExporter::Open("/nonexistent/dir/map.ply", MapExportOptions(), &error));
+  EXPECT_NE(error.find("/nonexistent/dir/map.ply"), std::string::npos) << error;
+  const test::ScratchDir dir("raillomer_map_export_");
+  const std::string path = (dir.path() / "cut.ply").string();
+  std::ofstream(path)
+      << "ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty double x\n"
+         "property double y\nproperty double z\nproperty float intensity\nend_header\nxx";
+  std::vector<Eigen::Vector3d> points;
+  std::vector<float> intensities;
+  EXPECT_FALSE(ReadMapFile(path, &points, &intensities, nullptr, &error));
+  EXPECT_NE(error.find("expected 10 points"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace raillomer
