@@ -2,23 +2,14 @@
 
 #include <GeographicLib/UTMUPS.hpp>
 
+#include "api/trajectory.h"
+
 namespace raillomer::geo {
 
 std::string UtmZone::Name() const { return std::to_string(zone) + (north ? "N" : "S"); }
 
 bool ParseZone(const std::string& text, UtmZone* zone) {
-  if (text.size() < 2 || text.size() > 3) return false;
-  const char h = text.back();
-  if (h != 'N' && h != 'S') return false;
-  int z = 0;
-  for (size_t i = 0; i + 1 < text.size(); ++i) {
-    if (text[i] < '0' || text[i] > '9') return false;
-    z = 10 * z + (text[i] - '0');
-  }
-  if (z < 1 || z > 60) return false;
-  zone->zone = z;
-  zone->north = h == 'N';
-  return true;
+  return api::ParseUtmZoneName(text, &zone->zone, &zone->north);
 }
 
 UtmZone StandardZone(double latitude_deg, double longitude_deg) {

@@ -211,14 +211,16 @@ Eigen::Vector2d GnssFusion::Fuse(const Pair& pair) {
 
 Eigen::Vector3d GnssFusion::MedianInnovation(double epoch_s) const {
   const double half = 0.5 * options_.factor_window_s;
+  std::vector<Eigen::Vector3d> innovations;
+  for (const Pair& p : accepted_) {
+    if (std::abs(p.t_s - epoch_s) <= half + 1e-6)
+      innovations.push_back(p.fix_enu - correction_.Apply(p.antenna_odom));
+  }
+  if (innovations.empty()) return Eigen::Vector3d::Zero();
   Eigen::Vector3d m;
+  std::vector<double> v(innovations.size());
   for (int axis = 0; axis < 3; ++axis) {
-    std::vector<double> v;
-    for (const Pair& p : accepted_) {
-      if (std::abs(p.t_s - epoch_s) <= half + 1e-6)
-        v.push_back(p.fix_enu[axis] - correction_.Apply(p.antenna_odom)[axis]);
-    }
-    if (v.empty()) return Eigen::Vector3d::Zero();
+    for (size_t i = 0; i < innovations.size(); ++i) v[i] = innovations[i][axis];
     std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
     m[axis] = v[v.size() / 2];
   }

@@ -49,11 +49,15 @@ def target_pct(name):
     return 0.2 if "rich" in os.path.basename(name) else 0.5
 
 
-def run_one(build, out_root, scenario, seed, ablation, duration):
-    label = os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
-    out = os.path.join(out_root, ablation, label)
+def run_label(scenario, seed):
+    return os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
+
+
+def run_estimator(build, scenario, seed, duration, out, flags):
+    """Runs raillomer-estimator --sim on a scenario (a shorter one whole when --duration exceeds
+    it). Returns the finished process and the wall time."""
     cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
-           "--quiet", "--no-keyframes", "--no-submaps", "--no-gnss"] + ABLATION_FLAGS[ablation]
+           "--quiet", "--no-keyframes", "--no-submaps"] + flags
     if seed is not None:
         cmd += ["--seed", str(seed)]
     if duration:
@@ -61,13 +65,42 @@ def run_one(build, out_root, scenario, seed, ablation, duration):
     t0 = time.time()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0 and duration and "exceeds the scenario's motion profile" in proc.stderr:
-        # A shorter scenario: run it whole.
         cmd = cmd[:cmd.index("--duration")] + cmd[cmd.index("--duration") + 2:]
         proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.time() - t0
+    return proc, time.time() - t0
+
+
+def failure(proc):
+    return proc.stderr.strip().splitlines()[-2:] if proc.stderr else ["exit %d" % proc.returncode]
+
+
+def add_run_arguments(ap, out_default):
+    """The options both suites share: where the tools are, where runs go, which runs."""
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
+    ap.add_argument("--out", default=os.path.join(ROOT, "runs", out_default))
+    ap.add_argument("--scenarios", default="all")
+    ap.add_argument("--seed", type=int)
+    ap.add_argument("--duration", type=float)
+    ap.add_argument("--markdown")
+    ap.add_argument("--check", action="store_true")
+
+
+def select_runs(a):
+    """(scenario, seed) pairs for --scenarios all | extra | NAME[,NAME...]."""
+    if a.scenarios == "all":
+        return [(n, None) for n in builtin_scenarios(a.build)] + extra_scenarios()
+    if a.scenarios == "extra":
+        return extra_scenarios()
+    return [(n, a.seed) for n in a.scenarios.split(",")]
+
+
+def run_one(build, out_root, scenario, seed, ablation, duration):
+    label = run_label(scenario, seed)
+    out = os.path.join(out_root, ablation, label)
+    proc, wall = run_estimator(build, scenario, seed, duration, out, ["--no-gnss"] + ABLATION_FLAGS[ablation])
     row = {"scenario": label, "ablation": ablation, "target_pct": target_pct(label), "wall_s": wall}
     if proc.returncode != 0:
-        row["error"] = proc.stderr.strip().splitlines()[-2:] if proc.stderr else ["exit %d" % proc.returncode]
+        row["error"] = failure(proc)
         return row
     ev = subprocess.run([os.path.join(build, "bin", "raillomer-eval"), "--estimate", os.path.join(out, "trajectory.tum"),
                          "--truth", os.path.join(out, "truth.tum"), "--align", "se3",
@@ -101,21 +134,10 @@ def markdown(rows):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
-    ap.add_argument("--out", default=os.path.join(ROOT, "runs", "suite"))
-    ap.add_argument("--scenarios", default="all")
+    add_run_arguments(ap, "suite")
     ap.add_argument("--ablations", default="full")
-    ap.add_argument("--seed", type=int)
-    ap.add_argument("--duration", type=float)
-    ap.add_argument("--markdown")
-    ap.add_argument("--check", action="store_true")
     a = ap.parse_args()
-    if a.scenarios == "all":
-        runs = [(n, None) for n in builtin_scenarios(a.build)] + extra_scenarios()
-    elif a.scenarios == "extra":
-        runs = extra_scenarios()
-    else:
-        runs = [(n, a.seed) for n in a.scenarios.split(",")]
+    runs = select_runs(a)
     rows = []
     for ablation in a.ablations.split(","):
         if ablation not in ABLATION_FLAGS:

@@ -24,10 +24,9 @@ import math
 import os
 import subprocess
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from estimator_suite import ROOT, builtin_scenarios, extra_scenarios  # noqa: E402
+from estimator_suite import add_run_arguments, failure, run_estimator, run_label, select_runs  # noqa: E402
 
 ATE_TARGET_M, MAX_TARGET_M, OUTAGE_MAX_TARGET_M = 0.25, 1.0, 1.5
 OUTAGE_GAP_S = 5.0  # no fix for this long: the receiver is out
@@ -120,31 +119,21 @@ def outage_max(estimate, truth, fixes):
     return worst
 
 
-def antenna_up(rig_yaml_text):
-    # The simulator's antenna sits straight above the body origin (gnss.antenna_m: [0, 0, h]).
-    for line in rig_yaml_text.splitlines():
+def antenna_up(scenario_yaml_text):
+    """The simulator's antenna height above the body origin (gnss.antenna_m: [0, 0, h]; default 0.3)."""
+    for line in scenario_yaml_text.splitlines():
         if "antenna_m:" in line:
             return float(line.split("[")[1].split("]")[0].split(",")[2])
-    return 0.0
+    return 0.3
 
 
 def run_one(build, out_root, scenario, seed, duration):
-    label = os.path.splitext(os.path.basename(scenario))[0] + (f"@seed{seed}" if seed is not None else "")
+    label = run_label(scenario, seed)
     out = os.path.join(out_root, label)
-    cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
-           "--quiet", "--no-keyframes", "--no-submaps"]
-    if seed is not None:
-        cmd += ["--seed", str(seed)]
-    if duration:
-        cmd += ["--duration", str(duration)]
-    t0 = time.time()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0 and duration and "exceeds the scenario's motion profile" in proc.stderr:
-        cmd = cmd[:cmd.index("--duration")] + cmd[cmd.index("--duration") + 2:]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-    row = {"scenario": label, "wall_s": time.time() - t0}
+    proc, wall = run_estimator(build, scenario, seed, duration, out, [])
+    row = {"scenario": label, "wall_s": wall}
     if proc.returncode != 0:
-        row["error"] = proc.stderr.strip().splitlines()[-2:] if proc.stderr else ["exit %d" % proc.returncode]
+        row["error"] = failure(proc)
         return row
     with open(os.path.join(out, "summary.json")) as f:
         s = json.load(f)
@@ -165,9 +154,9 @@ def run_one(build, out_root, scenario, seed, duration):
     truth = read_tum(os.path.join(out, "truth.tum"))
     fixes = read_tum(os.path.join(out, "gnss.tum"))
     estimate = read_tum(os.path.join(out, "trajectory.tum"))
-    rig = subprocess.run([os.path.join(build, "bin", "raillomer-sim"), "--scenario", scenario, "--print-scenario"],
+    scenario_text = subprocess.run([os.path.join(build, "bin", "raillomer-sim"), "--scenario", scenario, "--print-scenario"],
                          capture_output=True, text=True).stdout if not scenario.endswith(".yaml") else open(scenario).read()
-    bound = gnss_bound(truth, fixes, antenna_up(rig) if "antenna_m" in rig else 0.3)
+    bound = gnss_bound(truth, fixes, antenna_up(scenario_text))
     row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
                outage_max_m=outage_max(estimate, truth, fixes),
                bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None)
@@ -202,20 +191,9 @@ def misses(row):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
-    ap.add_argument("--out", default=os.path.join(ROOT, "runs", "gnss"))
-    ap.add_argument("--scenarios", default="all")
-    ap.add_argument("--seed", type=int)
-    ap.add_argument("--duration", type=float)
-    ap.add_argument("--markdown")
-    ap.add_argument("--check", action="store_true")
+    add_run_arguments(ap, "gnss")
     a = ap.parse_args()
-    if a.scenarios == "all":
-        runs = [(n, None) for n in builtin_scenarios(a.build)] + extra_scenarios()
-    elif a.scenarios == "extra":
-        runs = extra_scenarios()
-    else:
-        runs = [(n, a.seed) for n in a.scenarios.split(",")]
+    runs = select_runs(a)
     rows = []
     for scenario, seed in runs:
         row = run_one(a.build, a.out, scenario, seed, a.duration)
