@@ -3,6 +3,8 @@
 #include <cinttypes>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <sstream>
 
 namespace raillomer::api {
@@ -127,6 +129,20 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
     std::memcpy(v, &bytes[pos + 16 * i], sizeof(v));
     s->points[i] = Eigen::Vector3f(v[0], v[1], v[2]);
     s->intensities[i] = v[3];
+  }
+  return true;
+}
+
+bool ReadSubmapFile(const std::string& path, Submap* submap, std::string* error) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    if (error) *error = "cannot read " + path;
+    return false;
+  }
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!DecodeSubmapPcd(bytes, submap, error)) {
+    if (error) *error = path + ": " + *error;
+    return false;
   }
   return true;
 }

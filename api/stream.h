@@ -51,5 +51,7 @@ class StreamSink {
 std::string EncodeSubmapPcd(const Submap& submap);
 /// Parses EncodeSubmapPcd's output; false with a message naming what is wrong.
 bool DecodeSubmapPcd(const std::string& bytes, Submap* submap, std::string* error);
+/// Reads and decodes one submap file; false with a message naming the file.
+bool ReadSubmapFile(const std::string& path, Submap* submap, std::string* error);
 
 }  // namespace raillomer::api

@@ -9,8 +9,8 @@ packages=(
   # core libraries
   libeigen3-dev libyaml-cpp-dev libcli11-dev libspdlog-dev nlohmann-json3-dev
   libgeographiclib-dev geographiclib-tools
-  # estimator: nonlinear least squares
-  libceres-dev
+  # estimator: nonlinear least squares; submap registration (ICP, NDT)
+  libceres-dev libpcl-dev
   # simulator ray casting
   libembree-dev
   # ROS1 bags without ROS

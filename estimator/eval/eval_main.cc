@@ -1,6 +1,8 @@
 // raillomer-eval: scores an estimated trajectory against ground truth as the paper's Table III
 // (ATE after alignment, relative error per 100 m, end-point drift). A thin wrapper: reads the two
 // TUM files, calls raillomer::eval::Evaluate, prints a table and writes JSON and SVG atomically.
+// With --scenario and --submaps it also scores the map's sharpness against the simulated
+// corridor's planes and rail heads.
 //
 // Exit codes: 0 success; 1 an output could not be written; 2 unusable input (unreadable or
 // malformed TUM, different UTM zones, fewer than two matched poses); CLI11's codes for usage.
@@ -15,8 +17,11 @@
 #include "api/atomic_file.h"
 #include "api/trajectory.h"
 #include "estimator/eval/evaluation.h"
+#include "estimator/eval/map_sharpness.h"
 #include "estimator/eval/report.h"
 #include "estimator/eval/svg_plot.h"
+#include "estimator/sim/scenario.h"
+#include "estimator/sim/simulator.h"
 
 namespace {
 
@@ -49,6 +54,15 @@ int main(int argc, char** argv) {
             return raillomer::eval::IsSupportedPlotPath(path, &error) ? std::string() : error;
           },
           "FILE.svg"));
+  std::string scenario_name, submap_folder;
+  auto* scenario_option = app.add_option(
+      "--scenario", scenario_name, "simulated scenario of the run, for --submaps (name or YAML)");
+  auto* submaps_option =
+      app.add_option("--submaps",
+                     submap_folder,
+                     "score the sharpness of this run's submap folder (needs --scenario)");
+  scenario_option->needs(submaps_option);
+  submaps_option->needs(scenario_option);
   CLI11_PARSE(app, argc, argv);
   raillomer::eval::ParseAlignmentMode(align_text, &options.align);  // IsMember checked it.
 
@@ -77,11 +91,41 @@ int main(int argc, char** argv) {
   }
   std::cout << raillomer::eval::FormatTable(result) << std::flush;
 
+  nlohmann::json map_json;
+  if (!submap_folder.empty()) {
+    raillomer::sim::Scenario scenario;
+    raillomer::sim::SimOptions sim_options;
+    sim_options.lidar = false;
+    std::unique_ptr<raillomer::sim::Simulator> simulator;
+    if (raillomer::sim::LoadScenario(scenario_name, &scenario, &error)) {
+      simulator = raillomer::sim::Simulator::Create(scenario, sim_options, &error);
+    }
+    if (!simulator) {
+      std::cerr << "raillomer-eval: error: scenario " << scenario_name << ": " << error << "\n";
+      return kExitInputError;
+    }
+    raillomer::eval::MapSharpness sharpness(raillomer::eval::SelectReferenceTriangles(
+        simulator->world().mesh(), simulator->origin_utm()));
+    size_t skipped = 0;
+    if (!raillomer::eval::ScoreSubmapFolder(submap_folder, truth, &sharpness, &skipped, &error)) {
+      std::cerr << "raillomer-eval: error: " << error << "\n";
+      return kExitInputError;
+    }
+    if (skipped > 0) {
+      std::cerr << "raillomer-eval: warning: " << skipped
+                << " submaps lie outside the truth's span and were not scored\n";
+    }
+    const raillomer::eval::SharpnessResult map = sharpness.Result();
+    std::cout << raillomer::eval::FormatSharpness(map) << std::flush;
+    map_json = raillomer::eval::ToJson(map);
+  }
+
   int exit_code = 0;
   if (!json_path.empty()) {
     nlohmann::json json = raillomer::eval::ToJson(result);
     json["estimate_file"] = estimate_path;
     json["truth_file"] = truth_path;
+    if (!map_json.is_null()) json["map"] = map_json;
     if (!raillomer::api::WriteFileAtomically(json_path, json.dump(2) + "\n", &error)) {
       std::cerr << "raillomer-eval: error: " << error << "\n";
       exit_code = kExitOutputError;

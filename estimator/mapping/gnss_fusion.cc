@@ -407,8 +407,32 @@ Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double
   return T;
 }
 
+Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, double t_s) {
+  Eigen::Isometry3d T = ToEnu(T_odom_body, t_s);
+  if (published_ && options_.continuity_length_m > 0.0) {
+    const Eigen::Isometry3d now = ToEnu(published_odom_, published_t_s_);
+    const Eigen::Vector3d dp = published_enu_.translation() - now.translation();
+    if (dp.norm() <= options_.continuity_max_step_m) {
+      // Positions only: holding a yaw difference on the orientation while the positions follow
+      // the graph would skew the body against its own path (crabbing), and every keyframe
+      // cloud with it.
+      const double travel = (T_odom_body.translation() - published_odom_.translation()).norm();
+      T.translation() += std::exp(-travel / options_.continuity_length_m) * dp;
+    }
+  }
+  published_ = true;
+  published_t_s_ = t_s;
+  published_odom_ = T_odom_body;
+  published_enu_ = T;
+  return T;
+}
+
 double GnssFusion::settled_until_s() const {
-  return aligned_ && !nodes_.empty() ? nodes_.back().t_s : -std::numeric_limits<double>::infinity();
+  // The first nodes' headings rest on the alignment's short baseline and move by milliradians
+  // as the graph grows; poses wait for min_settled_nodes nodes.
+  if (!aligned_ || static_cast<int>(nodes_.size()) < std::max(1, options_.min_settled_nodes))
+    return -std::numeric_limits<double>::infinity();
+  return nodes_.back().t_s;
 }
 
 }  // namespace raillomer

@@ -1,5 +1,6 @@
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <functional>
@@ -41,6 +42,15 @@ struct GnssFusionOptions {
   double scale_prior_sigma = 0.01;
   double heading_drift_prior_sigma_rad_per_m = 2e-5;
   int max_nodes = 60;  ///< pose-graph nodes kept (one per factor)
+  /// Published poses stay continuous: when a re-solve moves the graph under poses already
+  /// published, the difference fades out over this much travel (m) instead of stepping the
+  /// trajectory, which would tear the map at the step. 0 publishes the graph as it stands.
+  double continuity_length_m = 200.0;
+  /// No pose is settled before the graph has this many nodes: the first nodes' headings rest
+  /// on the alignment's short baseline and still move by milliradians.
+  int min_settled_nodes = 3;
+  /// A difference above this (m), e.g. when GNSS returns after an outage, is applied at once.
+  double continuity_max_step_m = 0.5;
   /// After this many consecutive rejected fixes that agree with each other within
   /// 2 * sigma_horizontal_m, the alignment is re-solved on the recent fixes.
   int resolve_after_rejections = 8;
@@ -90,6 +100,12 @@ class GnssFusion {
   /// carried from both and blended, so the drift between them is spread over the span instead
   /// of showing as a jump at the newer node. Poses after the newest node are extrapolated.
   Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body, double t_s) const;
+  /// The pose to publish for the odometry pose at time t_s (time order): ToEnu(T, t_s), plus
+  /// how far the graph has moved the last published position since it went out, fading with
+  /// exp(-travel / continuity_length_m). Valid once aligned.
+  Eigen::Isometry3d Publish(const Eigen::Isometry3d& T_odom_body, double t_s);
+  /// The odometry's scale error as the graph estimates it: true distance = scale x odometry.
+  double odometry_scale() const { return std::exp(drift_[0]); }
   /// Poses up to this time lie between nodes of the graph (-inf before the first).
   double settled_until_s() const;
   const GnssFusionStats& stats() const { return stats_; }
@@ -170,6 +186,11 @@ class GnssFusion {
   Pair pending_epoch_{};
   double last_accept_distance_m_ = 0.0;
   std::vector<Eigen::Vector2d> rejected_innovations_;
+
+  bool published_ = false;  ///< the last published pose, for Publish's continuity
+  double published_t_s_ = 0.0;
+  Eigen::Isometry3d published_odom_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d published_enu_ = Eigen::Isometry3d::Identity();
 };
 
 }  // namespace raillomer

@@ -1,70 +1,287 @@
 #include "estimator/mapping/submap_builder.h"
 
-#include "estimator/mapping/voxel_centroids.h"
-
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
+#include "estimator/mapping/voxel_centroids.h"
+
 namespace raillomer {
+namespace {
 
-SubmapBuilder::SubmapBuilder(int keyframes_per_submap, double voxel_m)
-    : keyframes_per_submap_(std::max(1, keyframes_per_submap)), voxel_m_(voxel_m) {}
-
-api::Submap SubmapBuilder::Close() {
-  api::Submap s = std::move(*open_);
-  open_.reset();
-  if (voxel_m_ <= 0.0 || s.points.empty()) return s;
-  VoxelCentroids grid(voxel_m_);
-  for (size_t i = 0; i < s.points.size(); ++i)
-    grid.Add(s.points[i].cast<double>(), s.intensities[i]);
-  s.points.clear();
-  s.intensities.clear();
-  grid.ForEach([&](uint64_t, const Eigen::Vector3d& p, float intensity) {
-    s.points.push_back(p.cast<float>());
-    s.intensities.push_back(intensity);
-  });
-  return s;
+std::vector<Eigen::Vector3f> Thinned(const std::vector<Eigen::Vector3f>& points, double voxel_m) {
+  VoxelCentroids grid(voxel_m);
+  for (const Eigen::Vector3f& p : points) grid.Add(p.cast<double>(), 0.f);
+  std::vector<Eigen::Vector3f> out;
+  grid.ForEach([&](uint64_t, const Eigen::Vector3d& p, float) { out.push_back(p.cast<float>()); });
+  return out;
 }
 
-std::vector<api::Submap> SubmapBuilder::Add(int64_t stamp_ns,
-                                            const Eigen::Isometry3d& T_world_body,
-                                            bool georeferenced,
-                                            const std::string& utm_zone,
-                                            const std::vector<Eigen::Vector3f>& points_body,
-                                            const std::vector<float>& intensities) {
+bool Within(const Registration& r, const Eigen::Isometry3d& guess, double max_m, double max_deg) {
+  double translation_m = 0.0, rotation_rad = 0.0;
+  CorrectionSize(guess, r.T_target_source, &translation_m, &rotation_rad);
+  return translation_m <= max_m && rotation_rad <= max_deg * M_PI / 180.0;
+}
+
+}  // namespace
+
+SubmapBuilder::SubmapBuilder(const SubmapOptions& options) : options_(options) {
+  options_.keyframes = std::max(1, options_.keyframes);
+}
+
+void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
+                                      std::vector<Eigen::Isometry3d>* P) {
+  const size_t n = open_.size();
+  const size_t anchor = n / 2;
+  const bool any = std::any_of(open_.begin(), open_.end(), [&](const SubmapKeyframe& k) {
+    return options_.icp_every_keyframe || k.odometry_suspect;
+  });
+  if (!any) return;
+  VoxelCentroids target(options_.icp_target_voxel_m);
+  auto add = [&](size_t k) {
+    const Eigen::Isometry3d& T = (*P)[k];
+    for (const Eigen::Vector3f& p : open_[k].points_body) target.Add(T * p.cast<double>(), 0.f);
+  };
+  add(anchor);
+  // Outward from the anchor, so each keyframe meets the neighbours it overlaps most.
+  std::vector<size_t> order;
+  for (size_t k = anchor + 1; k < n; ++k) order.push_back(k);
+  for (size_t k = anchor; k-- > 0;) order.push_back(k);
+  std::vector<Eigen::Vector3f> target_points;
+  for (size_t k : order) {
+    if (!options_.icp_every_keyframe && !open_[k].odometry_suspect) {
+      add(k);
+      continue;
+    }
+    target_points.clear();
+    target.ForEach([&](uint64_t, const Eigen::Vector3d& p, float) {
+      target_points.push_back(p.cast<float>());
+    });
+    auto accept = [&](const Registration& r, const Eigen::Isometry3d& guess) {
+      return r.converged && r.fitness_m2 <= options_.icp_max_fitness_m2 &&
+             Within(r, guess, options_.icp_max_correction_m, options_.icp_max_correction_deg);
+    };
+    const Eigen::Isometry3d odometry_guess = (*P)[k];
+    const Registration r =
+        IcpRegister(open_[k].points_body, target_points, odometry_guess, options_.icp_options);
+    if (accept(r, odometry_guess)) {
+      (*P)[k] = r.T_target_source;
+      ++stats_.icp_odometry;
+    } else {
+      // The paper's fallback: the GNSS (published) pose as the initial guess.
+      Eigen::Isometry3d gnss_guess = open_[k].T_world_body;
+      gnss_guess.translation() -= origin;
+      const Registration g =
+          IcpRegister(open_[k].points_body, target_points, gnss_guess, options_.icp_options);
+      if (accept(g, gnss_guess)) {
+        (*P)[k] = g.T_target_source;
+        ++stats_.icp_gnss;
+      } else {
+        ++stats_.icp_failed;
+      }
+    }
+    add(k);
+  }
+}
+
+bool SubmapBuilder::StartNdt(Pending* p, bool chained) {
+  // The two submaps' overlap only, in this submap's local frame (origins differ by whole
+  // metres): points beyond it cannot match and only cost time.
+  const api::Submap& s = p->submap;
+  const Eigen::Vector3d shift = previous_->origin - s.origin;
+  Eigen::AlignedBox3f source_box, target_box;
+  for (const Eigen::Vector3f& q : s.points) source_box.extend(q);
+  const float margin = static_cast<float>(2.0 * options_.ndt_options.resolution_m);
+  source_box.min().array() -= margin;
+  source_box.max().array() += margin;
+  std::vector<Eigen::Vector3f> target;
+  target.reserve(previous_->points.size());
+  for (const Eigen::Vector3f& q : previous_->points) {
+    const Eigen::Vector3f t = (q.cast<double>() + shift).cast<float>();
+    if (!source_box.contains(t)) continue;
+    target.push_back(t);
+    target_box.extend(t);
+  }
+  if (target.empty()) return false;
+  target_box.min().array() -= margin;
+  target_box.max().array() += margin;
+  std::vector<Eigen::Vector3f> source;
+  source.reserve(s.points.size());
+  for (const Eigen::Vector3f& q : s.points)
+    if (target_box.contains(q)) source.push_back(q);
+  NdtOptions ndt = options_.ndt_options;
+  ndt.coarse_pass = ndt.coarse_pass && !chained;  // the chain's guess is within centimetres
+  p->ndt = std::async(std::launch::async,
+                      [source = std::move(source), target = std::move(target), ndt]() {
+                        return NdtRegister(source, target, Eigen::Isometry3d::Identity(), ndt);
+                      });
+  return true;
+}
+
+void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
+  Pending p = std::move(*pending_);
+  pending_.reset();
+  const Registration r = p.ndt.get();
+  if (r.converged && Within(r,
+                            Eigen::Isometry3d::Identity(),
+                            options_.ndt_max_correction_m,
+                            options_.ndt_max_correction_deg)) {
+    ++stats_.ndt_applied;
+    const Eigen::Isometry3d& delta = r.T_target_source;
+    for (Eigen::Vector3f& q : p.submap.points) q = (delta * q.cast<double>()).cast<float>();
+    for (Eigen::Isometry3d& T : p.P) T = delta * T;
+  } else {
+    ++stats_.ndt_rejected;
+  }
+  done->push_back(Finalize(std::move(p)));
+}
+
+api::Submap SubmapBuilder::Finalize(Pending p) {
+  api::Submap& s = p.submap;
+  if (p.chained && (options_.gnss_pull > 0.0 || options_.gnss_pull_vertical > 0.0)) {
+    // Move the submap rigidly so that its anchor goes gnss_pull of the way to its GNSS pose
+    // (gnss_pull_vertical of the way in height).
+    Eigen::Isometry3d anchor = p.P[p.anchor];
+    anchor.translation() += s.origin;
+    const Eigen::Isometry3d& gnss = p.T_gnss_anchor;
+    const double k = options_.gnss_pull;
+    Eigen::Isometry3d target = Eigen::Isometry3d::Identity();
+    target.linear() = Eigen::Quaterniond(anchor.linear())
+                          .slerp(k, Eigen::Quaterniond(gnss.linear()))
+                          .normalized()
+                          .toRotationMatrix();
+    Eigen::Vector3d step = k * (gnss.translation() - anchor.translation());
+    step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
+    target.translation() = anchor.translation() + step - s.origin;
+    const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame
+    for (Eigen::Vector3f& q : s.points) q = (delta * q.cast<double>()).cast<float>();
+    for (Eigen::Isometry3d& T : p.P) T = delta * T;
+  }
+  for (size_t k = 0; k < p.P.size(); ++k) {
+    s.keyframes[k].p_world = p.P[k].translation() + s.origin;
+    s.keyframes[k].q_world_body = Eigen::Quaterniond(p.P[k].linear()).normalized();
+  }
+  if (s.georeferenced) {
+    Previous next;
+    next.utm_zone = s.utm_zone;
+    next.origin = s.origin;
+    if (options_.ndt) next.points = Thinned(s.points, options_.ndt_target_voxel_m);
+    next.T_world_anchor = p.P[p.anchor];
+    next.T_world_anchor.translation() += s.origin;
+    next.T_odom_anchor = p.T_odom_anchor;
+    previous_ = std::move(next);
+  } else {
+    previous_.reset();
+  }
+  ++stats_.submaps;
+  return std::move(s);
+}
+
+Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor, bool* chained) {
+  *chained = false;
+  const Eigen::Isometry3d& gnss = anchor.T_world_body;
+  if (!anchor.georeferenced || !previous_ || previous_->utm_zone != anchor.utm_zone) return gnss;
+  // The previous submap's position carried by the odometry's motion since its anchor, turned
+  // into the world by the current GNSS correction and with the odometry's scale error taken
+  // out; the orientation is the GNSS-corrected one. Carrying the orientation along the chain
+  // too would carry an early heading error (the alignment's, before the graph has settled)
+  // into every later submap, which then walks sideways off the track.
+  const Eigen::Matrix3d R_correction = gnss.linear() * anchor.T_odom_body.linear().transpose();
+  Eigen::Isometry3d chain = gnss;
+  chain.translation() =
+      previous_->T_world_anchor.translation() +
+      R_correction * (anchor.odometry_scale *
+                      (anchor.T_odom_body.translation() - previous_->T_odom_anchor.translation()));
+  if ((gnss.translation() - chain.translation()).norm() > options_.chain_reset_m) {
+    ++stats_.chain_resets;
+    return gnss;
+  }
+  ++stats_.chained;
+  *chained = true;
+  return chain;
+}
+
+void SubmapBuilder::Close(std::vector<api::Submap>* done) {
+  if (pending_) FinishPending(done);  // its placement seeds this submap's chain
+  const SubmapKeyframe& first = open_.front();
+  Pending p;
+  api::Submap& s = p.submap;
+  s.index = next_index_++;
+  s.first_stamp_ns = first.stamp_ns;
+  s.last_stamp_ns = open_.back().stamp_ns;
+  s.georeferenced = first.georeferenced;
+  s.utm_zone = first.utm_zone;
+  s.origin = first.T_world_body.translation().array().round().matrix();
+
+  // Local poses (world minus origin): the middle keyframe placed by PlaceAnchor, the others by
+  // the odometry relative to it. The relative motion is taken first, in odometry magnitudes.
+  const size_t n = open_.size();
+  p.anchor = n / 2;
+  p.T_odom_anchor = open_[p.anchor].T_odom_body;
+  p.T_gnss_anchor = open_[p.anchor].T_world_body;
+  bool chained = false;
+  Eigen::Isometry3d A = PlaceAnchor(open_[p.anchor], &chained);
+  p.chained = chained;
+  A.translation() -= s.origin;
+  const Eigen::Isometry3d odom_anchor_inv = p.T_odom_anchor.inverse();
+  p.P.resize(n);
+  for (size_t k = 0; k < n; ++k) p.P[k] = A * (odom_anchor_inv * open_[k].T_odom_body);
+  if (options_.icp && n > 1) RegisterKeyframes(s.origin, &p.P);
+
+  for (size_t k = 0; k < n; ++k) {
+    const SubmapKeyframe& kf = open_[k];
+    for (size_t i = 0; i < kf.points_body.size(); ++i) {
+      s.points.push_back((p.P[k] * kf.points_body[i].cast<double>()).cast<float>());
+      s.intensities.push_back(i < kf.intensities.size() ? kf.intensities[i] : 0.f);
+    }
+    api::StampedPose pose;  // filled in by Finalize
+    pose.stamp_ns = kf.stamp_ns;
+    s.keyframes.push_back(pose);
+  }
+  if (options_.voxel_m > 0.0 && !s.points.empty()) {
+    // Offsets are at most a few hundred metres: float keeps them to well below a millimetre.
+    VoxelCentroids grid(options_.voxel_m);
+    for (size_t i = 0; i < s.points.size(); ++i)
+      grid.Add(s.points[i].cast<double>(), s.intensities[i]);
+    s.points.clear();
+    s.intensities.clear();
+    grid.ForEach([&](uint64_t, const Eigen::Vector3d& q, float intensity) {
+      s.points.push_back(q.cast<float>());
+      s.intensities.push_back(intensity);
+    });
+  }
+  open_.clear();
+  if (s.georeferenced && options_.ndt && previous_ && previous_->utm_zone == s.utm_zone &&
+      StartNdt(&p, chained)) {
+    pending_ = std::move(p);
+    return;
+  }
+  done->push_back(Finalize(std::move(p)));
+}
+
+SubmapBuilder::~SubmapBuilder() {
+  if (pending_ && pending_->ndt.valid()) pending_->ndt.wait();
+}
+
+std::vector<api::Submap> SubmapBuilder::Add(SubmapKeyframe keyframe) {
   std::vector<api::Submap> done;
-  if (open_ && (open_->georeferenced != georeferenced || open_->utm_zone != utm_zone))
-    done.push_back(Close());
-  if (!open_) {
-    open_.emplace();
-    open_->index = next_index_++;
-    open_->first_stamp_ns = stamp_ns;
-    open_->georeferenced = georeferenced;
-    open_->utm_zone = utm_zone;
-    open_->origin = T_world_body.translation().array().round().matrix();
+  if (pending_ && pending_->ndt.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+    FinishPending(&done);
   }
-  api::Submap& s = *open_;
-  s.last_stamp_ns = stamp_ns;
-  api::StampedPose pose;
-  pose.stamp_ns = stamp_ns;
-  pose.p_world = T_world_body.translation();
-  pose.q_world_body = Eigen::Quaterniond(T_world_body.linear()).normalized();
-  s.keyframes.push_back(pose);
-  // Offsets from the origin in double, then to float: a few hundred metres at most.
-  const Eigen::Matrix3d R = T_world_body.linear();
-  const Eigen::Vector3d t = T_world_body.translation() - s.origin;
-  s.points.reserve(s.points.size() + points_body.size());
-  for (size_t i = 0; i < points_body.size(); ++i) {
-    s.points.push_back((R * points_body[i].cast<double>() + t).cast<float>());
-    s.intensities.push_back(i < intensities.size() ? intensities[i] : 0.f);
+  if (!open_.empty() && (open_.front().georeferenced != keyframe.georeferenced ||
+                         open_.front().utm_zone != keyframe.utm_zone)) {
+    Close(&done);
   }
-  if (static_cast<int>(s.keyframes.size()) >= keyframes_per_submap_) done.push_back(Close());
+  open_.push_back(std::move(keyframe));
+  if (static_cast<int>(open_.size()) >= options_.keyframes) Close(&done);
   return done;
 }
 
-std::optional<api::Submap> SubmapBuilder::Flush() {
-  if (!open_) return std::nullopt;
-  return Close();
+std::vector<api::Submap> SubmapBuilder::Flush() {
+  std::vector<api::Submap> done;
+  if (!open_.empty()) Close(&done);
+  if (pending_) FinishPending(&done);
+  return done;
 }
 
 }  // namespace raillomer

@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstdint>
+#include <future>
 #include <optional>
 #include <string>
 #include <vector>
@@ -8,37 +9,137 @@
 #include <Eigen/Geometry>
 
 #include "api/stream.h"
+#include "estimator/mapping/submap_registration.h"
 
 namespace raillomer {
 
-/// Groups consecutive keyframes into submaps (paper IV.E: 10 keyframes each). A keyframe's
-/// deskewed cloud is carried from the body frame into the world with its final pose; the submap
-/// keeps float offsets from a double-precision origin, its first keyframe's position rounded to
-/// whole metres, so UTM coordinates are never stored in a float.
+/// Options of the two-stage submap mapping (paper IV.E).
+struct SubmapOptions {
+  int keyframes = 10;    ///< keyframes per submap
+  double voxel_m = 0.1;  ///< one point (the centroid) per voxel; 0 keeps every point
+  /// Stage 1, scan-to-submap (paper: when the scan-to-map iterations hit their limit): a
+  /// keyframe whose odometry solve hit its iteration limit or was degenerate is registered by
+  /// ICP onto the submap built so far, from its odometry pose and, if that fails too, from its
+  /// GNSS pose. `icp_every_keyframe` registers every keyframe (slow; for comparison).
+  bool icp = true;
+  bool icp_every_keyframe = false;
+  IcpOptions icp_options;
+  double icp_target_voxel_m = 0.2;
+  double icp_max_fitness_m2 = 0.02;  ///< mean squared match distance to accept a result
+  /// A result further than this from its guess is not trusted (m, deg).
+  double icp_max_correction_m = 0.3;
+  double icp_max_correction_deg = 1.0;
+  /// Stage 2, submap-to-submap. A georeferenced submap is placed by the odometry's motion from
+  /// the previous submap (its scale corrected by GNSS), unless that differs from its GNSS pose
+  /// by more than `chain_reset_m` (a GNSS outage ended, or the alignment was re-solved), when
+  /// the GNSS pose is taken. NDT then registers it onto the previous submap from that guess,
+  /// and last it is moved `gnss_pull` of the way towards its GNSS pose, so the chain follows
+  /// GNSS without a step at any seam.
+  double gnss_pull = 0.05;
+  /// Vertically the pull is weaker: a single-point receiver's height wanders by metres, the
+  /// odometry's by far less.
+  double gnss_pull_vertical = 0.01;
+  double chain_reset_m = 2.0;
+  bool ndt = true;
+  NdtOptions ndt_options;
+  double ndt_target_voxel_m = 0.2;  ///< the previous submap, thinned (finer than NDT cells)
+  double ndt_max_correction_m = 0.3;
+  double ndt_max_correction_deg = 0.5;
+};
+
+/// One keyframe for the submap builder.
+struct SubmapKeyframe {
+  int64_t stamp_ns = 0;
+  /// The published pose: UTM when georeferenced, else the local odometry frame.
+  Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
+  /// The odometry's own pose, without GNSS corrections: locally the most consistent.
+  Eigen::Isometry3d T_odom_body = Eigen::Isometry3d::Identity();
+  bool georeferenced = false;
+  std::string utm_zone;
+  /// The odometry's solve hit its iteration limit or was degenerate (stage 1 registers it).
+  bool odometry_suspect = false;
+  /// The odometry's scale error (true distance = scale x odometry), from the GNSS fusion.
+  double odometry_scale = 1.0;
+  std::vector<Eigen::Vector3f> points_body;  ///< deskewed cloud, body frame
+  std::vector<float> intensities;
+};
+
+/// Counters of the two registration stages.
+struct SubmapStats {
+  uint64_t submaps = 0;
+  uint64_t chained = 0;       ///< submaps placed by the odometry chain (pulled towards GNSS)
+  uint64_t chain_resets = 0;  ///< ... placed by GNSS alone, the chain too far from it
+  uint64_t icp_odometry = 0;  ///< keyframes registered from their odometry guess
+  uint64_t icp_gnss = 0;      ///< ... from their GNSS guess, after the odometry one failed
+  uint64_t icp_failed = 0;    ///< keyframes left at their odometry pose
+  uint64_t ndt_applied = 0;
+  uint64_t ndt_rejected = 0;  ///< not converged or beyond the trust region
+};
+
+/// Groups consecutive keyframes into submaps (paper IV.E: 10 keyframes each) in two stages.
+/// Within a submap the keyframes keep their odometry poses relative to the middle one (the
+/// odometry is locally far better than GNSS), with stage 1's ICP where the odometry is suspect;
+/// the submap is placed as a rigid body (stage 2, see SubmapOptions). A submap keeps float
+/// offsets from a double-precision origin (its first keyframe's position rounded to whole
+/// metres), so UTM coordinates are never stored in a float.
 class SubmapBuilder {
  public:
-  /// A completed submap keeps one point (the centroid) per voxel of voxel_m (0: all points):
-  /// its keyframes overlap, and the union would repeat each surface ten times.
-  explicit SubmapBuilder(int keyframes_per_submap = 10, double voxel_m = 0.1);
+  explicit SubmapBuilder(const SubmapOptions& options = {});
+  ~SubmapBuilder();
+  SubmapBuilder(const SubmapBuilder&) = delete;
+  SubmapBuilder& operator=(const SubmapBuilder&) = delete;
 
-  /// Adds a keyframe: T_world_body absolute (UTM when georeferenced, else the local frame).
-  /// Returns the submaps it completes (without their sequence numbers): none or one, or two
-  /// when its frame differs from the open submap's (local versus UTM), which closes that first.
-  std::vector<api::Submap> Add(int64_t stamp_ns,
-                               const Eigen::Isometry3d& T_world_body,
-                               bool georeferenced,
-                               const std::string& utm_zone,
-                               const std::vector<Eigen::Vector3f>& points_body,
-                               const std::vector<float>& intensities);
-  /// The open submap, if it has any keyframe (end of the run).
-  std::optional<api::Submap> Flush();
+  /// Adds a keyframe. Returns the submaps completed since the last call (without their
+  /// sequence numbers), in index order: a submap's NDT runs on a worker thread while the
+  /// caller goes on, and the submap comes out of a later call once it is done.
+  std::vector<api::Submap> Add(SubmapKeyframe keyframe);
+  /// The end of the run: every submap still open or registering.
+  std::vector<api::Submap> Flush();
+  const SubmapStats& stats() const { return stats_; }
 
  private:
-  api::Submap Close();
-  int keyframes_per_submap_;
-  double voxel_m_;
+  /// A closed submap whose NDT runs on a worker thread.
+  struct Pending {
+    api::Submap submap;
+    std::vector<Eigen::Isometry3d> P;  ///< keyframe poses, local (world minus origin)
+    Eigen::Isometry3d T_odom_anchor = Eigen::Isometry3d::Identity();
+    Eigen::Isometry3d T_gnss_anchor = Eigen::Isometry3d::Identity();  ///< absolute
+    bool chained = false;
+    size_t anchor = 0;
+    std::future<Registration> ndt;
+  };
+
+  /// Closes the open submap into `done`, or into pending_ while its NDT runs.
+  void Close(std::vector<api::Submap>* done);
+  /// Waits for the pending submap's NDT, applies it and hands the submap over.
+  void FinishPending(std::vector<api::Submap>* done);
+  /// Pulls a chained submap towards GNSS, writes the keyframe poses and remembers the submap
+  /// for the next one's chain and NDT.
+  api::Submap Finalize(Pending p);
+  /// Stage 1: refines the local keyframe poses P (world minus origin) by ICP.
+  void RegisterKeyframes(const Eigen::Vector3d& origin, std::vector<Eigen::Isometry3d>* P);
+  /// Stage 2: where the middle keyframe goes (absolute), by the chain or by GNSS; `chained`
+  /// tells which.
+  Eigen::Isometry3d PlaceAnchor(const SubmapKeyframe& anchor, bool* chained);
+  /// Stage 2: starts the NDT of the submap onto the previous one; false if there is no
+  /// overlap to register.
+  bool StartNdt(Pending* p, bool chained);
+
+  SubmapOptions options_;
+  SubmapStats stats_;
   uint32_t next_index_ = 0;
-  std::optional<api::Submap> open_;
+  std::vector<SubmapKeyframe> open_;
+  std::optional<Pending> pending_;
+  /// The previous georeferenced submap: its placement for the chain, its points (thinned) for
+  /// NDT.
+  struct Previous {
+    std::string utm_zone;
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3f> points;
+    Eigen::Isometry3d T_world_anchor = Eigen::Isometry3d::Identity();  ///< absolute, final
+    Eigen::Isometry3d T_odom_anchor = Eigen::Isometry3d::Identity();
+  };
+  std::optional<Previous> previous_;
 };
 
 }  // namespace raillomer

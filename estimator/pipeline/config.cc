@@ -80,8 +80,12 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
-  r.Read("submap_keyframes", &o->submap_keyframes);
-  r.Read("submap_voxel_m", &o->submap_voxel_m);
+  r.Read("submap_keyframes", &o->submap.keyframes);
+  r.Read("submap_voxel_m", &o->submap.voxel_m);
+  r.Read("submap_icp", &o->submap.icp);
+  r.Read("submap_ndt", &o->submap.ndt);
+  r.Read("submap_gnss_pull", &o->submap.gnss_pull);
+  r.Read("submap_gnss_pull_vertical", &o->submap.gnss_pull_vertical);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
   if (r.Has("gnss")) {
@@ -95,6 +99,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("max_hold_s", &o->gnss_max_hold_s);
     g.Read("max_latency_s", &o->gnss_max_latency_s);
     g.Read("factor_window_s", &o->gnss.factor_window_s);
+    g.Read("continuity_length_m", &o->gnss.continuity_length_m);
+    g.Read("continuity_max_step_m", &o->gnss.continuity_max_step_m);
     g.Finish();
   }
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
@@ -158,10 +164,15 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("gnss.max_latency_s must be in [0, 600] s");
   if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
     return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
+  if (!(gnss.continuity_length_m >= 0.0) || !(gnss.continuity_max_step_m >= 0.0))
+    return fail("gnss.continuity_length_m and gnss.continuity_max_step_m must be >= 0");
   if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
-  if (submap_keyframes < 1 || submap_keyframes > 1000)
+  if (!(submap.gnss_pull >= 0.0 && submap.gnss_pull <= 1.0) ||
+      !(submap.gnss_pull_vertical >= 0.0 && submap.gnss_pull_vertical <= 1.0))
+    return fail("submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]");
+  if (submap.keyframes < 1 || submap.keyframes > 1000)
     return fail("submap_keyframes must be in [1, 1000]");
-  if (!(submap_voxel_m >= 0.0 && submap_voxel_m <= 5.0))
+  if (!(submap.voxel_m >= 0.0 && submap.voxel_m <= 5.0))
     return fail("submap_voxel_m must be in [0, 5] m (0: every point)");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");

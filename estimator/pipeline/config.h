@@ -10,6 +10,7 @@
 #include "estimator/features/loam_features.h"
 #include "estimator/features/rail_extraction.h"
 #include "estimator/mapping/gnss_fusion.h"
+#include "estimator/mapping/submap_builder.h"
 #include "estimator/preprocess/filters.h"
 
 namespace raillomer {
@@ -120,9 +121,12 @@ struct EstimatorOptions {
   /// are held back until then. 0 disables.
   double gravity_align_s = 10.0;
   bool write_keyframes = true;
-  /// Keyframes per submap (paper IV.E: 10), thinned to one point per voxel of submap_voxel_m.
-  int submap_keyframes = 10;
-  double submap_voxel_m = 0.1;
+  /// Two-stage submap mapping (paper IV.E): `submap_keyframes` (10) keyframes per submap,
+  /// thinned to one point per voxel of `submap_voxel_m` (0.1); `submap_icp` and `submap_ndt`
+  /// switch the scan-to-submap ICP and the submap-to-submap NDT; `submap_gnss_pull` (0.05) and
+  /// `submap_gnss_pull_vertical` (0.01) are the share of the way each submap moves from the
+  /// odometry chain towards its GNSS pose.
+  SubmapOptions submap;
   /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
   /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that
   /// is not aligned by then stays in the local frame and says so.

@@ -112,9 +112,7 @@ struct Estimator::NodeExtras {
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
-    : config_(config),
-      sinks_(std::move(sinks)),
-      submaps_(config.options.submap_keyframes, config.options.submap_voxel_m) {
+    : config_(config), sinks_(std::move(sinks)), submaps_(config.options.submap) {
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
   for (size_t i = 0; i < config_.rig.lidars.size(); ++i) {
@@ -669,6 +667,7 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       Keyframe k;
       k.stamp_ns = result.stamp_ns;
       k.T_world_body = result.T_world_body;
+      k.T_odom_body = result.T_world_body;
       k.points_body = std::move(extras->cloud);
       k.intensities = std::move(extras->intensities);
       VoxelThin(0.1, &k.points_body, &k.intensities);
@@ -718,12 +717,13 @@ void Estimator::ReleaseHeld(bool flush) {
     HeldOutput& h = gnss_held_.front();
     const double t = StampSeconds(h.frame.stamp_ns);
     if (t > settled_s && !flush && newest_s - t < config_.options.gnss_max_latency_s) break;
-    h.frame.T_world_body = gnss_->ToEnu(h.frame.T_world_body, t);
+    h.frame.T_world_body = gnss_->Publish(h.frame.T_world_body, t);
     h.frame.georeferenced = true;
     h.frame.origin_utm = gnss_->origin_utm();
     h.frame.utm_zone = gnss_->zone().Name();
     if (h.keyframe) {
-      h.keyframe->T_world_body = gnss_->ToEnu(h.keyframe->T_world_body, t);
+      h.keyframe->T_world_body = h.frame.T_world_body;  // the keyframe is this frame
+      h.keyframe->odometry_scale = gnss_->odometry_scale();
       h.keyframe->georeferenced = true;
       h.keyframe->origin_utm = h.frame.origin_utm;
     }
@@ -746,17 +746,23 @@ void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& 
   pose.q = Eigen::Quaterniond(frame.T_world_body.linear()).normalized();
   sinks_.stream->OnPose(pose);
   if (!keyframe) return;
-  Eigen::Isometry3d T = keyframe->T_world_body;
-  if (keyframe->georeferenced) T.translation() += keyframe->origin_utm;
-  for (api::Submap& s : submaps_.Add(keyframe->stamp_ns,
-                                     T,
-                                     keyframe->georeferenced,
-                                     keyframe->georeferenced ? frame.utm_zone : std::string(),
-                                     keyframe->points_body,
-                                     keyframe->intensities)) {
+  SubmapKeyframe k;
+  k.stamp_ns = keyframe->stamp_ns;
+  k.T_world_body = keyframe->T_world_body;
+  if (keyframe->georeferenced) k.T_world_body.translation() += keyframe->origin_utm;
+  k.T_odom_body = keyframe->T_odom_body;
+  k.odometry_scale = keyframe->odometry_scale;
+  k.georeferenced = keyframe->georeferenced;
+  if (keyframe->georeferenced) k.utm_zone = frame.utm_zone;
+  k.odometry_suspect =
+      frame.projected || frame.solver_iterations >= config_.options.max_solver_iterations;
+  k.points_body = keyframe->points_body;
+  k.intensities = keyframe->intensities;
+  for (api::Submap& s : submaps_.Add(std::move(k))) {
     s.sequence = stream_sequence_++;
     sinks_.stream->OnSubmap(s);
   }
+  stats_.submaps = submaps_.stats();
 }
 
 void Estimator::AlignGravity(bool last_chance) {
@@ -841,10 +847,11 @@ void Estimator::Finish() {
     ReleaseHeld(true);
   }
   if (sinks_.stream) {
-    if (std::optional<api::Submap> s = submaps_.Flush()) {
-      s->sequence = stream_sequence_++;
-      sinks_.stream->OnSubmap(*s);
+    for (api::Submap& s : submaps_.Flush()) {
+      s.sequence = stream_sequence_++;
+      sinks_.stream->OnSubmap(s);
     }
+    stats_.submaps = submaps_.stats();
   }
 }
 

@@ -62,6 +62,10 @@ struct FrameResult {
 struct Keyframe {
   int64_t stamp_ns = 0;
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();  ///< frame as FrameResult's
+  /// The odometry's own pose, before any GNSS correction (submaps are built from it).
+  Eigen::Isometry3d T_odom_body = Eigen::Isometry3d::Identity();
+  /// The odometry's scale error as GNSS sees it (true distance = scale x odometry), or 1.
+  double odometry_scale = 1.0;
   bool georeferenced = false;
   Eigen::Vector3d origin_utm = Eigen::Vector3d::Zero();
   std::vector<Eigen::Vector3f> points_body;
@@ -92,6 +96,7 @@ struct EstimatorStats {
   double distance_m = 0.0;
   bool georeferenced = false;  ///< the output is in UTM
   GnssFusionStats gnss;
+  SubmapStats submaps;  ///< the two-stage submap registration
 };
 
 /// raillomer-estimator's core: feeds on a time-ordered stream of sensor messages and estimates

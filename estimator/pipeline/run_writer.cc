@@ -248,6 +248,28 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
 double RunWriter::MedianFrameMs() const { return Percentile(frame_ms_, 0.5); }
 double RunWriter::PercentileFrameMs(double q) const { return Percentile(frame_ms_, q); }
 
+namespace {
+
+std::string SubmapJson(const SubmapStats& m) {
+  char text[512];
+  std::snprintf(text,
+                sizeof(text),
+                "\"submaps\": {\"count\": %llu, \"chained\": %llu, \"chain_resets\": %llu, "
+                "\"icp_odometry\": %llu, \"icp_gnss\": %llu, \"icp_failed\": %llu, "
+                "\"ndt_applied\": %llu, \"ndt_rejected\": %llu}",
+                static_cast<unsigned long long>(m.submaps),
+                static_cast<unsigned long long>(m.chained),
+                static_cast<unsigned long long>(m.chain_resets),
+                static_cast<unsigned long long>(m.icp_odometry),
+                static_cast<unsigned long long>(m.icp_gnss),
+                static_cast<unsigned long long>(m.icp_failed),
+                static_cast<unsigned long long>(m.ndt_applied),
+                static_cast<unsigned long long>(m.ndt_rejected));
+  return text;
+}
+
+}  // namespace
+
 bool RunWriter::Close(const EstimatorStats& s,
                       double data_duration_s,
                       double wall_s,
@@ -258,7 +280,7 @@ bool RunWriter::Close(const EstimatorStats& s,
     if (*f) std::fclose(*f);
     *f = nullptr;
   }
-  char text[2048];
+  char text[4096];
   std::snprintf(text,
                 sizeof(text),
                 "{\n  \"frames\": %zu,\n  \"keyframes\": %zu,\n  \"distance_m\": %.3f,\n"
@@ -270,7 +292,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                 "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  "
                 "\"odometer_rejected\": %llu,\n  \"georeferenced\": %s,\n  \"gnss\": {\"fixes\": "
                 "%llu, \"rejected\": %llu, \"outliers\": %llu, \"factors\": %llu, "
-                "\"realignments\": %llu}%s%s\n}\n",
+                "\"realignments\": %llu},\n  %s%s%s\n}\n",
                 frame_ms_.size(),
                 keyframe_count_,
                 s.distance_m,
@@ -296,6 +318,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                 static_cast<unsigned long long>(s.gnss.outliers),
                 static_cast<unsigned long long>(s.gnss.factors),
                 static_cast<unsigned long long>(s.gnss.realignments),
+                SubmapJson(s.submaps).c_str(),
                 extra_json.empty() ? "" : ",\n  ",
                 extra_json.c_str());
   if (!api::WriteFileAtomically(out_dir_ + "/summary.json", text, error)) return false;

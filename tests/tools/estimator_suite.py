@@ -57,7 +57,7 @@ def run_estimator(build, scenario, seed, duration, out, flags):
     """Runs raillomer-estimator --sim on a scenario (a shorter one whole when --duration exceeds
     it). Returns the finished process and the wall time."""
     cmd = [os.path.join(build, "bin", "raillomer-estimator"), "--sim", scenario, "--out", out,
-           "--quiet", "--no-keyframes", "--no-submaps"] + flags
+           "--quiet", "--no-keyframes"] + flags
     if seed is not None:
         cmd += ["--seed", str(seed)]
     if duration:
@@ -97,7 +97,7 @@ def select_runs(a):
 def run_one(build, out_root, scenario, seed, ablation, duration):
     label = run_label(scenario, seed)
     out = os.path.join(out_root, ablation, label)
-    proc, wall = run_estimator(build, scenario, seed, duration, out, ["--no-gnss"] + ABLATION_FLAGS[ablation])
+    proc, wall = run_estimator(build, scenario, seed, duration, out, ["--no-gnss", "--no-submaps"] + ABLATION_FLAGS[ablation])
     row = {"scenario": label, "ablation": ablation, "target_pct": target_pct(label), "wall_s": wall}
     if proc.returncode != 0:
         row["error"] = failure(proc)

@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """Runs raillomer-estimator with GNSS on simulated scenarios and scores each run in UTM against
 the truth with no post-alignment (raillomer-eval --align none): ATE RMSE and MAX, the largest
-error inside GNSS outages, and beside them the GNSS bound of the run.
+error inside GNSS outages, and beside them the GNSS bound of the run. It also scores each run's
+map (raillomer-eval --scenario --submaps): the spread normal to the corridor's known planes and
+the rail-head height difference between submaps.
 
 The GNSS bound is what an estimator with perfect odometry would reach: the truth moved by the
 4-DoF transform (yaw and offset) that best fits the receiver's fixes, multipath excluded, scored
@@ -15,7 +17,8 @@ Usage:
       [--check]
 
 With --check the exit status is 1 when a run misses a target of issue 4 (ATE RMSE 0.25 m,
-MAX 1.0 m, MAX 1.5 m inside an outage) or is not georeferenced.
+MAX 1.0 m, MAX 1.5 m inside an outage, planes 3 cm RMS, rail heads within 3 cm) or is not
+georeferenced.
 """
 import argparse
 import bisect
@@ -29,6 +32,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from estimator_suite import add_run_arguments, failure, run_estimator, run_label, select_runs  # noqa: E402
 
 ATE_TARGET_M, MAX_TARGET_M, OUTAGE_MAX_TARGET_M = 0.25, 1.0, 1.5
+PLANE_TARGET_M, RAIL_TARGET_M = 0.03, 0.03
 OUTAGE_GAP_S = 5.0  # no fix for this long: the receiver is out
 
 
@@ -144,7 +148,8 @@ def run_one(build, out_root, scenario, seed, duration):
         return row
     ev = subprocess.run([os.path.join(build, "bin", "raillomer-eval"), "--estimate", os.path.join(out, "trajectory.tum"),
                          "--truth", os.path.join(out, "truth.tum"), "--align", "none",
-                         "--json", os.path.join(out, "eval.json"), "--plot", os.path.join(out, "eval.svg")],
+                         "--json", os.path.join(out, "eval.json"), "--plot", os.path.join(out, "eval.svg"),
+                         "--scenario", scenario, "--submaps", os.path.join(out, "submaps")],
                         capture_output=True, text=True)
     if ev.returncode != 0:
         row["error"] = [ev.stderr.strip()]
@@ -159,7 +164,9 @@ def run_one(build, out_root, scenario, seed, duration):
     bound = gnss_bound(truth, fixes, antenna_up(scenario_text))
     row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
                outage_max_m=outage_max(estimate, truth, fixes),
-               bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None)
+               bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None,
+               plane_rms_m=e["map"]["plane_rms_m"], rail_p95_m=e["map"]["rail_spread_p95_m"],
+               rail_max_m=e["map"]["rail_spread_max_m"])
     return row
 
 
@@ -169,14 +176,16 @@ def fmt(v, digits=2):
 
 def markdown(rows):
     lines = ["| scenario | distance (km) | ATE RMSE (m) | MAX (m) | MAX in outage (m) | GNSS bound RMSE / MAX (m) "
-             "| GNSS factors | multipath rejected | RTF | peak RSS (MB) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| map planes RMS (cm) | rail heads p95 / max (cm) | GNSS factors | multipath rejected | RTF "
+             "| peak RSS (MB) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['scenario']} | failed: {' '.join(r['error'])} | | | | | | | | |")
+            lines.append(f"| {r['scenario']} | failed: {' '.join(r['error'])} | | | | | | | | | | |")
             continue
         lines.append(f"| {r['scenario']} | {r['distance_m'] / 1000:.2f} | {r['ate_m']:.2f} | {r['max_m']:.2f} | "
                      f"{fmt(r['outage_max_m'])} | {fmt(r['bound_ate_m'])} / {fmt(r['bound_max_m'])} | "
+                     f"{100 * r['plane_rms_m']:.1f} | {100 * r['rail_p95_m']:.1f} / {100 * r['rail_max_m']:.1f} | "
                      f"{r['gnss'].get('factors', 0)} | {r['gnss'].get('outliers', 0)} | {r['rtf']:.2f} | "
                      f"{r['peak_rss_mb']:.0f} |")
     return "\n".join(lines)
@@ -186,6 +195,7 @@ def misses(row):
     if "error" in row:
         return True
     return (row["ate_m"] > ATE_TARGET_M or row["max_m"] > MAX_TARGET_M or
+            row["plane_rms_m"] > PLANE_TARGET_M or row["rail_max_m"] > RAIL_TARGET_M or
             (row["outage_max_m"] is not None and row["outage_max_m"] > OUTAGE_MAX_TARGET_M))
 
 
@@ -203,7 +213,9 @@ def main():
         else:
             print(f"{row['scenario']:34s} {row['distance_m'] / 1000:6.2f} km  ATE {row['ate_m']:.2f} m  "
                   f"MAX {row['max_m']:.2f} m  outage MAX {fmt(row['outage_max_m'])} m  "
-                  f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  RTF {row['rtf']:.2f}", flush=True)
+                  f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  "
+                  f"planes {100 * row['plane_rms_m']:.1f} cm  rails {100 * row['rail_max_m']:.1f} cm  "
+                  f"RTF {row['rtf']:.2f}", flush=True)
     table = markdown(rows)
     print(table)
     if a.markdown:

@@ -161,6 +161,9 @@ struct FusionRun {
   std::vector<Eigen::Vector3d> estimate, truth;
   /// After the run: the poses between the first and the newest node, smoothed, and the truth.
   std::vector<Eigen::Vector3d> smoothed, smoothed_truth;
+  /// Poses released as the estimator releases them (once settled), through Publish and, for
+  /// comparison, straight from the graph at that moment; the truth beside them.
+  std::vector<Eigen::Vector3d> published, released, released_truth;
   GnssFusionStats stats;
 };
 
@@ -198,6 +201,7 @@ FusionRun RunFusion(int outlier_every) {
   std::vector<Eigen::Vector3d> truth;
   Eigen::Isometry3d odom = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d prev_truth = true_pose(0.0);
+  size_t next_release = 0;
   for (int k = 0; k <= 2000; ++k) {  // 200 s at 10 Hz
     const double t = 0.1 * k;
     const int64_t stamp = static_cast<int64_t>(std::llround(t * 1e9));
@@ -225,6 +229,14 @@ FusionRun RunFusion(int outlier_every) {
     if (fusion.aligned()) {
       run.estimate.push_back(fusion.ToEnu(odom).translation() + fusion.origin_utm());
       run.truth.push_back(origin + T.translation());
+    }
+    for (;
+         next_release < odometry.size() && odometry[next_release].first <= fusion.settled_until_s();
+         ++next_release) {
+      const auto& [t_s, T_odom] = odometry[next_release];
+      run.released.push_back(fusion.ToEnu(T_odom, t_s).translation() + fusion.origin_utm());
+      run.published.push_back(fusion.Publish(T_odom, t_s).translation() + fusion.origin_utm());
+      run.released_truth.push_back(truth[next_release]);
     }
   }
   run.stats = fusion.stats();
@@ -257,6 +269,29 @@ TEST(GnssFusion, KeepsADriftingOdometryOnTheFixes) {
   EXPECT_LT(MaxError(run.estimate, run.truth), 1.0);
   ASSERT_GT(run.smoothed.size(), 1800u);
   EXPECT_LT(MaxError(run.smoothed, run.smoothed_truth), 0.5);
+}
+
+/// The largest change between consecutive poses that the truth does not have (m).
+double LargestStep(const std::vector<Eigen::Vector3d>& estimate,
+                   const std::vector<Eigen::Vector3d>& truth) {
+  double worst = 0.0;
+  for (size_t i = 1; i < estimate.size(); ++i) {
+    worst = std::max(worst, ((estimate[i] - estimate[i - 1]) - (truth[i] - truth[i - 1])).norm());
+  }
+  return worst;
+}
+
+TEST(GnssFusion, PublishedPosesDoNotStepWhenTheGraphMovesUnderThem) {
+  const FusionRun run = RunFusion(0);
+  ASSERT_GT(run.published.size(), 1500u);
+  // Each re-solve moves the graph under poses already out: taken as it stands, the trajectory
+  // steps at every new node; published, the difference fades over 200 m instead.
+  const double released_step = LargestStep(run.released, run.released_truth);
+  const double published_step = LargestStep(run.published, run.released_truth);
+  EXPECT_GT(released_step, 0.02);
+  EXPECT_LT(published_step, 0.01);
+  EXPECT_LT(published_step, 0.25 * released_step);
+  EXPECT_LT(MaxError(run.published, run.released_truth), 0.6);
 }
 
 TEST(GnssFusion, MultipathJumpsLeaveTheTrajectoryAlone) {

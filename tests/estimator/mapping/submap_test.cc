@@ -21,6 +21,34 @@ Eigen::Isometry3d Pose(double e, double n, double h, double yaw) {
   return T;
 }
 
+/// A keyframe whose odometry pose is its published pose (the registration stages are tested
+/// apart).
+SubmapKeyframe Keyframe(int64_t stamp_ns,
+                        const Eigen::Isometry3d& T,
+                        bool georeferenced,
+                        const std::string& zone,
+                        std::vector<Eigen::Vector3f> points,
+                        std::vector<float> intensities) {
+  SubmapKeyframe k;
+  k.stamp_ns = stamp_ns;
+  k.T_world_body = T;
+  k.T_odom_body = T;
+  k.georeferenced = georeferenced;
+  k.utm_zone = zone;
+  k.points_body = std::move(points);
+  k.intensities = std::move(intensities);
+  return k;
+}
+
+SubmapOptions Plain(int keyframes, double voxel_m) {
+  SubmapOptions o;
+  o.keyframes = keyframes;
+  o.voxel_m = voxel_m;
+  o.icp = false;
+  o.ndt = false;
+  return o;
+}
+
 /// A keyframe cloud: a 5 x 5 grid of points 1 m apart in the body frame, 2 m ahead.
 std::vector<Eigen::Vector3f> Grid() {
   std::vector<Eigen::Vector3f> points;
@@ -31,26 +59,28 @@ std::vector<Eigen::Vector3f> Grid() {
 }
 
 TEST(SubmapBuilder, TenKeyframesMakeASubmapInUtm) {
-  SubmapBuilder builder(10, 0.0);
+  SubmapBuilder builder(Plain(10, 0.0));
   std::vector<api::Submap> done;
   const std::vector<float> intensity(25, 7.f);
   for (int k = 0; k < 25; ++k) {
     // Along a line heading north (yaw 90 deg), 2 m apart, at northing 3.6e6.
-    for (api::Submap& s : builder.Add(1'600'000'000'000'000'000 + k * 100'000'000LL,
-                                      Pose(432000.3, 3585000.7 + 2.0 * k, 30.2, M_PI / 2.0),
-                                      true,
-                                      "50N",
-                                      Grid(),
-                                      intensity)) {
+    for (api::Submap& s :
+         builder.Add(Keyframe(1'600'000'000'000'000'000 + k * 100'000'000LL,
+                              Pose(432000.3, 3585000.7 + 2.0 * k, 30.2, M_PI / 2.0),
+                              true,
+                              "50N",
+                              Grid(),
+                              intensity))) {
       done.push_back(std::move(s));
     }
   }
   ASSERT_EQ(done.size(), 2u);
-  const std::optional<api::Submap> rest = builder.Flush();
-  ASSERT_TRUE(rest.has_value());
+  const std::vector<api::Submap> flushed = builder.Flush();
+  ASSERT_EQ(flushed.size(), 1u);
+  const api::Submap* rest = &flushed[0];
   EXPECT_EQ(rest->keyframes.size(), 5u);
   EXPECT_EQ(rest->index, 2u);
-  EXPECT_FALSE(builder.Flush().has_value());
+  EXPECT_TRUE(builder.Flush().empty());
 
   const api::Submap& s = done[1];
   EXPECT_EQ(s.index, 1u);
@@ -70,38 +100,38 @@ TEST(SubmapBuilder, TenKeyframesMakeASubmapInUtm) {
 }
 
 TEST(SubmapBuilder, OverlappingKeyframesAreThinnedToOnePointPerVoxel) {
-  SubmapBuilder builder(2, 0.1);
+  SubmapBuilder builder(Plain(2, 0.1));
   const std::vector<float> intensity(25, 1.f);
-  builder.Add(1, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity);
+  builder.Add(Keyframe(1, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity));
   const std::vector<api::Submap> done =
-      builder.Add(2, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity);
+      builder.Add(Keyframe(2, Pose(100.0, 200.0, 10.0, 0.0), false, "", Grid(), intensity));
   ASSERT_EQ(done.size(), 1u);
   EXPECT_EQ(done[0].points.size(), 25u);  // the same 25 points twice
   EXPECT_FALSE(done[0].georeferenced);
 }
 
 TEST(SubmapBuilder, TheFrameChangingClosesTheOpenSubmap) {
-  SubmapBuilder builder(10, 0.0);
-  builder.Add(1, Pose(1.0, 2.0, 3.0, 0.0), false, "", Grid(), {});
+  SubmapBuilder builder(Plain(10, 0.0));
+  builder.Add(Keyframe(1, Pose(1.0, 2.0, 3.0, 0.0), false, "", Grid(), {}));
   const std::vector<api::Submap> done =
-      builder.Add(2, Pose(432000.0, 3585000.0, 30.0, 0.0), true, "50N", Grid(), {});
+      builder.Add(Keyframe(2, Pose(432000.0, 3585000.0, 30.0, 0.0), true, "50N", Grid(), {}));
   ASSERT_EQ(done.size(), 1u);
   EXPECT_FALSE(done[0].georeferenced);
-  EXPECT_EQ(builder.Flush()->utm_zone, "50N");
+  EXPECT_EQ(builder.Flush().at(0).utm_zone, "50N");
 }
 
 api::Submap SampleSubmap() {
-  SubmapBuilder builder(3, 0.0);
+  SubmapBuilder builder(Plain(3, 0.0));
   const std::vector<float> intensity(25, 3.5f);
   for (int k = 0; k < 2; ++k) {
-    builder.Add(1'600'000'000'100'000'000 + k * 100'000'000LL,
-                Pose(432000.3 + 2.0 * k, 3585000.7 + 1.0 * k, 30.2, 0.3),
-                true,
-                "50N",
-                Grid(),
-                intensity);
+    builder.Add(Keyframe(1'600'000'000'100'000'000 + k * 100'000'000LL,
+                         Pose(432000.3 + 2.0 * k, 3585000.7 + 1.0 * k, 30.2, 0.3),
+                         true,
+                         "50N",
+                         Grid(),
+                         intensity));
   }
-  api::Submap s = builder.Flush().value();
+  api::Submap s = builder.Flush().at(0);
   s.sequence = 41;
   return s;
 }

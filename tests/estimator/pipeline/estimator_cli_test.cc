@@ -131,14 +131,26 @@ TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
   // Scored in UTM with no alignment at all. The simulated receiver is single-point (errors of
   // 1-2.5 m that wander over minutes), and the run sits on its fixes: a metre or two, not the
   // hundreds of kilometres between the odometry frame and UTM.
+  // The map is scored against the simulated corridor's planes and rail heads as well.
   const CommandResult e =
       Shell(Bin("raillomer-eval") + " --estimate " + ShellQuote((out / "trajectory.tum").string()) +
             " --truth " + ShellQuote((out / "truth.tum").string()) + " --align none --json " +
-            ShellQuote((out / "eval.json").string()));
+            ShellQuote((out / "eval.json").string()) + " --scenario demo --submaps " +
+            ShellQuote((out / "submaps").string()));
   ASSERT_EQ(e.exit_code, 0) << e.err;
   const nlohmann::json eval = nlohmann::json::parse(ReadText(out / "eval.json"));
   EXPECT_LT(eval["ate_rmse_m"].get<double>(), 2.0);
   EXPECT_LT(eval["ate_max_m"].get<double>(), 3.0);
+  // Issue 4's sharpness targets: 3 cm RMS normal to planes, rail heads from different
+  // submaps within 3 cm (the demo reaches about 1.2 cm and 1.8 cm).
+  const nlohmann::json& map = eval["map"];
+  EXPECT_GT(map["plane_patches"].get<int>(), 50);
+  EXPECT_LT(map["plane_rms_m"].get<double>(), 0.03);
+  EXPECT_GT(map["rail_segments"].get<int>(), 50);
+  EXPECT_LT(map["rail_spread_max_m"].get<double>(), 0.03);
+  EXPECT_EQ(
+      summary["submaps"]["ndt_applied"].get<int>() + summary["submaps"]["ndt_rejected"].get<int>(),
+      summary["submaps"]["count"].get<int>() - 1);
 
   // Submaps of 10 keyframes, in UTM, with sequence numbers that only grow.
   raillomer::api::Trajectory trajectory;

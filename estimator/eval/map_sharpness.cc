@@ -1,0 +1,401 @@
+#include "estimator/eval/map_sharpness.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <tuple>
+
+#include <Eigen/Eigenvalues>
+
+#include "estimator/eval/association.h"
+#include "estimator/sim/world.h"
+
+namespace raillomer::eval {
+namespace {
+
+using Vec3 = Eigen::Vector3d;
+
+/// A 2-D grid cell or a patch key; std::map keeps the code free of hand-written hashes.
+using Cell2 = std::pair<int64_t, int64_t>;
+using PatchKey = std::tuple<int64_t, int64_t, int64_t, int64_t, int64_t, int64_t, int64_t>;
+
+constexpr double kGridM = 2.0;  // triangle lookup grid
+
+Cell2 GridCell(const Vec3& p) {
+  return {static_cast<int64_t>(std::floor(p.x() / kGridM)),
+          static_cast<int64_t>(std::floor(p.y() / kGridM))};
+}
+
+double Percentile(std::vector<double> values, double q) {
+  if (values.empty()) return 0.0;
+  const size_t k = std::min(values.size() - 1, static_cast<size_t>(q * (values.size() - 1) + 0.5));
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+/// A reference triangle ready for point tests: its plane and inward edge normals.
+struct Surface {
+  ReferenceTriangle::Kind kind;
+  Vec3 a, n;
+  double d = 0.0;
+  Vec3 edge_origin[3], edge_normal[3];
+  int64_t plane_key[2];  ///< the plane, quantised, so coplanar triangles share patches
+};
+
+/// Sums for a plane fit, relative to the patch's first point (UTM is too large for raw sums).
+struct PlanePatch {
+  Vec3 reference = Vec3::Zero();
+  size_t count = 0;
+  Vec3 sum = Vec3::Zero();
+  Eigen::Matrix3d outer = Eigen::Matrix3d::Zero();
+};
+
+/// One submap's points on one rail-head segment: their heights along the head's normal.
+struct RailSample {
+  size_t submap = 0;
+  size_t count = 0;
+  double sum = 0.0;
+};
+
+struct RailSegment {
+  Vec3 where = Vec3::Zero();
+  std::vector<RailSample> samples;
+};
+
+}  // namespace
+
+std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
+                                                        const Eigen::Vector3d& origin_utm) {
+  struct Candidate {
+    Vec3 a, b, c, n;
+    sim::Material material;
+  };
+  std::vector<Candidate> planes, rail_tops;
+  for (size_t i = 0; i < mesh.triangles.size(); ++i) {
+    const Eigen::Vector3i& t = mesh.triangles[i];
+    Candidate c{mesh.vertices[t[0]].cast<double>() + origin_utm,
+                mesh.vertices[t[1]].cast<double>() + origin_utm,
+                mesh.vertices[t[2]].cast<double>() + origin_utm,
+                Vec3::Zero(),
+                mesh.materials[i]};
+    const Vec3 cross = (c.b - c.a).cross(c.c - c.a);
+    if (cross.norm() < 1e-9) continue;
+    c.n = cross.normalized();
+    const double up = std::fabs(c.n.z());
+    // Horizontal faces either way up: the corridor mesh's winding is not consistent (the ray
+    // caster does not care), and a platform's underside is never seen anyway.
+    if ((c.material == sim::Material::kPlatform && up > 0.95) ||
+        (c.material == sim::Material::kBuilding && up < 0.05)) {
+      planes.push_back(c);
+    } else if (c.material == sim::Material::kRail && up > 0.9) {
+      rail_tops.push_back(c);
+    }
+  }
+  // A rail's upward faces are its head top and its foot; the head is the one with nothing of the
+  // rail above it.
+  std::map<Cell2, std::vector<Vec3>> centroids;
+  constexpr double kCell = 0.25;
+  auto cell = [&](const Vec3& p) {
+    return Cell2{static_cast<int64_t>(std::floor(p.x() / kCell)),
+                 static_cast<int64_t>(std::floor(p.y() / kCell))};
+  };
+  for (const Candidate& c : rail_tops) {
+    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
+    centroids[cell(centroid)].push_back(centroid);
+  }
+  std::vector<ReferenceTriangle> out;
+  for (const Candidate& c : planes) {
+    out.push_back({ReferenceTriangle::Kind::kPlane, c.a, c.b, c.c});
+  }
+  for (const Candidate& c : rail_tops) {
+    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
+    const Cell2 home = cell(centroid);
+    bool covered = false;
+    for (int64_t dx = -1; dx <= 1 && !covered; ++dx) {
+      for (int64_t dy = -1; dy <= 1 && !covered; ++dy) {
+        const auto it = centroids.find({home.first + dx, home.second + dy});
+        if (it == centroids.end()) continue;
+        for (const Vec3& other : it->second) {
+          if ((other - centroid).head<2>().norm() < 0.12 && other.z() > centroid.z() + 0.08) {
+            covered = true;
+            break;
+          }
+        }
+      }
+    }
+    if (!covered) out.push_back({ReferenceTriangle::Kind::kRailHead, c.a, c.b, c.c});
+  }
+  return out;
+}
+
+struct MapSharpness::Impl {
+  SharpnessOptions options;
+  std::vector<Surface> surfaces;
+  std::map<Cell2, std::vector<uint32_t>> grid;
+  std::map<PatchKey, PlanePatch> planes;
+  std::map<PatchKey, RailSegment> rails;
+  size_t submaps = 0, points = 0, rail_points = 0;
+
+  /// The surface a truth-aligned point lies on, or -1.
+  int Find(const Vec3& p) const {
+    const auto it = grid.find(GridCell(p));
+    if (it == grid.end()) return -1;
+    int best = -1;
+    double best_inside = -1e9;
+    for (uint32_t index : it->second) {
+      const Surface& s = surfaces[index];
+      const bool plane = s.kind == ReferenceTriangle::Kind::kPlane;
+      const double distance = s.n.dot(p) - s.d;
+      if (std::fabs(distance) > (plane ? options.plane_tolerance_m : options.rail_tolerance_m)) {
+        continue;
+      }
+      const Vec3 q = p - distance * s.n;
+      double inside = 1e9;
+      for (int e = 0; e < 3; ++e) {
+        inside = std::min(inside, s.edge_normal[e].dot(q - s.edge_origin[e]));
+      }
+      if (inside < (plane ? options.plane_margin_m : -options.rail_overhang_m)) continue;
+      if (inside > best_inside) {
+        best_inside = inside;
+        best = static_cast<int>(index);
+      }
+    }
+    return best;
+  }
+};
+
+MapSharpness::MapSharpness(std::vector<ReferenceTriangle> triangles,
+                           const SharpnessOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->options = options;
+  for (const ReferenceTriangle& t : triangles) {
+    Surface s;
+    s.kind = t.kind;
+    s.a = t.a;
+    s.n = (t.b - t.a).cross(t.c - t.a).normalized();
+    if (!s.n.allFinite()) continue;
+    s.d = s.n.dot(t.a);
+    const Vec3 corners[3] = {t.a, t.b, t.c};
+    for (int e = 0; e < 3; ++e) {
+      const Vec3& from = corners[e];
+      const Vec3& to = corners[(e + 1) % 3];
+      const Vec3& opposite = corners[(e + 2) % 3];
+      Vec3 m = s.n.cross(to - from).normalized();
+      if (m.dot(opposite - from) < 0.0) m = -m;
+      s.edge_origin[e] = from;
+      s.edge_normal[e] = m;
+    }
+    // Coplanar triangles (the two halves of a quad) share a key: the normal to 1e-3 and the
+    // offset to 1 cm.
+    s.plane_key[0] = std::llround(s.n.x() * 1000.0) * 4001 * 4001 +
+                     std::llround(s.n.y() * 1000.0) * 4001 + std::llround(s.n.z() * 1000.0);
+    s.plane_key[1] = std::llround(s.d * 100.0);
+    const uint32_t index = static_cast<uint32_t>(impl_->surfaces.size());
+    impl_->surfaces.push_back(s);
+    const Eigen::AlignedBox3d box = Eigen::AlignedBox3d(t.a).extend(t.b).extend(t.c);
+    const Cell2 lo = GridCell(box.min() - Vec3::Constant(0.1));
+    const Cell2 hi = GridCell(box.max() + Vec3::Constant(0.1));
+    for (int64_t x = lo.first; x <= hi.first; ++x) {
+      for (int64_t y = lo.second; y <= hi.second; ++y) impl_->grid[{x, y}].push_back(index);
+    }
+  }
+}
+
+MapSharpness::~MapSharpness() = default;
+
+void MapSharpness::AddSubmap(const api::Submap& submap, const Eigen::Isometry3d& T_truth_est) {
+  Impl& m = *impl_;
+  const size_t submap_index = m.submaps++;
+  m.points += submap.points.size();
+  for (const Eigen::Vector3f& offset : submap.points) {
+    const Vec3 mapped = submap.origin + offset.cast<double>();
+    const Vec3 aligned = T_truth_est * mapped;
+    const int found = m.Find(aligned);
+    if (found < 0) continue;
+    const Surface& s = m.surfaces[static_cast<size_t>(found)];
+    if (s.kind == ReferenceTriangle::Kind::kPlane) {
+      const double cell = m.options.patch_m;
+      const PatchKey key{s.plane_key[0],
+                         s.plane_key[1],
+                         static_cast<int64_t>(std::floor(aligned.x() / cell)),
+                         static_cast<int64_t>(std::floor(aligned.y() / cell)),
+                         static_cast<int64_t>(std::floor(aligned.z() / cell)),
+                         0,
+                         0};
+      PlanePatch& patch = m.planes[key];
+      if (patch.count == 0) patch.reference = mapped;
+      const Vec3 r = mapped - patch.reference;
+      ++patch.count;
+      patch.sum += r;
+      patch.outer += r * r.transpose();
+    } else {
+      ++m.rail_points;
+      const double cell = m.options.rail_segment_m;
+      const PatchKey key{s.plane_key[0],
+                         s.plane_key[1],
+                         static_cast<int64_t>(std::floor(aligned.x() / cell)),
+                         static_cast<int64_t>(std::floor(aligned.y() / cell)),
+                         0,
+                         0,
+                         1};
+      RailSegment& segment = m.rails[key];
+      if (segment.samples.empty()) segment.where = mapped;
+      if (segment.samples.empty() || segment.samples.back().submap != submap_index) {
+        segment.samples.push_back({submap_index, 0, 0.0});
+      }
+      RailSample& sample = segment.samples.back();
+      ++sample.count;
+      // Heights relative to the segment's first point keep the sum exact at UTM magnitudes.
+      sample.sum += s.n.dot(mapped - segment.where);
+    }
+  }
+}
+
+SharpnessResult MapSharpness::Result() const {
+  const Impl& m = *impl_;
+  SharpnessResult r;
+  r.submaps = m.submaps;
+  r.points = m.points;
+  r.rail_points = m.rail_points;
+  double weighted = 0.0;
+  std::vector<double> patch_rms;
+  for (const auto& [key, patch] : m.planes) {
+    if (patch.count < static_cast<size_t>(m.options.min_plane_points)) continue;
+    const double n = static_cast<double>(patch.count);
+    const Vec3 mean = patch.sum / n;
+    const Eigen::Matrix3d covariance = patch.outer / n - mean * mean.transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(covariance);
+    const double variance = std::max(0.0, eig.eigenvalues()(0));
+    weighted += variance * n;
+    r.plane_points += patch.count;
+    patch_rms.push_back(std::sqrt(variance));
+    if (patch_rms.back() > r.plane_patch_max_m) {
+      r.plane_patch_max_m = patch_rms.back();
+      r.worst_patch_utm = patch.reference + mean;
+    }
+  }
+  r.plane_patches = patch_rms.size();
+  if (r.plane_points > 0) r.plane_rms_m = std::sqrt(weighted / static_cast<double>(r.plane_points));
+  r.plane_patch_p95_m = Percentile(patch_rms, 0.95);
+
+  std::vector<double> spreads;
+  for (const auto& [key, segment] : m.rails) {
+    double lo = 1e9, hi = -1e9;
+    int seen = 0;
+    for (const RailSample& sample : segment.samples) {
+      if (sample.count < static_cast<size_t>(m.options.min_rail_points)) continue;
+      const double height = sample.sum / static_cast<double>(sample.count);
+      lo = std::min(lo, height);
+      hi = std::max(hi, height);
+      ++seen;
+    }
+    if (seen < 2) continue;
+    spreads.push_back(hi - lo);
+    if (spreads.back() > r.rail_spread_max_m) {
+      r.rail_spread_max_m = spreads.back();
+      r.worst_rail_utm = segment.where;
+    }
+  }
+  r.rail_segments = spreads.size();
+  r.rail_spread_median_m = Percentile(spreads, 0.5);
+  r.rail_spread_p95_m = Percentile(spreads, 0.95);
+  return r;
+}
+
+bool ScoreSubmapFolder(const std::string& folder,
+                       const api::Trajectory& truth,
+                       MapSharpness* sharpness,
+                       size_t* skipped,
+                       std::string* error) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  std::vector<std::string> files;
+  for (const fs::directory_entry& entry : fs::directory_iterator(folder, ec)) {
+    if (entry.path().extension() == ".pcd") files.push_back(entry.path().string());
+  }
+  if (ec) {
+    *error = "cannot list " + folder + ": " + ec.message();
+    return false;
+  }
+  if (files.empty()) {
+    *error = folder + " holds no submap (.pcd) files";
+    return false;
+  }
+  std::sort(files.begin(), files.end());  // zero-padded indices: name order is index order
+  *skipped = 0;
+  for (const std::string& file : files) {
+    api::Submap submap;
+    if (!api::ReadSubmapFile(file, &submap, error)) return false;
+    if (submap.keyframes.empty()) {
+      *error = file + ": the submap lists no keyframe poses";
+      return false;
+    }
+    api::Trajectory middle;
+    middle.poses.push_back(submap.keyframes[submap.keyframes.size() / 2]);
+    const Association association = AssociatePoses(middle, truth, AssociationOptions{});
+    if (!association.ok) {
+      *error = file + ": " + association.error;
+      return false;
+    }
+    if (association.pairs.empty()) {
+      ++*skipped;
+      continue;
+    }
+    const PosePair& pair = association.pairs.front();
+    sharpness->AddSubmap(submap, pair.T_world_truth * pair.T_world_est.inverse());
+  }
+  return true;
+}
+
+std::string FormatSharpness(const SharpnessResult& r) {
+  char text[1024];
+  std::snprintf(text,
+                sizeof(text),
+                "map sharpness (%zu submaps, %zu points)\n"
+                "  planes: %zu patches, %zu points; spread normal to the plane RMS %.4f m, "
+                "patch p95 %.4f m, worst %.4f m at %.1f %.1f %.1f\n"
+                "  rail heads: %zu segments seen by two or more submaps (%zu points); height "
+                "difference between submaps median %.4f m, p95 %.4f m, max %.4f m at %.1f %.1f "
+                "%.1f\n",
+                r.submaps,
+                r.points,
+                r.plane_patches,
+                r.plane_points,
+                r.plane_rms_m,
+                r.plane_patch_p95_m,
+                r.plane_patch_max_m,
+                r.worst_patch_utm.x(),
+                r.worst_patch_utm.y(),
+                r.worst_patch_utm.z(),
+                r.rail_segments,
+                r.rail_points,
+                r.rail_spread_median_m,
+                r.rail_spread_p95_m,
+                r.rail_spread_max_m,
+                r.worst_rail_utm.x(),
+                r.worst_rail_utm.y(),
+                r.worst_rail_utm.z());
+  return text;
+}
+
+nlohmann::json ToJson(const SharpnessResult& r) {
+  auto vec = [](const Vec3& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
+  return {{"submaps", r.submaps},
+          {"points", r.points},
+          {"plane_patches", r.plane_patches},
+          {"plane_points", r.plane_points},
+          {"plane_rms_m", r.plane_rms_m},
+          {"plane_patch_p95_m", r.plane_patch_p95_m},
+          {"plane_patch_max_m", r.plane_patch_max_m},
+          {"worst_patch_utm", vec(r.worst_patch_utm)},
+          {"rail_segments", r.rail_segments},
+          {"rail_points", r.rail_points},
+          {"rail_spread_median_m", r.rail_spread_median_m},
+          {"rail_spread_p95_m", r.rail_spread_p95_m},
+          {"rail_spread_max_m", r.rail_spread_max_m},
+          {"worst_rail_utm", vec(r.worst_rail_utm)}};
+}
+
+}  // namespace raillomer::eval

@@ -1,0 +1,107 @@
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <nlohmann/json.hpp>
+
+#include "api/stream.h"
+#include "api/trajectory.h"
+
+namespace raillomer::sim {
+struct Mesh;
+}
+
+namespace raillomer::eval {
+
+/// A surface of the simulated corridor whose map points the sharpness check scores (UTM).
+struct ReferenceTriangle {
+  enum class Kind { kPlane, kRailHead };
+  Kind kind = Kind::kPlane;
+  Eigen::Vector3d a = Eigen::Vector3d::Zero(), b = Eigen::Vector3d::Zero(),
+                  c = Eigen::Vector3d::Zero();
+};
+
+/// The planar surfaces (platform tops, building walls) and rail-head tops of a simulated
+/// corridor, moved into UTM by `origin_utm` (the world frame's origin).
+std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
+                                                        const Eigen::Vector3d& origin_utm);
+
+struct SharpnessOptions {
+  /// A point belongs to a plane when, after its submap's truth alignment, it lies within this
+  /// distance of the plane...
+  double plane_tolerance_m = 0.15;
+  /// ...and at least this far inside the plane's edges, where voxels mix two surfaces.
+  double plane_margin_m = 0.2;
+  /// A point belongs to a rail head within this distance of its top, up to this far beyond its
+  /// edges (the head is 72 mm wide, narrower than a map voxel).
+  double rail_tolerance_m = 0.05;
+  double rail_overhang_m = 0.02;
+  /// Planes are scored in patches of at most this size, so a map bent gently by GNSS
+  /// corrections over a 100 m platform is not mistaken for blur.
+  double patch_m = 10.0;
+  /// Rail heads are compared in segments of this length.
+  double rail_segment_m = 2.0;
+  int min_plane_points = 20;
+  int min_rail_points = 3;
+};
+
+/// How sharp a map is: the point spread normal to known planes, and how well rail-head heights
+/// from different submaps agree.
+struct SharpnessResult {
+  size_t submaps = 0;
+  size_t points = 0;
+  size_t plane_points = 0;   ///< points in scored plane patches
+  size_t plane_patches = 0;  ///< patches with at least min_plane_points
+  double plane_rms_m = 0.0;  ///< RMS distance to each patch's fitted plane, pooled over patches
+  double plane_patch_p95_m = 0.0;
+  double plane_patch_max_m = 0.0;
+  Eigen::Vector3d worst_patch_utm = Eigen::Vector3d::Zero();
+  size_t rail_points = 0;
+  size_t rail_segments = 0;  ///< rail-head segments seen by at least two submaps
+  /// Per segment: the largest difference between two submaps' mean rail-head heights.
+  double rail_spread_median_m = 0.0;
+  double rail_spread_p95_m = 0.0;
+  double rail_spread_max_m = 0.0;
+  Eigen::Vector3d worst_rail_utm = Eigen::Vector3d::Zero();
+};
+
+/// Scores a map submap by submap; memory grows with the number of surface patches, not points.
+class MapSharpness {
+ public:
+  explicit MapSharpness(std::vector<ReferenceTriangle> triangles,
+                        const SharpnessOptions& options = {});
+  ~MapSharpness();
+  MapSharpness(const MapSharpness&) = delete;
+  MapSharpness& operator=(const MapSharpness&) = delete;
+
+  /// Scores one submap. `T_truth_est` moves the estimate onto the truth near the submap; it only
+  /// decides which surface a point belongs to. The spread is measured on the points as mapped.
+  void AddSubmap(const api::Submap& submap, const Eigen::Isometry3d& T_truth_est);
+
+  SharpnessResult Result() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Scores every submap file (`*.pcd`) of a run's submap folder in index order, each aligned by
+/// the truth at its middle keyframe. False with a message if the folder or a file is unusable;
+/// `skipped` counts submaps outside the truth's span.
+bool ScoreSubmapFolder(const std::string& folder,
+                       const api::Trajectory& truth,
+                       MapSharpness* sharpness,
+                       size_t* skipped,
+                       std::string* error);
+
+/// The figures as text lines for a terminal, and as JSON (units in the keys).
+std::string FormatSharpness(const SharpnessResult& result);
+nlohmann::json ToJson(const SharpnessResult& result);
+
+}  // namespace raillomer::eval

@@ -1,0 +1,59 @@
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace raillomer {
+
+/// The outcome of one registration: the pose of the source frame in the target frame.
+struct Registration {
+  bool converged = false;  ///< within the iteration limit, with enough overlap
+  int iterations = 0;
+  double fitness_m2 = 0.0;  ///< mean squared distance of the matched points
+  Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
+};
+
+struct IcpOptions {
+  int max_iterations = 30;
+  double max_correspondence_m = 0.6;
+  double source_voxel_m = 0.4;  ///< the source is thinned to one point per voxel first
+  double transformation_epsilon = 1e-6;
+};
+
+struct NdtOptions {
+  /// The target's normal-distribution cell size.
+  double resolution_m = 1.0;
+  /// A first pass at twice the resolution widens the capture range (for poor guesses).
+  bool coarse_pass = true;
+  int max_iterations = 35;
+  double step_size_m = 0.1;
+  double transformation_epsilon = 1e-5;  ///< squared step (m^2) below which NDT stops
+  double source_voxel_m = 0.5;
+  /// ...and then cut to at most this many by an even stride: NDT's cost grows with the source.
+  size_t max_source_points = 5000;
+};
+
+/// Point-to-point ICP (PCL) of `source` onto `target`, starting from `guess` (both clouds in
+/// metric frames near their origins: never UTM coordinates in floats). Converged means PCL
+/// converged before max_iterations.
+Registration IcpRegister(const std::vector<Eigen::Vector3f>& source,
+                         const std::vector<Eigen::Vector3f>& target,
+                         const Eigen::Isometry3d& guess,
+                         const IcpOptions& options);
+
+/// The normal distributions transform (PCL) of `source` onto `target` from `guess`, coarse to
+/// fine. Converged means both passes converged before max_iterations.
+Registration NdtRegister(const std::vector<Eigen::Vector3f>& source,
+                         const std::vector<Eigen::Vector3f>& target,
+                         const Eigen::Isometry3d& guess,
+                         const NdtOptions& options);
+
+/// How far a registration moved a pose from its guess: translation (m) and rotation (rad).
+void CorrectionSize(const Eigen::Isometry3d& guess,
+                    const Eigen::Isometry3d& result,
+                    double* translation_m,
+                    double* rotation_rad);
+
+}  // namespace raillomer

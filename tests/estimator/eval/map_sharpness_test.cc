@@ -1,0 +1,118 @@
+// The map sharpness check on constructed maps with known answers: the spread normal to a plane,
+// the height difference of a rail head between two submaps, and which corridor surfaces count.
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "estimator/eval/map_sharpness.h"
+#include "estimator/sim/world.h"
+
+namespace raillomer::eval {
+namespace {
+
+using Vec3 = Eigen::Vector3d;
+
+const Vec3 kOrigin(432000.0, 3585000.0, 30.0);
+
+/// A 20 m x 20 m horizontal plane at height 1 m above kOrigin, as two triangles.
+std::vector<ReferenceTriangle> Floor() {
+  const Vec3 a = kOrigin + Vec3(0, 0, 1), b = kOrigin + Vec3(20, 0, 1),
+             c = kOrigin + Vec3(20, 20, 1), d = kOrigin + Vec3(0, 20, 1);
+  return {{ReferenceTriangle::Kind::kPlane, a, b, c}, {ReferenceTriangle::Kind::kPlane, a, c, d}};
+}
+
+/// A submap of points on the floor with Gaussian noise of `sigma` along z, raised by `lift`.
+api::Submap FloorSubmap(double sigma, double lift, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, sigma);
+  api::Submap s;
+  s.origin = kOrigin;
+  for (double x = 0.5; x < 19.5; x += 0.2) {
+    for (double y = 0.5; y < 19.5; y += 0.2) {
+      s.points.emplace_back(Eigen::Vector3f(static_cast<float>(x),
+                                            static_cast<float>(y),
+                                            static_cast<float>(1.0 + lift + noise(rng))));
+    }
+  }
+  return s;
+}
+
+TEST(MapSharpness, PlaneSpreadIsTheNoiseNormalToThePlane) {
+  MapSharpness sharpness(Floor());
+  // The truth alignment only assigns points to surfaces: a small error in it changes nothing.
+  Eigen::Isometry3d T_truth_est = Eigen::Isometry3d::Identity();
+  T_truth_est.translation() = Vec3(0.05, -0.05, 0.03);
+  sharpness.AddSubmap(FloorSubmap(0.02, 0.0, 1), T_truth_est);
+  const SharpnessResult r = sharpness.Result();
+  EXPECT_EQ(r.submaps, 1u);
+  EXPECT_EQ(r.plane_patches, 4u);  // 10 m patches
+  EXPECT_GT(r.plane_points, 8000u);
+  EXPECT_NEAR(r.plane_rms_m, 0.02, 0.001);
+}
+
+TEST(MapSharpness, TwoSubmapsOffsetFromEachOtherBlurThePlane) {
+  MapSharpness sharpness(Floor());
+  sharpness.AddSubmap(FloorSubmap(0.0, 0.0, 1), Eigen::Isometry3d::Identity());
+  // The second submap sits 6 cm higher; its alignment to the truth takes that out again.
+  Eigen::Isometry3d T_truth_est = Eigen::Isometry3d::Identity();
+  T_truth_est.translation() = Vec3(0.0, 0.0, -0.06);
+  sharpness.AddSubmap(FloorSubmap(0.0, 0.06, 2), T_truth_est);
+  EXPECT_NEAR(sharpness.Result().plane_rms_m, 0.03, 0.001);  // +-3 cm about the fitted plane
+}
+
+TEST(MapSharpness, RailHeadHeightsAreComparedBetweenSubmaps) {
+  // A rail head 72 mm wide and 4 m long along x.
+  const Vec3 a = kOrigin + Vec3(0, -0.036, 0), b = kOrigin + Vec3(4, -0.036, 0),
+             c = kOrigin + Vec3(4, 0.036, 0), d = kOrigin + Vec3(0, 0.036, 0);
+  MapSharpness sharpness({{ReferenceTriangle::Kind::kRailHead, a, b, c},
+                          {ReferenceTriangle::Kind::kRailHead, a, c, d}});
+  for (int k = 0; k < 3; ++k) {
+    api::Submap s;
+    s.origin = kOrigin;
+    const double lift = k == 2 ? 0.025 : 0.0;  // the third submap sees the rail 25 mm higher
+    for (double x = 0.05; x < 4.0; x += 0.1) {
+      s.points.emplace_back(Eigen::Vector3f(static_cast<float>(x), 0.0f, static_cast<float>(lift)));
+    }
+    s.points.emplace_back(Eigen::Vector3f(1.0f, 0.3f, 0.0f));  // beside the rail: not counted
+    sharpness.AddSubmap(s, Eigen::Isometry3d::Identity());
+  }
+  const SharpnessResult r = sharpness.Result();
+  EXPECT_EQ(r.rail_points, 120u);
+  EXPECT_EQ(r.rail_segments, 2u);  // 2 m segments
+  EXPECT_NEAR(r.rail_spread_max_m, 0.025, 1e-4);
+  EXPECT_NEAR(r.rail_spread_median_m, 0.025, 1e-4);
+}
+
+TEST(MapSharpness, ReferenceSurfacesArePlatformTopsWallsAndRailHeads) {
+  sim::Mesh mesh;
+  const Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  mesh.AddBox(Vec3(0, 0, 0.5), R, Vec3(10, 2, 0.5), sim::Material::kPlatform);  // top, bottom
+  mesh.AddBox(Vec3(0, 20, 3), R, Vec3(5, 5, 3), sim::Material::kBuilding);      // 4 walls
+  mesh.AddBox(Vec3(0, -5, 3), R, Vec3(1, 1, 1), sim::Material::kVegetation);    // not at all
+  // A rail: head top at z 0, foot top at z -0.16; only the head counts.
+  mesh.AddQuad(Vec3(0, -0.036, 0),
+               Vec3(2, -0.036, 0),
+               Vec3(2, 0.036, 0),
+               Vec3(0, 0.036, 0),
+               sim::Material::kRail);
+  mesh.AddQuad(Vec3(0, 0.0083, -0.16),
+               Vec3(2, 0.0083, -0.16),
+               Vec3(2, 0.075, -0.16),
+               Vec3(0, 0.075, -0.16),
+               sim::Material::kRail);
+  const std::vector<ReferenceTriangle> t = SelectReferenceTriangles(mesh, kOrigin);
+  int planes = 0, rails = 0;
+  for (const ReferenceTriangle& r : t) {
+    if (r.kind == ReferenceTriangle::Kind::kPlane) ++planes;
+    if (r.kind == ReferenceTriangle::Kind::kRailHead) {
+      ++rails;
+      EXPECT_NEAR(r.a.z(), kOrigin.z(), 1e-6);
+    }
+  }
+  EXPECT_EQ(planes, 4 + 8);  // the platform's top and bottom, the building's four walls
+  EXPECT_EQ(rails, 2);
+}
+
+}  // namespace
+}  // namespace raillomer::eval

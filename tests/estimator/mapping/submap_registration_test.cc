@@ -1,0 +1,234 @@
+// The two registration stages of the submap mapping on a constructed corridor with known
+// geometry: ICP and NDT recover a known offset, the scan-to-submap stage repairs a keyframe
+// whose odometry pose is off, and the submap-to-submap stage moves a misplaced submap onto its
+// predecessor, all but the GNSS pull.
+#include <cmath>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "estimator/mapping/submap_builder.h"
+#include "estimator/mapping/submap_registration.h"
+
+namespace raillomer {
+namespace {
+
+using Vec3 = Eigen::Vector3d;
+
+Eigen::Isometry3d Pose(const Vec3& t, double yaw) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
+  T.translation() = t;
+  return T;
+}
+
+/// A corridor in its own frame (x along the track): ground, a wall on either side with
+/// recesses, boxes, and masts every 8 m, sampled every 0.1 m with 1 cm noise.
+std::vector<Vec3> Corridor(double length_m) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  std::vector<Vec3> points;
+  auto add = [&](const Vec3& p) { points.push_back(p + Vec3(noise(rng), noise(rng), noise(rng))); };
+  for (double x = -10.0; x < length_m; x += 0.1) {
+    for (double y = -6.0; y <= 6.0; y += 0.2) add(Vec3(x, y, 0.0));
+    // Walls with a 0.5 m recess every 12 m, so the along-track position is observable.
+    const bool recess = std::fmod(x + 100.0, 12.0) < 3.0;
+    for (double z = 0.0; z < 4.0; z += 0.1) {
+      add(Vec3(x, recess ? 7.5 : 7.0, z));
+      add(Vec3(x, -7.0, z));
+    }
+  }
+  // The recesses' end faces, and a 1 m box every 9 m beside the track.
+  for (double x = -12.0; x < length_m; x += 12.0) {
+    for (double y = 7.0; y <= 7.5; y += 0.1) {
+      for (double z = 0.0; z < 4.0; z += 0.1) {
+        add(Vec3(x, y, z));
+        add(Vec3(x + 3.0, y, z));
+      }
+    }
+  }
+  for (double x = 3.0; x < length_m; x += 9.0) {
+    for (double u = 0.0; u <= 1.0; u += 0.1) {
+      for (double v = 0.0; v <= 1.0; v += 0.1) {
+        add(Vec3(x, -5.0 + u, v));
+        add(Vec3(x + 1.0, -5.0 + u, v));
+        add(Vec3(x + u, -5.0, v));
+        add(Vec3(x + u, -4.0, v));
+        add(Vec3(x + u, -5.0 + v, 1.0));
+      }
+    }
+  }
+  for (double x = 0.0; x < length_m; x += 8.0) {
+    for (double a = 0.0; a < 2.0 * M_PI; a += 0.3) {
+      for (double z = 0.0; z < 6.0; z += 0.1) {
+        add(Vec3(x + 0.15 * std::cos(a), 4.0 + 0.15 * std::sin(a), z));
+      }
+    }
+  }
+  return points;
+}
+
+/// What a sensor at pose T sees of the corridor (within 25 m), in its own frame.
+std::vector<Eigen::Vector3f> Scan(const std::vector<Vec3>& world, const Eigen::Isometry3d& T) {
+  std::vector<Eigen::Vector3f> out;
+  const Eigen::Isometry3d inv = T.inverse();
+  for (const Vec3& p : world) {
+    if ((p - T.translation()).head<2>().norm() < 25.0) out.push_back((inv * p).cast<float>());
+  }
+  return out;
+}
+
+std::vector<Eigen::Vector3f> ToFloat(const std::vector<Vec3>& points) {
+  std::vector<Eigen::Vector3f> out;
+  for (const Vec3& p : points) out.push_back(p.cast<float>());
+  return out;
+}
+
+TEST(Registration, IcpAndNdtRecoverAKnownOffset) {
+  const std::vector<Vec3> world = Corridor(40.0);
+  const Eigen::Isometry3d truth = Pose(Vec3(10.0, 0.3, 0.0), 0.0);
+  const std::vector<Eigen::Vector3f> scan = Scan(world, truth);
+  const std::vector<Eigen::Vector3f> target = ToFloat(world);
+  // The guess is 0.25 m and 0.5 deg off.
+  const Eigen::Isometry3d guess = Pose(Vec3(10.2, 0.45, 0.05), 0.5 * M_PI / 180.0);
+
+  const Registration icp = IcpRegister(scan, target, guess, IcpOptions{});
+  EXPECT_TRUE(icp.converged);
+  EXPECT_LT((icp.T_target_source.translation() - truth.translation()).norm(), 0.02);
+  double t = 0.0, r = 0.0;
+  CorrectionSize(truth, icp.T_target_source, &t, &r);
+  EXPECT_LT(r, 0.1 * M_PI / 180.0);
+
+  const Registration ndt = NdtRegister(scan, target, guess, NdtOptions{});
+  EXPECT_TRUE(ndt.converged);
+  EXPECT_LT((ndt.T_target_source.translation() - truth.translation()).norm(), 0.05);
+  CorrectionSize(truth, ndt.T_target_source, &t, &r);
+  EXPECT_LT(r, 0.2 * M_PI / 180.0);
+}
+
+TEST(Registration, TooFewPointsIsNotConverged) {
+  const std::vector<Eigen::Vector3f> few = {Eigen::Vector3f::Zero()};
+  EXPECT_FALSE(IcpRegister(few, few, Eigen::Isometry3d::Identity(), IcpOptions{}).converged);
+  EXPECT_FALSE(NdtRegister(few, few, Eigen::Isometry3d::Identity(), NdtOptions{}).converged);
+}
+
+/// Keyframes 2 m apart along a corridor placed at UTM-sized coordinates, heading 30 deg.
+struct CorridorRun {
+  std::vector<Vec3> world;
+  Eigen::Isometry3d T_utm_corridor = Pose(Vec3(432100.0, 3585200.0, 30.0), 30.0 * M_PI / 180.0);
+  explicit CorridorRun(double length_m) : world(Corridor(length_m)) {}
+  Eigen::Isometry3d Truth(int k) const {
+    return T_utm_corridor * Pose(Vec3(2.0 * k, 0.0, 2.0), 0.0);
+  }
+  SubmapKeyframe Keyframe(int k, const Eigen::Isometry3d& odom, const Vec3& gnss_offset) const {
+    SubmapKeyframe kf;
+    kf.stamp_ns = 1'600'000'000'000'000'000 + k * 100'000'000LL;
+    kf.T_odom_body = odom;
+    kf.T_world_body = Truth(k);
+    kf.T_world_body.translation() += gnss_offset;
+    kf.georeferenced = true;
+    kf.utm_zone = "50N";
+    kf.points_body = Scan(world, Pose(Vec3(2.0 * k, 0.0, 2.0), 0.0));
+    return kf;
+  }
+};
+
+TEST(SubmapBuilder, ScanToSubmapIcpRepairsAKeyframeTheOdometryPutWrong) {
+  const CorridorRun run(40.0);
+  SubmapOptions options;
+  options.ndt = false;
+  SubmapBuilder builder(options);
+  // The odometry frame is an arbitrary frame; keyframe 7's odometry pose is 0.15 m off
+  // sideways and 0.3 deg in yaw.
+  const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), -0.2);
+  std::vector<api::Submap> done;
+  for (int k = 0; k < 10; ++k) {
+    Eigen::Isometry3d odom = T_odom_utm * run.Truth(k);
+    SubmapKeyframe kf = run.Keyframe(k, odom, Vec3::Zero());
+    if (k == 7) {
+      kf.T_odom_body = odom * Pose(Vec3(0.0, 0.15, 0.0), 0.3 * M_PI / 180.0);
+      kf.odometry_suspect = true;  // its solve hit the iteration limit
+    }
+    for (api::Submap& s : builder.Add(kf)) done.push_back(s);
+  }
+  ASSERT_EQ(done.size(), 1u);
+  EXPECT_EQ(builder.stats().icp_odometry + builder.stats().icp_gnss, 1u);
+  EXPECT_EQ(builder.stats().icp_failed, 0u);
+  for (int k = 0; k < 10; ++k) {
+    EXPECT_LT((done[0].keyframes[k].p_world - run.Truth(k).translation()).norm(), 0.02)
+        << "keyframe " << k;
+  }
+}
+
+/// Two submaps of ten keyframes; the second's GNSS poses are moved by `gnss_offset`, its
+/// odometry poses by `odometry_offset` (a jump of the odometry between the two).
+std::vector<api::Submap> TwoSubmaps(const SubmapOptions& options,
+                                    const Vec3& gnss_offset,
+                                    const Vec3& odometry_offset,
+                                    SubmapStats* stats) {
+  const CorridorRun run(60.0);
+  SubmapBuilder builder(options);
+  std::vector<api::Submap> done;
+  const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), 0.4);
+  for (int k = 0; k < 20; ++k) {
+    Eigen::Isometry3d odom = T_odom_utm * run.Truth(k);
+    if (k >= 10) odom.translation() += odometry_offset;
+    const SubmapKeyframe kf = run.Keyframe(k, odom, k < 10 ? Vec3::Zero() : gnss_offset);
+    for (api::Submap& s : builder.Add(kf)) done.push_back(s);
+  }
+  for (api::Submap& s : builder.Flush()) done.push_back(s);  // the second waits for its NDT
+  *stats = builder.stats();
+  return done;
+}
+
+Vec3 Sideways(double lateral_m, double up_m) {
+  return CorridorRun(0.0).T_utm_corridor.linear() * Vec3(0.0, lateral_m, up_m);
+}
+
+TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
+  SubmapOptions options;
+  options.icp = false;
+  options.ndt = false;
+  SubmapStats stats;
+  // The second submap's GNSS poses are 0.4 m off sideways and 0.2 m up: the chain keeps it on
+  // the first, moved only the pull's share of the way (less vertically).
+  const Vec3 offset = Sideways(0.4, 0.2);
+  const std::vector<api::Submap> done = TwoSubmaps(options, offset, Vec3::Zero(), &stats);
+  ASSERT_EQ(done.size(), 2u);
+  EXPECT_EQ(stats.chained, 1u);
+  EXPECT_EQ(stats.chain_resets, 0u);
+  const CorridorRun run(0.0);
+  const Vec3 pulled(options.gnss_pull * offset.x(),
+                    options.gnss_pull * offset.y(),
+                    options.gnss_pull_vertical * offset.z());
+  for (int k = 0; k < 10; ++k) {
+    const Vec3 left = done[1].keyframes[k].p_world - run.Truth(10 + k).translation();
+    EXPECT_LT((left - pulled).norm(), 0.005) << left.transpose();
+  }
+  // 3 m off is beyond chain_reset_m: GNSS places the submap.
+  const Vec3 far = Sideways(3.0, 0.0);
+  const std::vector<api::Submap> reset = TwoSubmaps(options, far, Vec3::Zero(), &stats);
+  EXPECT_EQ(stats.chain_resets, 1u);
+  EXPECT_LT((reset[1].keyframes[5].p_world - run.Truth(15).translation() - far).norm(), 0.005);
+}
+
+TEST(SubmapBuilder, SubmapToSubmapNdtMovesAMisplacedSubmapOntoItsPredecessor) {
+  SubmapOptions options;
+  options.icp = false;
+  SubmapStats stats;
+  // The odometry jumps 0.2 m sideways between the submaps; GNSS is right, so the chain puts
+  // the second submap 0.19 m off, and NDT takes it back onto the first.
+  const Vec3 jump = Sideways(0.2, 0.0);
+  const std::vector<api::Submap> done = TwoSubmaps(options, Vec3::Zero(), jump, &stats);
+  ASSERT_EQ(done.size(), 2u);
+  EXPECT_EQ(stats.ndt_applied, 1u);
+  const CorridorRun run(0.0);
+  const Vec3 left = done[1].keyframes[5].p_world - run.Truth(15).translation();
+  EXPECT_LT(left.norm(), 0.03) << left.transpose();
+  options.ndt = false;
+  const std::vector<api::Submap> without = TwoSubmaps(options, Vec3::Zero(), jump, &stats);
+  EXPECT_GT((without[1].keyframes[5].p_world - run.Truth(15).translation()).norm(), 0.15);
+}
+
+}  // namespace
+}  // namespace raillomer
