@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cmath>
 
+#include <Eigen/Eigenvalues>
+
 #include "estimator/mapping/voxel_centroids.h"
 
 namespace raillomer {
@@ -127,7 +129,21 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
                             options_.ndt_max_correction_m,
                             options_.ndt_max_correction_deg)) {
     ++stats_.ndt_applied;
-    const Eigen::Isometry3d& delta = r.T_target_source;
+    // Along the track only where the registration sees it: on a corridor that repeats itself
+    // every mast spacing NDT slides, and the odometry (its scale corrected by GNSS) is better.
+    Eigen::Isometry3d delta = r.T_target_source;
+    const Eigen::Vector3d a = p.P[p.anchor].translation();
+    Eigen::Vector3d along = p.P[p.anchor].linear().col(0);
+    along.z() = 0.0;
+    if (along.norm() > 1e-6) {
+      along.normalize();
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(r.translation_information);
+      const double strongest = std::max(eig.eigenvalues().maxCoeff(), 1e-12);
+      const double ratio = along.dot(r.translation_information * along) / strongest;
+      if (ratio < options_.ndt_min_along_information) {
+        delta.translation() -= along * along.dot(delta * a - a);
+      }
+    }
     for (Eigen::Vector3f& q : p.submap.points) q = (delta * q.cast<double>()).cast<float>();
     for (Eigen::Isometry3d& T : p.P) T = delta * T;
   } else {
@@ -192,9 +208,13 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor, bool*
       previous_->T_world_anchor.translation() +
       R_correction * (anchor.odometry_scale *
                       (anchor.T_odom_body.translation() - previous_->T_odom_anchor.translation()));
-  if ((gnss.translation() - chain.translation()).norm() > options_.chain_reset_m) {
+  if ((gnss.translation() - chain.translation()).head<2>().norm() > options_.chain_reset_m) {
+    // GNSS places it across and along the track; the height stays the chain's: a single-point
+    // receiver's height wanders by metres, and taking it would tear the map by as much.
     ++stats_.chain_resets;
-    return gnss;
+    Eigen::Isometry3d T = gnss;
+    T.translation().z() = chain.translation().z();
+    return T;
   }
   ++stats_.chained;
   *chained = true;

@@ -18,23 +18,26 @@ struct SubmapOptions {
   int keyframes = 10;    ///< keyframes per submap
   double voxel_m = 0.1;  ///< one point (the centroid) per voxel; 0 keeps every point
   /// Stage 1, scan-to-submap (paper: when the scan-to-map iterations hit their limit): a
-  /// keyframe whose odometry solve hit its iteration limit or was degenerate is registered by
-  /// ICP onto the submap built so far, from its odometry pose and, if that fails too, from its
-  /// GNSS pose. `icp_every_keyframe` registers every keyframe (slow; for comparison).
+  /// keyframe whose odometry solve hit its iteration limit is registered by ICP onto the
+  /// submap built so far, from its odometry pose and, if that fails too, from its GNSS pose.
+  /// `icp_every_keyframe` registers every keyframe (slow: about 0.3 s each; for comparison).
   bool icp = true;
   bool icp_every_keyframe = false;
   IcpOptions icp_options;
   double icp_target_voxel_m = 0.2;
-  double icp_max_fitness_m2 = 0.02;  ///< mean squared match distance to accept a result
+  /// Mean squared match distance (within icp_options.max_correspondence_m) to accept a result;
+  /// a keyframe's new ground beyond the submap so far counts too (about 0.04 m^2 when right).
+  double icp_max_fitness_m2 = 0.1;
   /// A result further than this from its guess is not trusted (m, deg).
   double icp_max_correction_m = 0.3;
   double icp_max_correction_deg = 1.0;
-  /// Stage 2, submap-to-submap. A georeferenced submap is placed by the odometry's motion from
-  /// the previous submap (its scale corrected by GNSS), unless that differs from its GNSS pose
-  /// by more than `chain_reset_m` (a GNSS outage ended, or the alignment was re-solved), when
-  /// the GNSS pose is taken. NDT then registers it onto the previous submap from that guess,
-  /// and last it is moved `gnss_pull` of the way towards its GNSS pose, so the chain follows
-  /// GNSS without a step at any seam.
+  /// Stage 2, submap-to-submap. A georeferenced submap is placed at the previous submap's
+  /// position plus the odometry's motion since (turned into the world by the GNSS correction,
+  /// its scale error taken out), with its GNSS-corrected orientation. If that lies more than
+  /// `chain_reset_m` from its GNSS pose horizontally (a GNSS outage ended, or the alignment
+  /// was re-solved), GNSS places it horizontally instead. NDT then registers it onto the
+  /// previous submap (along the track only where that is observable), and last it moves `gnss_pull`
+  /// of the way towards its GNSS pose, so the chain follows GNSS without a step at any seam.
   double gnss_pull = 0.05;
   /// Vertically the pull is weaker: a single-point receiver's height wanders by metres, the
   /// odometry's by far less.
@@ -45,6 +48,10 @@ struct SubmapOptions {
   double ndt_target_voxel_m = 0.2;  ///< the previous submap, thinned (finer than NDT cells)
   double ndt_max_correction_m = 0.3;
   double ndt_max_correction_deg = 0.5;
+  /// NDT's along-track correction is used only where the registration constrains that
+  /// direction: its information along the track at least this share of the strongest (0.1-0.2
+  /// past a station, under 0.01 on plain track with evenly spaced masts).
+  double ndt_min_along_information = 0.05;
 };
 
 /// One keyframe for the submap builder.
@@ -56,7 +63,7 @@ struct SubmapKeyframe {
   Eigen::Isometry3d T_odom_body = Eigen::Isometry3d::Identity();
   bool georeferenced = false;
   std::string utm_zone;
-  /// The odometry's solve hit its iteration limit or was degenerate (stage 1 registers it).
+  /// The odometry's solve hit its iteration limit (stage 1 registers it).
   bool odometry_suspect = false;
   /// The odometry's scale error (true distance = scale x odometry), from the GNSS fusion.
   double odometry_scale = 1.0;

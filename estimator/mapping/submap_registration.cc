@@ -31,6 +31,16 @@ Cloud::Ptr ToCloud(const std::vector<Eigen::Vector3f>& points, double voxel_m) {
   return cloud;
 }
 
+/// PCL's NDT with its Hessian (protected there) exposed.
+class Ndt : public pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> {
+ public:
+  Eigen::Matrix<double, 6, 6> HessianAt(const Cloud& aligned) {
+    Eigen::Matrix<double, 6, 6> h;
+    computeHessian(h, aligned);
+    return h;
+  }
+};
+
 Eigen::Isometry3d ToIsometry(const Eigen::Matrix4f& m) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   // Re-orthonormalise: PCL works in float.
@@ -93,7 +103,7 @@ Registration NdtRegister(const std::vector<Eigen::Vector3f>& source,
   std::vector<double> passes = {options.resolution_m};
   if (options.coarse_pass) passes.insert(passes.begin(), 2.0 * options.resolution_m);
   for (const double resolution : passes) {
-    pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
+    Ndt ndt;
     ndt.setResolution(static_cast<float>(resolution));
     ndt.setStepSize(options.step_size_m);
     ndt.setTransformationEpsilon(options.transformation_epsilon);
@@ -107,6 +117,7 @@ Registration NdtRegister(const std::vector<Eigen::Vector3f>& source,
     if (!r.converged) return r;
     start = ndt.getFinalTransformation();
     r.fitness_m2 = ndt.getFitnessScore(2.0 * resolution);
+    r.translation_information = -ndt.HessianAt(aligned).topLeftCorner<3, 3>();
   }
   r.T_target_source = ToIsometry(start);
   return r;

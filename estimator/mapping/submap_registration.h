@@ -13,6 +13,9 @@ struct Registration {
   int iterations = 0;
   double fitness_m2 = 0.0;  ///< mean squared distance of the matched points
   Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
+  /// NDT only: the information (negative Hessian of the score) on the translation at the
+  /// result, for telling well-constrained directions from degenerate ones.
+  Eigen::Matrix3d translation_information = Eigen::Matrix3d::Zero();
 };
 
 struct IcpOptions {

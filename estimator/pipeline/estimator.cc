@@ -754,8 +754,9 @@ void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& 
   k.odometry_scale = keyframe->odometry_scale;
   k.georeferenced = keyframe->georeferenced;
   if (keyframe->georeferenced) k.utm_zone = frame.utm_zone;
-  k.odometry_suspect =
-      frame.projected || frame.solver_iterations >= config_.options.max_solver_iterations;
+  // The paper's trigger: the scan-to-map solve ran into its iteration limit. (Degenerate,
+  // remapped frames are routine on plain track, and the odometer holds them.)
+  k.odometry_suspect = frame.solver_iterations >= config_.options.max_solver_iterations;
   k.points_body = keyframe->points_body;
   k.intensities = keyframe->intensities;
   for (api::Submap& s : submaps_.Add(std::move(k))) {
