@@ -165,13 +165,19 @@ def run_one(build, out_root, scenario, seed, duration):
     row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
                outage_max_m=outage_max(estimate, truth, fixes),
                bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None,
-               plane_rms_m=e["map"]["plane_rms_m"], rail_p95_m=e["map"]["rail_spread_p95_m"],
+               plane_rms_m=e["map"]["plane_rms_m"] if e["map"]["plane_patches"] else None,
+               rail_p95_m=e["map"]["rail_spread_p95_m"],
                rail_max_m=e["map"]["rail_spread_max_m"])
     return row
 
 
 def fmt(v, digits=2):
     return "-" if v is None else f"{v:.{digits}f}"
+
+
+def cm(v):
+    """Metres as centimetres, or - where there was nothing to measure."""
+    return "-" if v is None else f"{100 * v:.1f}"
 
 
 def markdown(rows):
@@ -185,7 +191,7 @@ def markdown(rows):
             continue
         lines.append(f"| {r['scenario']} | {r['distance_m'] / 1000:.2f} | {r['ate_m']:.2f} | {r['max_m']:.2f} | "
                      f"{fmt(r['outage_max_m'])} | {fmt(r['bound_ate_m'])} / {fmt(r['bound_max_m'])} | "
-                     f"{100 * r['plane_rms_m']:.1f} | {100 * r['rail_p95_m']:.1f} / {100 * r['rail_max_m']:.1f} | "
+                     f"{cm(r['plane_rms_m'])} | {100 * r['rail_p95_m']:.1f} / {100 * r['rail_max_m']:.1f} | "
                      f"{r['gnss'].get('factors', 0)} | {r['gnss'].get('outliers', 0)} | {r['rtf']:.2f} | "
                      f"{r['peak_rss_mb']:.0f} |")
     return "\n".join(lines)
@@ -195,7 +201,7 @@ def misses(row):
     if "error" in row:
         return True
     return (row["ate_m"] > ATE_TARGET_M or row["max_m"] > MAX_TARGET_M or
-            row["plane_rms_m"] > PLANE_TARGET_M or row["rail_max_m"] > RAIL_TARGET_M or
+            (row["plane_rms_m"] or 0.0) > PLANE_TARGET_M or row["rail_max_m"] > RAIL_TARGET_M or
             (row["outage_max_m"] is not None and row["outage_max_m"] > OUTAGE_MAX_TARGET_M))
 
 
@@ -214,7 +220,7 @@ def main():
             print(f"{row['scenario']:34s} {row['distance_m'] / 1000:6.2f} km  ATE {row['ate_m']:.2f} m  "
                   f"MAX {row['max_m']:.2f} m  outage MAX {fmt(row['outage_max_m'])} m  "
                   f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  "
-                  f"planes {100 * row['plane_rms_m']:.1f} cm  rails {100 * row['rail_max_m']:.1f} cm  "
+                  f"planes {cm(row['plane_rms_m'])} cm  rails {100 * row['rail_max_m']:.1f} cm  "
                   f"RTF {row['rtf']:.2f}", flush=True)
     table = markdown(rows)
     print(table)
