@@ -35,9 +35,8 @@ void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
                                       std::vector<Eigen::Isometry3d>* P) {
   const size_t n = open_.size();
   const size_t anchor = n / 2;
-  const bool any = std::any_of(open_.begin(), open_.end(), [&](const SubmapKeyframe& k) {
-    return options_.icp_every_keyframe || k.odometry_suspect;
-  });
+  const bool any = std::any_of(
+      open_.begin(), open_.end(), [&](const SubmapKeyframe& k) { return k.odometry_suspect; });
   if (!any) return;
   VoxelCentroids target(options_.icp_target_voxel_m);
   auto add = [&](size_t k) {
@@ -51,7 +50,7 @@ void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
   for (size_t k = anchor; k-- > 0;) order.push_back(k);
   std::vector<Eigen::Vector3f> target_points;
   for (size_t k : order) {
-    if (!options_.icp_every_keyframe && !open_[k].odometry_suspect) {
+    if (!open_[k].odometry_suspect) {
       add(k);
       continue;
     }

@@ -19,10 +19,9 @@ struct SubmapOptions {
   double voxel_m = 0.1;  ///< one point (the centroid) per voxel; 0 keeps every point
   /// Stage 1, scan-to-submap (paper: when the scan-to-map iterations hit their limit): a
   /// keyframe whose odometry solve hit its iteration limit is registered by ICP onto the
-  /// submap built so far, from its odometry pose and, if that fails too, from its GNSS pose.
-  /// `icp_every_keyframe` registers every keyframe (slow: about 0.3 s each; for comparison).
+  /// submap built so far (about 0.3 s each), from its odometry pose and, if that fails too,
+  /// from its GNSS pose.
   bool icp = true;
-  bool icp_every_keyframe = false;
   IcpOptions icp_options;
   double icp_target_voxel_m = 0.2;
   /// Mean squared match distance (within icp_options.max_correspondence_m) to accept a result;

@@ -73,7 +73,6 @@ Registration IcpRegister(const std::vector<Eigen::Vector3f>& source,
       criteria->getConvergenceState() ==
           pcl::registration::DefaultConvergenceCriteria<float>::CONVERGENCE_CRITERIA_ITERATIONS;
   r.converged = icp.hasConverged() && !hit_limit;
-  r.iterations = hit_limit ? options.max_iterations : 0;
   r.fitness_m2 = icp.getFitnessScore(options.max_correspondence_m);
   r.T_target_source = ToIsometry(icp.getFinalTransformation());
   return r;

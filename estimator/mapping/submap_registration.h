@@ -9,8 +9,8 @@ namespace raillomer {
 
 /// The outcome of one registration: the pose of the source frame in the target frame.
 struct Registration {
-  bool converged = false;  ///< within the iteration limit, with enough overlap
-  int iterations = 0;
+  bool converged = false;   ///< within the iteration limit, with enough overlap
+  int iterations = 0;       ///< NDT: iterations of its last pass (PCL's ICP does not report them)
   double fitness_m2 = 0.0;  ///< mean squared distance of the matched points
   Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
   /// NDT only: the information (negative Hessian of the score) on the translation at the

@@ -679,7 +679,7 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
 
 void Estimator::Deliver(FrameResult frame, std::optional<Keyframe> keyframe) {
   if (!gnss_ || gnss_gave_up_) {
-    Output(frame, keyframe);
+    Output(frame, std::move(keyframe));
     return;
   }
   gnss_->AddOdometry(frame.stamp_ns, frame.T_world_body);
@@ -703,7 +703,7 @@ void Estimator::ReleaseHeld(bool flush) {
                 : "no GNSS alignment after " + Seconds(held_s)) +
          " (" + gnss_->pending_reason() + "); the output stays in the local odometry frame");
     while (!gnss_held_.empty()) {
-      Output(gnss_held_.front().frame, gnss_held_.front().keyframe);
+      Output(gnss_held_.front().frame, std::move(gnss_held_.front().keyframe));
       gnss_held_.pop_front();
     }
     return;
@@ -727,12 +727,12 @@ void Estimator::ReleaseHeld(bool flush) {
       h.keyframe->georeferenced = true;
       h.keyframe->origin_utm = h.frame.origin_utm;
     }
-    Output(h.frame, h.keyframe);
+    Output(h.frame, std::move(h.keyframe));
     gnss_held_.pop_front();
   }
 }
 
-void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe) {
+void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyframe) {
   if (sinks_.on_frame) sinks_.on_frame(frame);
   if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
   if (!sinks_.stream) return;
@@ -757,8 +757,8 @@ void Estimator::Output(const FrameResult& frame, const std::optional<Keyframe>& 
   // The paper's trigger: the scan-to-map solve ran into its iteration limit. (Degenerate,
   // remapped frames are routine on plain track, and the odometer holds them.)
   k.odometry_suspect = frame.solver_iterations >= config_.options.max_solver_iterations;
-  k.points_body = keyframe->points_body;
-  k.intensities = keyframe->intensities;
+  k.points_body = std::move(keyframe->points_body);  // the sinks above are done with it
+  k.intensities = std::move(keyframe->intensities);
   for (api::Submap& s : submaps_.Add(std::move(k))) {
     s.sequence = stream_sequence_++;
     sinks_.stream->OnSubmap(s);

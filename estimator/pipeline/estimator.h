@@ -147,7 +147,8 @@ class Estimator {
   /// Hands the held frames to the sinks, georeferenced or (after giving up) local.
   /// Sends the held frames the GNSS fusion has settled (all of them with flush).
   void ReleaseHeld(bool flush);
-  void Output(const FrameResult& frame, const std::optional<Keyframe>& keyframe);
+  /// Hands a final frame (and its keyframe, whose cloud moves on into the submaps) to the sinks.
+  void Output(const FrameResult& frame, std::optional<Keyframe> keyframe);
   /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so
   /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
   /// `last_chance` it settles for whatever data there is.

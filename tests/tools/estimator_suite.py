@@ -74,6 +74,17 @@ def failure(proc):
     return proc.stderr.strip().splitlines()[-2:] if proc.stderr else ["exit %d" % proc.returncode]
 
 
+def report(table, a, missed):
+    """Prints the Markdown table, writes it to --markdown, and with --check exits 1 if a target
+    was missed."""
+    print(table)
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write(table + "\n")
+    if a.check:
+        sys.exit(1 if missed else 0)
+
+
 def add_run_arguments(ap, out_default):
     """The options both suites share: where the tools are, where runs go, which runs."""
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
@@ -151,14 +162,8 @@ def main():
                 print(f"{row['scenario']:34s} {ablation:16s} {row['distance_m'] / 1000:6.2f} km  drift {row['drift_pct']:.3f} % "
                       f"(target {row['target_pct']})  ATE {row['ate_m']:.2f} m  {row['median_ms']:.1f} ms/frame  "
                       f"RTF {row['rtf']:.2f}  {row['peak_rss_mb']:.0f} MB", flush=True)
-    table = markdown(rows)
-    print(table)
-    if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write(table + "\n")
-    if a.check:
-        misses = [r for r in rows if r["ablation"] == "full" and ("error" in r or r["drift_pct"] > r["target_pct"])]
-        sys.exit(1 if misses else 0)
+    report(markdown(rows), a, any(r["ablation"] == "full" and ("error" in r or r["drift_pct"] > r["target_pct"])
+                                  for r in rows))
 
 
 if __name__ == "__main__":

@@ -29,7 +29,8 @@ import subprocess
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from estimator_suite import add_run_arguments, failure, run_estimator, run_label, select_runs  # noqa: E402
+from estimator_suite import (add_run_arguments, failure, report, run_estimator, run_label,  # noqa: E402
+                             select_runs)
 
 ATE_TARGET_M, MAX_TARGET_M, OUTAGE_MAX_TARGET_M = 0.25, 1.0, 1.5
 PLANE_TARGET_M, RAIL_TARGET_M = 0.03, 0.03
@@ -222,13 +223,7 @@ def main():
                   f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  "
                   f"planes {cm(row['plane_rms_m'])} cm  rails {100 * row['rail_max_m']:.1f} cm  "
                   f"RTF {row['rtf']:.2f}", flush=True)
-    table = markdown(rows)
-    print(table)
-    if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write(table + "\n")
-    if a.check:
-        sys.exit(1 if any(misses(r) for r in rows) else 0)
+    report(markdown(rows), a, any(misses(r) for r in rows))
 
 
 if __name__ == "__main__":
