@@ -86,24 +86,28 @@ void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
 }
 
 bool SubmapBuilder::StartNdt(Pending* p, bool chained) {
-  // The two submaps' overlap only, in this submap's local frame (origins differ by whole
-  // metres): points beyond it cannot match and only cost time.
+  // The overlap only: points beyond it cannot match and only cost time.
   const api::Submap& s = p->submap;
-  const Eigen::Vector3d shift = previous_->origin - s.origin;
   Eigen::AlignedBox3f source_box, target_box;
   for (const Eigen::Vector3f& q : s.points) source_box.extend(q);
   const float margin = static_cast<float>(2.0 * options_.ndt_options.resolution_m);
   source_box.min().array() -= margin;
   source_box.max().array() += margin;
-  std::vector<Eigen::Vector3f> target;
-  target.reserve(previous_->points.size());
-  for (const Eigen::Vector3f& q : previous_->points) {
-    const Eigen::Vector3f t = (q.cast<double>() + shift).cast<float>();
-    if (!source_box.contains(t)) continue;
-    target.push_back(t);
-    target_box.extend(t);
-  }
+  // The previous submap, and any of an earlier pass over the same ground.
+  const Eigen::Vector3d anchor = p->P[p->anchor].translation() + s.origin;
+  const auto take = [&](uint32_t id) {
+    if (id + 1 == s.index) return true;
+    if (id >= placed_.size()) return false;
+    const Placed& e = placed_[id];
+    return p->travel_anchor_m - e.travel_m - (anchor - e.anchor).norm() >= options_.revisit_min_m;
+  };
+  std::vector<uint32_t> ids;
+  std::vector<Eigen::Vector3f> target =
+      archive_.Within(s.utm_zone, s.origin, source_box, take, &ids);
   if (target.empty()) return false;
+  if (std::any_of(ids.begin(), ids.end(), [&](uint32_t id) { return id + 1 != s.index; }))
+    ++stats_.ndt_revisits;
+  for (const Eigen::Vector3f& t : target) target_box.extend(t);
   target_box.min().array() -= margin;
   target_box.max().array() += margin;
   std::vector<Eigen::Vector3f> source;
@@ -112,10 +116,18 @@ bool SubmapBuilder::StartNdt(Pending* p, bool chained) {
     if (target_box.contains(q)) source.push_back(q);
   NdtOptions ndt = options_.ndt_options;
   ndt.coarse_pass = ndt.coarse_pass && !chained;  // the chain's guess is within centimetres
-  p->ndt = std::async(std::launch::async,
-                      [source = std::move(source), target = std::move(target), ndt]() {
-                        return NdtRegister(source, target, Eigen::Isometry3d::Identity(), ndt);
-                      });
+  // Where submaps overlap, the union holds each surface several times over: thinned again, the
+  // target (and NDT's memory) stays the size of the ground it covers.
+  const bool several = ids.size() > 1;
+  const double voxel_m = options_.ndt_target_voxel_m;
+  p->ndt =
+      std::async(std::launch::async,
+                 [source = std::move(source), target = std::move(target), several, voxel_m, ndt]() {
+                   return NdtRegister(source,
+                                      several ? Thinned(target, voxel_m) : target,
+                                      Eigen::Isometry3d::Identity(),
+                                      ndt);
+                 });
   return true;
 }
 
@@ -177,10 +189,13 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
     s.keyframes[k].q_world_body = Eigen::Quaterniond(p.P[k].linear()).normalized();
   }
   if (s.georeferenced) {
+    if (options_.ndt) {
+      archive_.Put(s.index, s.utm_zone, s.origin, Thinned(s.points, options_.ndt_target_voxel_m));
+      if (placed_.size() <= s.index) placed_.resize(s.index + 1);
+      placed_[s.index] = {p.P[p.anchor].translation() + s.origin, p.travel_anchor_m};
+    }
     Previous next;
     next.utm_zone = s.utm_zone;
-    next.origin = s.origin;
-    if (options_.ndt) next.points = Thinned(s.points, options_.ndt_target_voxel_m);
     next.T_world_anchor = p.P[p.anchor];
     next.T_world_anchor.translation() += s.origin;
     next.T_odom_anchor = p.T_odom_anchor;
@@ -238,6 +253,7 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   p.anchor = n / 2;
   p.T_odom_anchor = open_[p.anchor].T_odom_body;
   p.T_gnss_anchor = open_[p.anchor].T_world_body;
+  p.travel_anchor_m = open_travel_m_[p.anchor];
   bool chained = false;
   Eigen::Isometry3d A = PlaceAnchor(open_[p.anchor], &chained);
   p.chained = chained;
@@ -270,8 +286,8 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
     });
   }
   open_.clear();
-  if (s.georeferenced && options_.ndt && previous_ && previous_->utm_zone == s.utm_zone &&
-      StartNdt(&p, chained)) {
+  open_travel_m_.clear();
+  if (s.georeferenced && options_.ndt && StartNdt(&p, chained)) {
     pending_ = std::move(p);
     return;
   }
@@ -291,6 +307,9 @@ std::vector<api::Submap> SubmapBuilder::Add(SubmapKeyframe keyframe) {
                          open_.front().utm_zone != keyframe.utm_zone)) {
     Close(&done);
   }
+  if (last_odom_) travel_m_ += (keyframe.T_odom_body.translation() - *last_odom_).norm();
+  last_odom_ = keyframe.T_odom_body.translation();
+  open_travel_m_.push_back(travel_m_);
   open_.push_back(std::move(keyframe));
   if (static_cast<int>(open_.size()) >= options_.keyframes) Close(&done);
   return done;

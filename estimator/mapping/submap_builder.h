@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 
 #include "api/stream.h"
+#include "estimator/mapping/submap_archive.h"
 #include "estimator/mapping/submap_registration.h"
 
 namespace raillomer {
@@ -34,8 +35,10 @@ struct SubmapOptions {
   /// position plus the odometry's motion since (turned into the world by the GNSS correction,
   /// its scale error taken out), with its GNSS-corrected orientation. If that lies more than
   /// `chain_reset_m` from its GNSS pose horizontally (a GNSS outage ended, or the alignment
-  /// was re-solved), GNSS places it horizontally instead. NDT then registers it onto the
-  /// previous submap (along the track only where that is observable), and last it moves `gnss_pull`
+  /// was re-solved), GNSS places it horizontally instead. NDT then registers it onto every
+  /// earlier submap it overlaps: the previous ones and, where the train runs the same track
+  /// again, those of the earlier pass (along the track only where that is observable); last it
+  /// moves `gnss_pull`
   /// of the way towards its GNSS pose, so the chain follows GNSS without a step at any seam.
   double gnss_pull = 0.05;
   /// Vertically the pull is weaker: a single-point receiver's height wanders by metres, the
@@ -44,7 +47,13 @@ struct SubmapOptions {
   double chain_reset_m = 2.0;
   bool ndt = true;
   NdtOptions ndt_options;
-  double ndt_target_voxel_m = 0.2;  ///< the previous submap, thinned (finer than NDT cells)
+  double ndt_target_voxel_m = 0.2;  ///< earlier submaps, thinned (finer than NDT cells)
+  /// An earlier submap is a target besides the previous one only where the train comes back
+  /// over the same ground: where it has travelled at least this much further (by the
+  /// odometry) than the straight distance between the two. Consecutive submaps along one pass
+  /// overlap too, but registering onto those would hold the chain where it was and undo the
+  /// GNSS pull, until a chain reset tore the map.
+  double revisit_min_m = 20.0;
   double ndt_max_correction_m = 0.3;
   double ndt_max_correction_deg = 0.5;
   /// NDT's along-track correction is used only where the registration constrains that
@@ -80,6 +89,7 @@ struct SubmapStats {
   uint64_t icp_failed = 0;    ///< keyframes left at their odometry pose
   uint64_t ndt_applied = 0;
   uint64_t ndt_rejected = 0;  ///< not converged or beyond the trust region
+  uint64_t ndt_revisits = 0;  ///< registrations onto an earlier pass's submaps too
 };
 
 /// Groups consecutive keyframes into submaps (paper IV.E: 10 keyframes each) in two stages.
@@ -112,6 +122,7 @@ class SubmapBuilder {
     Eigen::Isometry3d T_gnss_anchor = Eigen::Isometry3d::Identity();  ///< absolute
     bool chained = false;
     size_t anchor = 0;
+    double travel_anchor_m = 0.0;  ///< the odometry's path length at the anchor
     std::future<Registration> ndt;
   };
 
@@ -127,25 +138,33 @@ class SubmapBuilder {
   /// Stage 2: where the middle keyframe goes (absolute), by the chain or by GNSS; `chained`
   /// tells which.
   Eigen::Isometry3d PlaceAnchor(const SubmapKeyframe& anchor, bool* chained);
-  /// Stage 2: starts the NDT of the submap onto the previous one; false if there is no
-  /// overlap to register.
+  /// Stage 2: starts the NDT of the submap onto the earlier submaps it overlaps; false if
+  /// there is no overlap to register.
   bool StartNdt(Pending* p, bool chained);
 
   SubmapOptions options_;
   SubmapStats stats_;
   uint32_t next_index_ = 0;
   std::vector<SubmapKeyframe> open_;
+  std::vector<double> open_travel_m_;  ///< the odometry's path length at each open keyframe
+  double travel_m_ = 0.0;
+  std::optional<Eigen::Vector3d> last_odom_;
   std::optional<Pending> pending_;
-  /// The previous georeferenced submap: its placement for the chain, its points (thinned) for
-  /// NDT.
+  /// The previous georeferenced submap's placement, for the chain.
   struct Previous {
     std::string utm_zone;
-    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
-    std::vector<Eigen::Vector3f> points;
     Eigen::Isometry3d T_world_anchor = Eigen::Isometry3d::Identity();  ///< absolute, final
     Eigen::Isometry3d T_odom_anchor = Eigen::Isometry3d::Identity();
   };
   std::optional<Previous> previous_;
+  /// Every finished georeferenced submap, thinned: NDT's targets. By submap index, where its
+  /// anchor ended up and the path length there, to tell an earlier pass from this one.
+  SubmapArchive archive_;
+  struct Placed {
+    Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
+    double travel_m = 0.0;
+  };
+  std::vector<Placed> placed_;
 };
 
 }  // namespace raillomer

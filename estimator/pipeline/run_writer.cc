@@ -256,7 +256,7 @@ std::string SubmapJson(const SubmapStats& m) {
                 sizeof(text),
                 "\"submaps\": {\"count\": %llu, \"chained\": %llu, \"chain_resets\": %llu, "
                 "\"icp_odometry\": %llu, \"icp_gnss\": %llu, \"icp_failed\": %llu, "
-                "\"ndt_applied\": %llu, \"ndt_rejected\": %llu}",
+                "\"ndt_applied\": %llu, \"ndt_rejected\": %llu, \"ndt_revisits\": %llu}",
                 static_cast<unsigned long long>(m.submaps),
                 static_cast<unsigned long long>(m.chained),
                 static_cast<unsigned long long>(m.chain_resets),
@@ -264,7 +264,8 @@ std::string SubmapJson(const SubmapStats& m) {
                 static_cast<unsigned long long>(m.icp_gnss),
                 static_cast<unsigned long long>(m.icp_failed),
                 static_cast<unsigned long long>(m.ndt_applied),
-                static_cast<unsigned long long>(m.ndt_rejected));
+                static_cast<unsigned long long>(m.ndt_rejected),
+                static_cast<unsigned long long>(m.ndt_revisits));
   return text;
 }
 

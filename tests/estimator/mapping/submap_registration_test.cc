@@ -1,12 +1,14 @@
 // The two registration stages of the submap mapping on a constructed corridor with known
 // geometry: ICP and NDT recover a known offset, the scan-to-submap stage repairs a keyframe
-// whose odometry pose is off, and the submap-to-submap stage moves a misplaced submap onto its
-// predecessor, all but the GNSS pull.
+// whose odometry pose is off, the submap-to-submap stage moves a misplaced submap onto its
+// predecessor, all but the GNSS pull, and a second pass over the same track is registered onto
+// the first from the archive of finished submaps.
 #include <cmath>
 #include <random>
 
 #include <gtest/gtest.h>
 
+#include "estimator/mapping/submap_archive.h"
 #include "estimator/mapping/submap_builder.h"
 #include "estimator/mapping/submap_registration.h"
 
@@ -229,6 +231,99 @@ TEST(SubmapBuilder, SubmapToSubmapNdtMovesAMisplacedSubmapOntoItsPredecessor) {
   options.ndt = false;
   const std::vector<api::Submap> without = TwoSubmaps(options, Vec3::Zero(), jump, &stats);
   EXPECT_GT((without[1].keyframes[5].p_world - run.Truth(15).translation()).norm(), 0.15);
+}
+
+TEST(SubmapArchive, ReturnsTheStoredPointsInsideABoxAsOffsetsFromTheAskedOrigin) {
+  SubmapArchive archive;
+  EXPECT_TRUE(archive.on_disk());
+  const Vec3 origin_a(432100.0, 3585200.0, 30.0);
+  const Vec3 origin_b(432150.0, 3585200.0, 31.0);
+  // Submap 0: a line of points along x, 0..40 m from its origin; submap 1: 50 m further,
+  // another line; submap 2: the same ground as submap 0 but in another zone.
+  std::vector<Eigen::Vector3f> line;
+  for (int i = 0; i <= 40; ++i) line.emplace_back(static_cast<float>(i), 0.5f, 0.25f);
+  archive.Put(0, "50N", origin_a, line);
+  archive.Put(1, "50N", origin_b, line);
+  archive.Put(2, "51N", origin_a, line);
+  archive.Put(3, "50N", origin_a, {});  // nothing to store
+  EXPECT_EQ(archive.size(), 3u);
+
+  // A box 30..60 m east of origin_a, asked in a frame 10 m east and 1 m up of it.
+  const Vec3 query = origin_a + Vec3(10.0, 0.0, 1.0);
+  const Eigen::AlignedBox3f box(Eigen::Vector3f(20.0f, -1.0f, -2.0f),
+                                Eigen::Vector3f(50.0f, 1.0f, 2.0f));
+  std::vector<uint32_t> ids;
+  const std::vector<Eigen::Vector3f> got = archive.Within("50N", query, box, {}, &ids);
+  EXPECT_EQ(ids, (std::vector<uint32_t>{0, 1}));
+  // Submap 0 gives x = 30..40 m of origin_a (11 points), submap 1 x = 50..60 (11 points).
+  ASSERT_EQ(got.size(), 22u);
+  for (const Eigen::Vector3f& p : got) {
+    EXPECT_TRUE(box.contains(p));
+    EXPECT_NEAR(std::round(p.x()), p.x(), 1e-6);
+    EXPECT_NEAR(p.y(), 0.5f, 1e-6);
+  }
+  EXPECT_NEAR(got.front().x(), 20.0f, 1e-6);  // 30 m of origin_a, 10 m of query's
+  EXPECT_NEAR(got.front().z(), -0.75f, 1e-6);
+  EXPECT_NEAR(got.back().x(), 50.0f, 1e-6);  // 60 m of origin_a = 10 m of origin_b
+  EXPECT_NEAR(got.back().z(), 0.25f, 1e-6);
+
+  EXPECT_TRUE(archive.Within("52N", query, box, {}, &ids).empty());
+  EXPECT_TRUE(ids.empty());
+  // Only the submaps the filter takes.
+  const std::vector<Eigen::Vector3f> second = archive.Within(
+      "50N", query, box, [](uint32_t id) { return id == 1; }, &ids);
+  EXPECT_EQ(ids, (std::vector<uint32_t>{1}));
+  EXPECT_EQ(second.size(), 11u);
+  const Eigen::AlignedBox3f beyond(Eigen::Vector3f(200.0f, -1.0f, -2.0f),
+                                   Eigen::Vector3f(300.0f, 1.0f, 2.0f));
+  EXPECT_TRUE(archive.Within("50N", query, beyond).empty());
+}
+
+TEST(SubmapBuilder, ASecondPassIsRegisteredOntoTheFirst) {
+  // The train runs 78 m out and back over the same corridor. On the way back the odometry has
+  // drifted 0.12 m up and 0.1 m sideways, and GNSS is no help (it is as far off): NDT onto the
+  // first pass's submaps, which the way back overlaps, takes the second pass back onto it.
+  const CorridorRun run(80.0);
+  const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), 0.4);
+  const Vec3 drift = Sideways(0.1, 0.12);
+  auto pass = [&](SubmapOptions options, SubmapStats* stats) {
+    options.icp = false;
+    SubmapBuilder builder(options);
+    std::vector<api::Submap> done;
+    std::vector<int> along;  // keyframe positions, out (0..39) and back (39..0)
+    for (int k = 0; k < 40; ++k) along.push_back(k);
+    for (int k = 39; k >= 0; --k) along.push_back(k);
+    for (size_t i = 0; i < along.size(); ++i) {
+      const bool back = i >= 40;
+      // Reversing, the body keeps facing the same way: the keyframe poses are the outward ones.
+      Eigen::Isometry3d odom = T_odom_utm * run.Truth(along[i]);
+      if (back) odom.translation() += T_odom_utm.linear() * drift;
+      const SubmapKeyframe kf = run.Keyframe(along[i], odom, back ? drift : Vec3::Zero());
+      for (api::Submap& s : builder.Add(kf)) done.push_back(s);
+    }
+    for (api::Submap& s : builder.Flush()) done.push_back(s);
+    *stats = builder.stats();
+    return done;
+  };
+  SubmapOptions options;
+  options.gnss_pull = 0.0;
+  options.gnss_pull_vertical = 0.0;
+  SubmapStats stats;
+  const std::vector<api::Submap> done = pass(options, &stats);
+  ASSERT_EQ(done.size(), 8u);
+  EXPECT_GE(stats.ndt_revisits, 3u);
+  for (size_t s = 4; s < 8; ++s) {
+    for (int k = 0; k < 10; ++k) {
+      const int at = 39 - static_cast<int>(10 * (s - 4)) - k;
+      const Vec3 left = done[s].keyframes[k].p_world - run.Truth(at).translation();
+      EXPECT_LT(left.norm(), 0.03)
+          << "submap " << s << " keyframe " << k << ": " << left.transpose();
+    }
+  }
+  // Without NDT the second pass stays where the odometry put it.
+  options.ndt = false;
+  const std::vector<api::Submap> without = pass(options, &stats);
+  EXPECT_GT((without[6].keyframes[5].p_world - run.Truth(14).translation()).norm(), 0.1);
 }
 
 }  // namespace
