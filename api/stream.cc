@@ -118,7 +118,7 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
   }
   if (!have_fields || !have_points || !have_origin)
     return fail("the header lacks FIELDS, POINTS or the raillomer origin");
-  if (bytes.size() - pos != 16 * points) {
+  if (points > (bytes.size() - pos) / 16 || bytes.size() - pos != 16 * points) {
     return fail("expected " + std::to_string(16 * points) + " bytes of points, found " +
                 std::to_string(bytes.size() - pos) + " (truncated?)");
   }

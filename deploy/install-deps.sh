@@ -13,6 +13,10 @@ packages=(
   libceres-dev libpcl-dev
   # simulator ray casting
   libembree-dev
+  # map store: Draco tiles (and Debian's draco_decoder, an independent check), the SQLite index
+  libdraco-dev draco libsqlite3-dev sqlite3
+  # server: HTTP, WebSocket (Boost.Beast); tests with clients that are not ours; load tests
+  libcpp-httplib-dev libboost-dev python3-websockets curl wrk
   # ROS1 bags without ROS
   librosbag-storage-dev libsensor-msgs-dev librcpputils-dev libament-index-cpp-dev
   # tests, benchmarks and the independent bag check

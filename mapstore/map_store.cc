@@ -1,0 +1,789 @@
+#include "mapstore/map_store.h"
+
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <future>
+#include <unordered_set>
+
+#include "mapstore/schema.h"
+#include "mapstore/sqlite.h"
+
+namespace raillomer::mapstore {
+namespace {
+
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+std::string Hex64(uint64_t v) {
+  char text[17];
+  std::snprintf(text, sizeof(text), "%016" PRIx64, v);
+  return text;
+}
+
+uint64_t Fnv1a(const std::string& bytes) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : bytes) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+/// A voxel of a tile (tile frame): x and y from 0, z from half a tile below the reference.
+uint64_t TileVoxel(const Eigen::Vector3f& o, double voxel_m) {
+  constexpr int64_t kBias = int64_t{1} << 20;
+  constexpr uint64_t kMask = (uint64_t{1} << 21) - 1;
+  const auto axis = [&](float v, int64_t bias) {
+    return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v / voxel_m)) + bias) & kMask;
+  };
+  return (axis(o.x(), 0) << 42) | (axis(o.y(), 0) << 21) | axis(o.z(), kBias);
+}
+
+/// A submap's points can go into the UTM tiles: georeferenced, finite, plausible UTM.
+bool ValidSubmap(const api::Submap& s, size_t max_points, std::string* error) {
+  if (!s.georeferenced) {
+    *error = "the submap is not georeferenced (zone 'local'): only UTM submaps go into tiles";
+    return false;
+  }
+  const Eigen::Vector3d& o = s.origin;
+  if (!o.allFinite() || o.x() < 0.0 || o.x() > 1.0e6 || o.y() < 0.0 || o.y() > 1.0e7 ||
+      std::abs(o.z()) > 1.0e4) {
+    char text[160];
+    std::snprintf(text,
+                  sizeof(text),
+                  "the submap origin (%g, %g, %g) is not a UTM position (easting 0-1000 km, "
+                  "northing 0-10000 km)",
+                  o.x(),
+                  o.y(),
+                  o.z());
+    *error = text;
+    return false;
+  }
+  if (s.points.empty()) {
+    *error = "the submap has no points";
+    return false;
+  }
+  if (s.points.size() > max_points) {
+    *error = "the submap has " + std::to_string(s.points.size()) + " points, more than the " +
+             std::to_string(max_points) + " allowed";
+    return false;
+  }
+  for (size_t i = 0; i < s.points.size(); ++i) {
+    if (!s.points[i].allFinite() || s.points[i].cwiseAbs().maxCoeff() > 1.0e4f ||
+        !std::isfinite(s.intensities[i])) {
+      *error = "point " + std::to_string(i) +
+               " is not finite or lies more than 10 km from the submap origin";
+      return false;
+    }
+  }
+  if (s.last_stamp_ns < s.first_stamp_ns) {
+    *error = "the submap's last stamp is before its first";
+    return false;
+  }
+  return true;
+}
+
+bool ValidPose(const api::StreamPose& p, std::string* error) {
+  if (!p.p.allFinite() || !p.q.coeffs().allFinite() || std::abs(p.q.norm() - 1.0) > 1e-3) {
+    *error = "pose " + std::to_string(p.sequence) +
+             " has a non-finite position or a rotation that is not a unit quaternion";
+    return false;
+  }
+  if (p.georeferenced && (p.p.x() < 0.0 || p.p.x() > 1.0e6 || p.p.y() < 0.0 || p.p.y() > 1.0e7)) {
+    *error = "pose " + std::to_string(p.sequence) + " is georeferenced but not a UTM position";
+    return false;
+  }
+  return true;
+}
+
+Result Fail(Outcome outcome, std::string message) { return {outcome, std::move(message)}; }
+
+}  // namespace
+
+const char* ToString(Outcome outcome) {
+  switch (outcome) {
+    case Outcome::kOk:
+      return "ok";
+    case Outcome::kDuplicate:
+      return "duplicate";
+    case Outcome::kInvalid:
+      return "invalid";
+    case Outcome::kNotFound:
+      return "not_found";
+    case Outcome::kConflict:
+      return "conflict";
+    case Outcome::kError:
+      return "error";
+  }
+  return "error";
+}
+
+bool StoreOptions::IsValid(std::string* error) const {
+  if (!grid.IsValid(error)) return false;
+  if (max_points_per_submap < 1) return *error = "max_points_per_submap must be positive", false;
+  if (hot_points_budget < 100'000) return *error = "hot_points_budget must be >= 100000", false;
+  if (draco_speed < 0 || draco_speed > 9) return *error = "draco_speed must be in [0, 9]", false;
+  if (encode_threads < 1 || encode_threads > 64)
+    return *error = "encode_threads must be in [1, 64]", false;
+  return true;
+}
+
+/// A tile being filled: its points, and the voxels they occupy.
+struct MapStore::HotTile {
+  TileKey key;
+  TileQuantization quantization;
+  TilePoints points;
+  std::unordered_set<uint64_t> voxels;
+  int64_t version = 0;  ///< of the written tile this one continues (0: none yet)
+  bool dirty = false;
+  uint64_t touched = 0;
+};
+
+/// Reader connections, reused: SQLite's WAL lets them read while the writer writes.
+class MapStore::Readers {
+ public:
+  explicit Readers(std::string path) : path_(std::move(path)) {}
+  class Lease {
+   public:
+    Lease(Readers* owner, std::unique_ptr<Database> db) : owner_(owner), db_(std::move(db)) {}
+    ~Lease() {
+      if (db_) owner_->Give(std::move(db_));
+    }
+    Lease(Lease&&) = default;
+    explicit operator bool() const { return db_ != nullptr; }
+    const Database& operator*() const { return *db_; }
+
+   private:
+    Readers* owner_;
+    std::unique_ptr<Database> db_;
+  };
+  Lease Take(std::string* error) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (!idle_.empty()) {
+        std::unique_ptr<Database> db = std::move(idle_.back());
+        idle_.pop_back();
+        return Lease(this, std::move(db));
+      }
+    }
+    auto db = std::make_unique<Database>();
+    if (!db->Open(path_, false, error)) db.reset();
+    return Lease(this, std::move(db));
+  }
+
+ private:
+  void Give(std::unique_ptr<Database> db) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (idle_.size() < 32) idle_.push_back(std::move(db));
+  }
+  std::string path_;
+  std::mutex mu_;
+  std::vector<std::unique_ptr<Database>> idle_;
+};
+
+MapStore::MapStore(const std::string& dir, const StoreOptions& options)
+    : dir_(dir), options_(options) {}
+
+MapStore::~MapStore() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (writer_) FlushLocked(nullptr);
+}
+
+std::unique_ptr<MapStore> MapStore::Open(const std::string& dir,
+                                         const StoreOptions& options,
+                                         std::string* error) {
+  if (!options.IsValid(error)) {
+    *error = "store options: " + *error;
+    return nullptr;
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) {
+    *error = "cannot create the store folder " + dir + ": " + ec.message();
+    return nullptr;
+  }
+  std::unique_ptr<MapStore> store(new MapStore(dir, options));
+  store->writer_ = std::make_unique<Database>();
+  if (!store->writer_->Open(store->IndexPath(), true, error)) return nullptr;
+  if (!MigrateSchema(*store->writer_, error)) {
+    *error = store->IndexPath() + ": " + *error;
+    return nullptr;
+  }
+  store->readers_ = std::make_unique<Readers>(store->IndexPath());
+  if (!store->Recover(error)) return nullptr;
+  return store;
+}
+
+bool MapStore::Recover(std::string* error) {
+  std::lock_guard<std::mutex> lock(mu_);
+  // Submaps acknowledged before a crash whose tiles were not all written: merge them again.
+  Statement q(*writer_,
+              "SELECT s.run_id, s.sequence, p.bytes FROM submaps s JOIN submap_payloads p "
+              "USING (run_id, sequence) WHERE s.tiled = 0 ORDER BY s.received_ns, s.run_id, "
+              "s.sequence");
+  if (!q.ok()) {
+    *error = "cannot read the submaps to recover: " + q.error();
+    return false;
+  }
+  while (q.Step()) {
+    api::Submap s;
+    std::string message;
+    if (!api::DecodeSubmapPcd(q.Blob(2), &s, &message)) {
+      *error = "stored submap " + std::to_string(q.Int(1)) + " of run " + std::to_string(q.Int(0)) +
+               " is unreadable: " + message;
+      return false;
+    }
+    IngestReceipt receipt;
+    Merge(q.Int(0), s, &receipt);
+    unflushed_.emplace_back(q.Int(0), static_cast<uint64_t>(q.Int(1)));
+    ++stats_.submaps_recovered;
+  }
+  if (!q.error().empty()) {
+    *error = "cannot read the submaps to recover: " + q.error();
+    return false;
+  }
+  const Result r = FlushLocked(nullptr);
+  if (!r) *error = r.message;
+  return r.ok();
+}
+
+Result MapStore::RunLocked(const Database& db, int64_t run_id, RunInfo* out) const {
+  Statement q(db,
+              "SELECT id, line, vehicle, status, start_ns, end_ns, utm_zone, created_ns, "
+              "submaps, points, poses FROM runs WHERE id = ?");
+  if (!q.ok()) return Fail(Outcome::kError, q.error());
+  q.Bind(1, run_id);
+  if (!q.Step()) {
+    if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+    return Fail(Outcome::kNotFound, "no run " + std::to_string(run_id));
+  }
+  RunInfo r;
+  r.id = q.Int(0);
+  r.line = q.Text(1);
+  r.vehicle = q.Text(2);
+  r.status = q.Text(3);
+  r.start_ns = q.Int(4);
+  r.end_ns = q.IsNull(5) ? 0 : q.Int(5);
+  r.utm_zone = q.Text(6);
+  r.created_ns = q.Int(7);
+  r.submaps = q.Int(8);
+  r.points = q.Int(9);
+  r.poses = q.Int(10);
+  if (out) *out = r;
+  return {};
+}
+
+Result MapStore::CreateRun(const NewRun& run, RunInfo* out) {
+  auto printable = [](const std::string& s) {
+    return !s.empty() && s.size() <= 200 &&
+           std::all_of(s.begin(), s.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
+  };
+  if (!printable(run.line))
+    return Fail(Outcome::kInvalid, "line must be 1-200 printable characters");
+  if (!printable(run.vehicle))
+    return Fail(Outcome::kInvalid, "vehicle must be 1-200 printable characters");
+  if (run.start_ns < 0) return Fail(Outcome::kInvalid, "start_ns must not be negative");
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  const int64_t now = NowNs();
+  Statement line(*writer_, "INSERT OR IGNORE INTO lines (name, created_ns) VALUES (?, ?)");
+  if (!line.Bind(1, run.line).Bind(2, now).Run()) return Fail(Outcome::kError, line.error());
+  Statement insert(*writer_,
+                   "INSERT INTO runs (line, vehicle, status, start_ns, created_ns) VALUES (?, ?, "
+                   "'live', ?, ?)");
+  if (!insert.Bind(1, run.line).Bind(2, run.vehicle).Bind(3, run.start_ns).Bind(4, now).Run())
+    return Fail(Outcome::kError, insert.error());
+  const int64_t id = writer_->LastInsertId();
+  std::string error;
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  return RunLocked(*writer_, id, out);
+}
+
+Result MapStore::GetRun(int64_t run_id, RunInfo* out) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  return RunLocked(*db, run_id, out);
+}
+
+std::vector<RunInfo> MapStore::ListRuns() const {
+  std::vector<RunInfo> runs;
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return runs;
+  Statement q(*db, "SELECT id FROM runs ORDER BY id");
+  while (q.Step()) {
+    RunInfo r;
+    if (RunLocked(*db, q.Int(0), &r)) runs.push_back(r);
+  }
+  return runs;
+}
+
+Result MapStore::FinishRun(int64_t run_id, int64_t end_ns, RunInfo* out) {
+  std::lock_guard<std::mutex> lock(mu_);
+  RunInfo run;
+  Result r = RunLocked(*writer_, run_id, &run);
+  if (!r) return r;
+  if (run.status == "finished") {
+    if (out) *out = run;
+    return {Outcome::kDuplicate, "run " + std::to_string(run_id) + " was finished before"};
+  }
+  if (end_ns < run.start_ns) return Fail(Outcome::kInvalid, "end_ns is before the run's start_ns");
+  r = FlushLocked(nullptr);
+  if (!r) return r;
+  Statement u(*writer_, "UPDATE runs SET status = 'finished', end_ns = ? WHERE id = ?");
+  if (!u.Bind(1, end_ns).Bind(2, run_id).Run()) return Fail(Outcome::kError, u.error());
+  return RunLocked(*writer_, run_id, out);
+}
+
+Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, IngestReceipt* receipt) {
+  api::Submap s;
+  std::string error;
+  if (!api::DecodeSubmapPcd(payload, &s, &error)) {
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kInvalid, error);
+  }
+  if (!ValidSubmap(s, options_.max_points_per_submap, &error)) {
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kInvalid, "submap " + std::to_string(s.sequence) + ": " + error);
+  }
+  const std::string hash = Hex64(Fnv1a(payload));
+  Eigen::AlignedBox3d box;
+  for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
+
+  std::lock_guard<std::mutex> lock(mu_);
+  RunInfo run;
+  Result r = RunLocked(*writer_, run_id, &run);
+  if (!r) {
+    ++stats_.submaps_rejected;
+    return r;
+  }
+  Statement existing(*writer_,
+                     "SELECT payload_hash FROM submaps WHERE run_id = ? AND sequence = ?");
+  existing.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence));
+  if (existing.Step()) {
+    if (existing.Text(0) == hash) {
+      ++stats_.submaps_duplicate;
+      if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0};
+      return {Outcome::kDuplicate,
+              "submap " + std::to_string(s.sequence) + " of run " + std::to_string(run_id) +
+                  " was stored before"};
+    }
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kConflict,
+                "run " + std::to_string(run_id) +
+                    " already has a different submap under "
+                    "sequence " +
+                    std::to_string(s.sequence));
+  }
+  if (run.status != "live") {
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kConflict, "run " + std::to_string(run_id) + " is finished");
+  }
+  if (!run.utm_zone.empty() && run.utm_zone != s.utm_zone) {
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kInvalid,
+                "submap " + std::to_string(s.sequence) + " is in UTM zone " + s.utm_zone +
+                    ", run " + std::to_string(run_id) + " in " + run.utm_zone);
+  }
+  {
+    Transaction t(*writer_);
+    if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+    Statement insert(*writer_,
+                     "INSERT INTO submaps (run_id, sequence, idx, first_stamp_ns, last_stamp_ns, "
+                     "utm_zone, origin_x, origin_y, origin_z, min_x, min_y, max_x, max_y, "
+                     "points, keyframes, payload_hash, received_ns) VALUES "
+                     "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    insert.Bind(1, run_id)
+        .Bind(2, static_cast<int64_t>(s.sequence))
+        .Bind(3, s.index)
+        .Bind(4, s.first_stamp_ns)
+        .Bind(5, s.last_stamp_ns)
+        .Bind(6, s.utm_zone)
+        .Bind(7, s.origin.x())
+        .Bind(8, s.origin.y())
+        .Bind(9, s.origin.z())
+        .Bind(10, box.min().x())
+        .Bind(11, box.min().y())
+        .Bind(12, box.max().x())
+        .Bind(13, box.max().y())
+        .Bind(14, static_cast<int64_t>(s.points.size()))
+        .Bind(15, static_cast<int64_t>(s.keyframes.size()))
+        .Bind(16, hash)
+        .Bind(17, NowNs());
+    Statement body(*writer_,
+                   "INSERT INTO submap_payloads (run_id, sequence, bytes) VALUES (?, ?, ?)");
+    body.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).BindBlob(3, payload);
+    Statement count(*writer_,
+                    "UPDATE runs SET submaps = submaps + 1, points = points + ?, utm_zone = ? "
+                    "WHERE id = ?");
+    count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, s.utm_zone).Bind(3, run_id);
+    if (!insert.Run()) return Fail(Outcome::kError, insert.error());
+    if (!body.Run()) return Fail(Outcome::kError, body.error());
+    if (!count.Run()) return Fail(Outcome::kError, count.error());
+    if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  }
+  ++stats_.submaps_stored;
+  IngestReceipt local;
+  Merge(run_id, s, &local);
+  unflushed_.emplace_back(run_id, s.sequence);
+  if (receipt) *receipt = local;
+  if (hot_points_ > options_.hot_points_budget) EvictLocked();
+  return {};
+}
+
+MapStore::HotTile* MapStore::Hot(int64_t run_id,
+                                 const std::string& zone,
+                                 const TileKey& key,
+                                 double z_m) {
+  const HotKey hk{run_id, key.level, key.ix, key.iy};
+  auto it = hot_.find(hk);
+  if (it != hot_.end()) return it->second.get();
+  auto tile = std::make_unique<HotTile>();
+  tile->key = key;
+  const TileGrid& grid = options_.grid;
+  // A tile written before continues: decode it (its points sit on its grid already).
+  Statement q(*writer_,
+              "SELECT version, bytes FROM tiles WHERE run_id = ? AND level = ? AND ix = ? AND "
+              "iy = ?");
+  q.Bind(1, run_id).Bind(2, key.level).Bind(3, key.ix).Bind(4, key.iy);
+  std::string error;
+  if (q.Step() && DecodeTile(q.Blob(1), &tile->points, &error, &tile->quantization)) {
+    tile->version = q.Int(0);
+    for (const Eigen::Vector3f& p : tile->points.points)
+      tile->voxels.insert(TileVoxel(p, grid.VoxelM(key.level)));
+  } else {
+    tile->points = TilePoints();
+    tile->points.origin = grid.Origin(key, std::floor(z_m));
+    tile->points.utm_zone = zone;
+    tile->quantization = grid.Quantization(key.level);
+  }
+  hot_points_ += tile->points.points.size();
+  HotTile* raw = tile.get();
+  hot_.emplace(hk, std::move(tile));
+  return raw;
+}
+
+void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receipt) {
+  const TileGrid& grid = options_.grid;
+  receipt->points = s.points.size();
+  ++touch_;
+  for (int level = 0; level < grid.levels; ++level) {
+    const double voxel_m = grid.VoxelM(level);
+    HotTile* tile = nullptr;
+    Eigen::Vector3f shift = Eigen::Vector3f::Zero();  // submap origin in the tile frame
+    for (size_t i = 0; i < s.points.size(); ++i) {
+      const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
+      const TileKey key = grid.KeyOf(p, level);
+      if (!tile || !(tile->key == key)) {
+        tile = Hot(run_id, s.utm_zone, key, p.z());
+        tile->touched = touch_;
+        shift = (s.origin - tile->points.origin).cast<float>();
+      }
+      // Offsets first, then the shift: both small, so float keeps them to a micrometre.
+      const Eigen::Vector3f o = s.points[i] + shift;
+      if (!tile->quantization.Covers(o)) {
+        if (level == 0) ++receipt->points_off_grid;
+        continue;
+      }
+      if (!tile->voxels.insert(TileVoxel(o, voxel_m)).second) continue;
+      tile->points.points.push_back(o);
+      tile->points.intensities.push_back(
+          static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
+      tile->dirty = true;
+      ++hot_points_;
+      if (level == 0) ++receipt->points_new;
+    }
+  }
+  stats_.points_ingested += s.points.size();
+  stats_.points_off_grid += receipt->points_off_grid;
+}
+
+Result MapStore::Flush(std::vector<TileUpdate>* updated) {
+  std::lock_guard<std::mutex> lock(mu_);
+  return FlushLocked(updated);
+}
+
+Result MapStore::FlushLocked(std::vector<TileUpdate>* updated) {
+  std::vector<HotTile*> dirty;
+  std::vector<HotKey> keys;
+  for (auto& [k, tile] : hot_) {
+    if (tile->dirty) {
+      dirty.push_back(tile.get());
+      keys.push_back(k);
+    }
+  }
+  if (dirty.empty() && unflushed_.empty()) return {};
+  // Encode in parallel: Draco is the slow part of ingest.
+  std::vector<std::string> bytes(dirty.size()), errors(dirty.size());
+  std::vector<char> ok(dirty.size(), 0);
+  const int threads = std::max(1, std::min<int>(options_.encode_threads, dirty.size()));
+  std::vector<std::future<void>> workers;
+  for (int w = 0; w < threads; ++w) {
+    workers.push_back(std::async(std::launch::async, [&, w]() {
+      for (size_t i = w; i < dirty.size(); i += threads) {
+        ok[i] = EncodeTile(
+            dirty[i]->points, dirty[i]->quantization, options_.draco_speed, &bytes[i], &errors[i]);
+      }
+    }));
+  }
+  for (auto& w : workers) w.get();
+  for (size_t i = 0; i < dirty.size(); ++i) {
+    if (!ok[i]) return Fail(Outcome::kError, "tile " + dirty[i]->key.ToString() + ": " + errors[i]);
+  }
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  Statement put(*writer_,
+                "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
+                "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  const int64_t now = NowNs();
+  std::vector<TileUpdate> done;
+  for (size_t i = 0; i < dirty.size(); ++i) {
+    HotTile& tile = *dirty[i];
+    const int64_t version = tile.version + 1;
+    put.Reset();
+    put.Bind(1, std::get<0>(keys[i]))
+        .Bind(2, tile.key.level)
+        .Bind(3, tile.key.ix)
+        .Bind(4, tile.key.iy)
+        .Bind(5, tile.points.utm_zone)
+        .Bind(6, tile.points.origin.x())
+        .Bind(7, tile.points.origin.y())
+        .Bind(8, tile.points.origin.z())
+        .Bind(9, static_cast<int64_t>(tile.points.points.size()))
+        .Bind(10, tile.quantization.MaxErrorM())
+        .Bind(11, version)
+        .Bind(12, "\"" + std::to_string(version) + "-" + Hex64(Fnv1a(bytes[i])) + "\"")
+        .Bind(13, now)
+        .BindBlob(14, bytes[i]);
+    if (!put.Run()) return Fail(Outcome::kError, put.error());
+    done.push_back({std::get<0>(keys[i]), tile.key, version});
+  }
+  // Every merged submap is in written tiles now: its payload can go.
+  Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
+  Statement drop(*writer_, "DELETE FROM submap_payloads WHERE run_id = ? AND sequence = ?");
+  for (const auto& [run, sequence] : unflushed_) {
+    mark.Reset();
+    drop.Reset();
+    if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
+      return Fail(Outcome::kError, mark.error());
+    if (!drop.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
+      return Fail(Outcome::kError, drop.error());
+  }
+  std::string error;
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  for (size_t i = 0; i < dirty.size(); ++i) {
+    dirty[i]->dirty = false;
+    ++dirty[i]->version;
+  }
+  unflushed_.clear();
+  stats_.tiles_written += dirty.size();
+  ++stats_.flushes;
+  if (updated) *updated = std::move(done);
+  return {};
+}
+
+void MapStore::EvictLocked() {
+  if (!FlushLocked(nullptr)) return;  // keep everything in memory; the next flush retries
+  // Let the least recently touched tiles go until half the budget is left.
+  std::vector<std::pair<uint64_t, HotKey>> order;
+  for (const auto& [k, tile] : hot_) order.emplace_back(tile->touched, k);
+  std::sort(order.begin(), order.end());
+  for (const auto& [touched, k] : order) {
+    if (hot_points_ <= options_.hot_points_budget / 2 || touched == touch_) break;
+    hot_points_ -= hot_.at(k)->points.points.size();
+    hot_.erase(k);
+  }
+}
+
+Result MapStore::TilesInBox(int64_t run_id,
+                            int level,
+                            const Eigen::AlignedBox2d& box,
+                            std::vector<TileInfo>* tiles) const {
+  if (level < 0 || level >= options_.grid.levels)
+    return Fail(Outcome::kInvalid,
+                "level must be in [0, " + std::to_string(options_.grid.levels - 1) + "]");
+  if (!box.min().allFinite() || !box.max().allFinite() || box.isEmpty())
+    return Fail(Outcome::kInvalid, "the box is empty or not finite");
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Result r = RunLocked(*db, run_id, nullptr);
+  if (!r) return r;
+  const double side = options_.grid.TileM(level);
+  Statement q(*db,
+              "SELECT ix, iy, utm_zone, origin_x, origin_y, origin_z, points, length(bytes), "
+              "version, updated_ns, max_error_m, etag FROM tiles WHERE run_id = ? AND level = ? "
+              "AND ix BETWEEN ? AND ? AND iy BETWEEN ? AND ? ORDER BY ix, iy");
+  q.Bind(1, run_id)
+      .Bind(2, level)
+      .Bind(3, static_cast<int64_t>(std::floor(box.min().x() / side)))
+      .Bind(4, static_cast<int64_t>(std::floor(box.max().x() / side)))
+      .Bind(5, static_cast<int64_t>(std::floor(box.min().y() / side)))
+      .Bind(6, static_cast<int64_t>(std::floor(box.max().y() / side)));
+  tiles->clear();
+  while (q.Step()) {
+    TileInfo t;
+    t.run_id = run_id;
+    t.key = {level, q.Int(0), q.Int(1)};
+    t.utm_zone = q.Text(2);
+    t.origin = Eigen::Vector3d(q.Double(3), q.Double(4), q.Double(5));
+    t.points = q.Int(6);
+    t.bytes = q.Int(7);
+    t.version = q.Int(8);
+    t.updated_ns = q.Int(9);
+    t.max_error_m = q.Double(10);
+    t.etag = q.Text(11);
+    tiles->push_back(t);
+  }
+  if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+  return {};
+}
+
+Result MapStore::Tile(int64_t run_id,
+                      const TileKey& key,
+                      TileInfo* info,
+                      std::string* bytes) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Statement q(*db,
+              "SELECT utm_zone, origin_x, origin_y, origin_z, points, version, updated_ns, "
+              "max_error_m, etag, bytes FROM tiles WHERE run_id = ? AND level = ? AND ix = ? "
+              "AND iy = ?");
+  q.Bind(1, run_id).Bind(2, key.level).Bind(3, key.ix).Bind(4, key.iy);
+  if (!q.Step()) {
+    if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+    Result r = RunLocked(*db, run_id, nullptr);
+    if (!r) return r;
+    return Fail(Outcome::kNotFound,
+                "run " + std::to_string(run_id) + " has no tile " + key.ToString());
+  }
+  if (info) {
+    info->run_id = run_id;
+    info->key = key;
+    info->utm_zone = q.Text(0);
+    info->origin = Eigen::Vector3d(q.Double(1), q.Double(2), q.Double(3));
+    info->points = q.Int(4);
+    info->version = q.Int(5);
+    info->updated_ns = q.Int(6);
+    info->max_error_m = q.Double(7);
+    info->etag = q.Text(8);
+  }
+  if (bytes) *bytes = q.Blob(9);
+  if (info) info->bytes = static_cast<int64_t>(q.Blob(9).size());
+  return {};
+}
+
+Result MapStore::IngestPoses(int64_t run_id,
+                             const std::vector<api::StreamPose>& poses,
+                             int* stored) {
+  if (stored) *stored = 0;
+  std::string error;
+  for (const api::StreamPose& p : poses) {
+    if (!ValidPose(p, &error)) return Fail(Outcome::kInvalid, error);
+  }
+  std::lock_guard<std::mutex> lock(mu_);
+  RunInfo run;
+  Result r = RunLocked(*writer_, run_id, &run);
+  if (!r) return r;
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  Statement get(*writer_,
+                "SELECT stamp_ns, x, y, z, qx, qy, qz, qw, utm_zone FROM poses WHERE run_id = ? "
+                "AND sequence = ?");
+  Statement put(*writer_,
+                "INSERT INTO poses (run_id, sequence, stamp_ns, georeferenced, utm_zone, x, y, z, "
+                "qx, qy, qz, qw) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  int added = 0;
+  for (const api::StreamPose& p : poses) {
+    get.Reset();
+    get.Bind(1, run_id).Bind(2, static_cast<int64_t>(p.sequence));
+    if (get.Step()) {
+      const bool same =
+          get.Int(0) == p.stamp_ns && get.Double(1) == p.p.x() && get.Double(2) == p.p.y() &&
+          get.Double(3) == p.p.z() && get.Double(4) == p.q.x() && get.Double(5) == p.q.y() &&
+          get.Double(6) == p.q.z() && get.Double(7) == p.q.w() && get.Text(8) == p.utm_zone;
+      if (!same)
+        return Fail(Outcome::kConflict,
+                    "run " + std::to_string(run_id) +
+                        " already has a different pose under "
+                        "sequence " +
+                        std::to_string(p.sequence));
+      continue;
+    }
+    if (run.status != "live")
+      return Fail(Outcome::kConflict, "run " + std::to_string(run_id) + " is finished");
+    put.Reset();
+    put.Bind(1, run_id)
+        .Bind(2, static_cast<int64_t>(p.sequence))
+        .Bind(3, p.stamp_ns)
+        .Bind(4, p.georeferenced ? 1 : 0)
+        .Bind(5, p.utm_zone)
+        .Bind(6, p.p.x())
+        .Bind(7, p.p.y())
+        .Bind(8, p.p.z())
+        .Bind(9, p.q.x())
+        .Bind(10, p.q.y())
+        .Bind(11, p.q.z())
+        .Bind(12, p.q.w());
+    if (!put.Run()) return Fail(Outcome::kError, put.error());
+    ++added;
+  }
+  Statement count(*writer_, "UPDATE runs SET poses = poses + ? WHERE id = ?");
+  if (!count.Bind(1, added).Bind(2, run_id).Run()) return Fail(Outcome::kError, count.error());
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  stats_.poses_stored += added;
+  if (stored) *stored = added;
+  if (added == 0 && !poses.empty())
+    return {Outcome::kDuplicate, "every pose of the batch was stored before"};
+  return {};
+}
+
+Result MapStore::Trajectory(int64_t run_id, std::vector<api::StreamPose>* poses) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Result r = RunLocked(*db, run_id, nullptr);
+  if (!r) return r;
+  Statement q(*db,
+              "SELECT sequence, stamp_ns, georeferenced, utm_zone, x, y, z, qx, qy, qz, qw FROM "
+              "poses WHERE run_id = ? ORDER BY sequence");
+  q.Bind(1, run_id);
+  poses->clear();
+  while (q.Step()) {
+    api::StreamPose p;
+    p.sequence = static_cast<uint64_t>(q.Int(0));
+    p.stamp_ns = q.Int(1);
+    p.georeferenced = q.Int(2) != 0;
+    p.utm_zone = q.Text(3);
+    p.p = Eigen::Vector3d(q.Double(4), q.Double(5), q.Double(6));
+    p.q = Eigen::Quaterniond(q.Double(10), q.Double(7), q.Double(8), q.Double(9));
+    poses->push_back(p);
+  }
+  if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+  return {};
+}
+
+StoreStats MapStore::stats() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  StoreStats s = stats_;
+  s.hot_tiles = hot_.size();
+  s.hot_points = hot_points_;
+  return s;
+}
+
+}  // namespace raillomer::mapstore

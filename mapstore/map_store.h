@@ -1,0 +1,169 @@
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "api/stream.h"
+#include "mapstore/tile_grid.h"
+
+namespace raillomer::mapstore {
+
+class Database;
+
+/// What a store call came to. Everything but kOk and kDuplicate changed nothing.
+enum class Outcome {
+  kOk,
+  kDuplicate,  ///< the same data was stored before: nothing changed
+  kInvalid,    ///< the request's data is wrong (the message says what)
+  kNotFound,   ///< no such run or tile
+  kConflict,   ///< different data under a key already taken, or a finished run
+  kError,      ///< the store itself failed (disk, database)
+};
+const char* ToString(Outcome outcome);
+
+struct Result {
+  Outcome outcome = Outcome::kOk;
+  std::string message;
+  bool ok() const { return outcome == Outcome::kOk || outcome == Outcome::kDuplicate; }
+  explicit operator bool() const { return ok(); }
+};
+
+struct StoreOptions {
+  TileGrid grid;
+  size_t max_points_per_submap = 2'000'000;
+  /// Points held in memory by tiles still being filled; beyond it every changed tile is
+  /// written and the least recently touched are let go.
+  size_t hot_points_budget = 6'000'000;
+  int draco_speed = 5;     ///< Draco's encoding speed (0 smallest ... 9 fastest)
+  int encode_threads = 2;  ///< tiles encoded in parallel on a flush
+  bool IsValid(std::string* error) const;
+};
+
+struct NewRun {
+  std::string line;     ///< the railway line's name; its first run defines its chainage
+  std::string vehicle;  ///< the train or vehicle
+  int64_t start_ns = 0;
+};
+
+struct RunInfo {
+  int64_t id = 0;
+  std::string line, vehicle, status, utm_zone;
+  int64_t start_ns = 0, end_ns = 0, created_ns = 0;
+  int64_t submaps = 0, points = 0, poses = 0;
+};
+
+struct TileInfo {
+  int64_t run_id = 0;
+  TileKey key;
+  std::string utm_zone;
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  int64_t points = 0, bytes = 0, version = 0, updated_ns = 0;
+  double max_error_m = 0.0;
+  std::string etag;  ///< quoted, for HTTP
+};
+
+struct IngestReceipt {
+  uint64_t points = 0;           ///< the submap's points
+  uint64_t points_new = 0;       ///< ... that filled a level-0 voxel no earlier point had
+  uint64_t points_off_grid = 0;  ///< ... beyond a tile's height range, left out
+};
+
+/// Tiles written by a flush, for live notices.
+struct TileUpdate {
+  int64_t run_id = 0;
+  TileKey key;
+  int64_t version = 0;
+};
+
+struct StoreStats {
+  uint64_t submaps_stored = 0, submaps_duplicate = 0, submaps_rejected = 0;
+  uint64_t points_ingested = 0, points_off_grid = 0;
+  uint64_t poses_stored = 0;
+  uint64_t tiles_written = 0, flushes = 0, submaps_recovered = 0;
+  size_t hot_tiles = 0, hot_points = 0;
+};
+
+/// A folder holding every run as Draco tiles on a UTM grid with a level-of-detail pyramid, and
+/// an SQLite index (WAL) of runs, submaps, poses and tiles. A submap is acknowledged once it
+/// and its payload are committed; its points go into tiles held in memory, written (encoded)
+/// on Flush, after which the payload is let go. Opening the folder after a crash merges the
+/// payloads of submaps not yet in written tiles again, so nothing acknowledged is lost. Merging
+/// keeps the first point of each voxel (level 0: the submaps' own 0.1 m voxels), so it is
+/// incremental and a repeated merge changes nothing. Safe to call from several threads.
+class MapStore {
+ public:
+  /// Opens or creates the store in `dir` (created if missing), migrating an older index.
+  static std::unique_ptr<MapStore> Open(const std::string& dir,
+                                        const StoreOptions& options,
+                                        std::string* error);
+  ~MapStore();
+  MapStore(const MapStore&) = delete;
+  MapStore& operator=(const MapStore&) = delete;
+
+  Result CreateRun(const NewRun& run, RunInfo* out);
+  Result GetRun(int64_t run_id, RunInfo* out) const;
+  std::vector<RunInfo> ListRuns() const;
+  /// Writes the run's tiles and marks it finished; a finished run takes no more data.
+  Result FinishRun(int64_t run_id, int64_t end_ns, RunInfo* out);
+
+  /// Stores a submap (EncodeSubmapPcd bytes) under its run and sequence number. The same bytes
+  /// again are a duplicate; different bytes under a stored sequence are a conflict.
+  Result IngestSubmap(int64_t run_id, const std::string& payload, IngestReceipt* receipt);
+  /// Stores poses by sequence number: stored ones again are skipped, different values under a
+  /// stored sequence are a conflict (and nothing of the batch is stored).
+  Result IngestPoses(int64_t run_id, const std::vector<api::StreamPose>& poses, int* stored);
+
+  /// Encodes every changed tile and writes them in one transaction; `updated` gets them.
+  Result Flush(std::vector<TileUpdate>* updated = nullptr);
+
+  /// The written tiles of a run at `level` that meet the box (UTM easting/northing).
+  Result TilesInBox(int64_t run_id,
+                    int level,
+                    const Eigen::AlignedBox2d& box,
+                    std::vector<TileInfo>* tiles) const;
+  /// One written tile's Draco bytes.
+  Result Tile(int64_t run_id, const TileKey& key, TileInfo* info, std::string* bytes) const;
+  /// The run's poses in sequence order.
+  Result Trajectory(int64_t run_id, std::vector<api::StreamPose>* poses) const;
+
+  StoreStats stats() const;
+  const StoreOptions& options() const { return options_; }
+  const std::string& dir() const { return dir_; }
+  std::string IndexPath() const { return dir_ + "/index.sqlite"; }
+
+ private:
+  struct HotTile;
+  using HotKey = std::tuple<int64_t, int, int64_t, int64_t>;  // run, level, ix, iy
+  class Readers;
+
+  MapStore(const std::string& dir, const StoreOptions& options);
+  bool Recover(std::string* error);
+  /// Merges a submap's points into the hot tiles of every level.
+  void Merge(int64_t run_id, const api::Submap& submap, IngestReceipt* receipt);
+  HotTile* Hot(int64_t run_id, const std::string& zone, const TileKey& key, double z_m);
+  Result FlushLocked(std::vector<TileUpdate>* updated);
+  void EvictLocked();
+  Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
+
+  std::string dir_;
+  StoreOptions options_;
+  mutable std::mutex mu_;  ///< the writer connection, the hot tiles, the stats
+  std::unique_ptr<Database> writer_;
+  std::unique_ptr<Readers> readers_;
+  std::map<HotKey, std::unique_ptr<HotTile>> hot_;
+  size_t hot_points_ = 0;
+  uint64_t touch_ = 0;
+  /// Submaps merged into hot tiles that are not all written yet.
+  std::vector<std::pair<int64_t, uint64_t>> unflushed_;
+  StoreStats stats_;
+};
+
+}  // namespace raillomer::mapstore

@@ -1,0 +1,159 @@
+#include "mapstore/schema.h"
+
+#include <vector>
+
+namespace raillomer::mapstore {
+namespace {
+
+// Migration N takes the index from version N-1 to N. Never edit a released migration: add one.
+const std::vector<const char*>& Migrations() {
+  static const std::vector<const char*> migrations = {
+      // 1: runs, their submaps (with the payload until its points are in durable tiles), poses
+      // and tiles.
+      R"sql(
+CREATE TABLE runs (
+  id INTEGER PRIMARY KEY,
+  line TEXT NOT NULL,
+  vehicle TEXT NOT NULL,
+  status TEXT NOT NULL CHECK (status IN ('live', 'finished')),
+  start_ns INTEGER NOT NULL,
+  end_ns INTEGER,
+  utm_zone TEXT,
+  created_ns INTEGER NOT NULL,
+  submaps INTEGER NOT NULL DEFAULT 0,
+  points INTEGER NOT NULL DEFAULT 0,
+  poses INTEGER NOT NULL DEFAULT 0
+);
+CREATE TABLE submaps (
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  sequence INTEGER NOT NULL,
+  idx INTEGER NOT NULL,
+  first_stamp_ns INTEGER NOT NULL,
+  last_stamp_ns INTEGER NOT NULL,
+  utm_zone TEXT NOT NULL,
+  origin_x REAL NOT NULL, origin_y REAL NOT NULL, origin_z REAL NOT NULL,
+  min_x REAL NOT NULL, min_y REAL NOT NULL, max_x REAL NOT NULL, max_y REAL NOT NULL,
+  points INTEGER NOT NULL,
+  keyframes INTEGER NOT NULL,
+  payload_hash TEXT NOT NULL,
+  tiled INTEGER NOT NULL DEFAULT 0,
+  received_ns INTEGER NOT NULL,
+  PRIMARY KEY (run_id, sequence)
+) WITHOUT ROWID;
+CREATE INDEX submaps_untiled ON submaps (tiled) WHERE tiled = 0;
+CREATE TABLE submap_payloads (
+  run_id INTEGER NOT NULL,
+  sequence INTEGER NOT NULL,
+  bytes BLOB NOT NULL,
+  PRIMARY KEY (run_id, sequence),
+  FOREIGN KEY (run_id, sequence) REFERENCES submaps (run_id, sequence) ON DELETE CASCADE
+) WITHOUT ROWID;
+CREATE TABLE poses (
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  sequence INTEGER NOT NULL,
+  stamp_ns INTEGER NOT NULL,
+  georeferenced INTEGER NOT NULL,
+  utm_zone TEXT NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  qx REAL NOT NULL, qy REAL NOT NULL, qz REAL NOT NULL, qw REAL NOT NULL,
+  PRIMARY KEY (run_id, sequence)
+) WITHOUT ROWID;
+CREATE TABLE tiles (
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  level INTEGER NOT NULL,
+  ix INTEGER NOT NULL,
+  iy INTEGER NOT NULL,
+  utm_zone TEXT NOT NULL,
+  origin_x REAL NOT NULL, origin_y REAL NOT NULL, origin_z REAL NOT NULL,
+  points INTEGER NOT NULL,
+  max_error_m REAL NOT NULL,
+  version INTEGER NOT NULL,
+  etag TEXT NOT NULL,
+  updated_ns INTEGER NOT NULL,
+  bytes BLOB NOT NULL,
+  PRIMARY KEY (run_id, level, ix, iy)
+) WITHOUT ROWID;
+)sql",
+      // 2: lines with their centreline and chainage, kilometre posts, points of interest.
+      R"sql(
+CREATE TABLE lines (
+  name TEXT PRIMARY KEY,
+  reference_run INTEGER REFERENCES runs(id),
+  utm_zone TEXT,
+  created_ns INTEGER NOT NULL
+);
+INSERT INTO lines (name, created_ns) SELECT line, MIN(created_ns) FROM runs GROUP BY line;
+CREATE TABLE centreline (
+  line TEXT NOT NULL REFERENCES lines(name),
+  seq INTEGER NOT NULL,
+  chainage_m REAL NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  PRIMARY KEY (line, seq)
+) WITHOUT ROWID;
+CREATE TABLE km_posts (
+  id INTEGER PRIMARY KEY,
+  line TEXT NOT NULL REFERENCES lines(name),
+  chainage_m REAL NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  label TEXT NOT NULL,
+  created_ns INTEGER NOT NULL
+);
+CREATE TABLE pois (
+  id INTEGER PRIMARY KEY,
+  line TEXT REFERENCES lines(name),
+  kind TEXT NOT NULL,
+  name TEXT NOT NULL,
+  utm_zone TEXT NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  properties TEXT NOT NULL DEFAULT '{}',
+  created_ns INTEGER NOT NULL,
+  updated_ns INTEGER NOT NULL
+);
+)sql",
+  };
+  return migrations;
+}
+
+int UserVersion(Database& db) {
+  Statement s(db, "PRAGMA user_version");
+  return s.Step() ? static_cast<int>(s.Int(0)) : -1;
+}
+
+}  // namespace
+
+int LatestSchemaVersion() { return static_cast<int>(Migrations().size()); }
+
+bool MigrateSchemaTo(Database& db, int version, std::string* error) {
+  const int found = UserVersion(db);
+  if (found < 0) {
+    *error = "cannot read the index's schema version: " + db.Message();
+    return false;
+  }
+  if (found > LatestSchemaVersion()) {
+    *error = "the index has schema version " + std::to_string(found) +
+             ", newer than this build's " + std::to_string(LatestSchemaVersion()) +
+             ": use a newer raillomer-server";
+    return false;
+  }
+  for (int v = found + 1; v <= version; ++v) {
+    Transaction t(db);
+    if (!t.ok()) {
+      *error = "cannot begin migration " + std::to_string(v) + ": " + db.Message();
+      return false;
+    }
+    std::string message;
+    if (!db.Exec(Migrations()[v - 1], &message) ||
+        !db.Exec("PRAGMA user_version = " + std::to_string(v), &message) || !t.Commit(&message)) {
+      *error = "schema migration to version " + std::to_string(v) + " failed: " + message;
+      return false;
+    }
+  }
+  return true;
+}
+
+bool MigrateSchema(Database& db, std::string* error, int* from) {
+  if (from) *from = UserVersion(db);
+  return MigrateSchemaTo(db, LatestSchemaVersion(), error);
+}
+
+}  // namespace raillomer::mapstore

@@ -1,0 +1,372 @@
+// The map store on generated submaps of a straight corridor in UTM: runs, ingest that is
+// idempotent, tiles and their level-of-detail pyramid, queries, reopening, recovery after a
+// crash, schema migration, and bad input that changes nothing.
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "mapstore/map_store.h"
+#include "mapstore/schema.h"
+#include "mapstore/sqlite.h"
+#include "mapstore/tile_codec.h"
+#include "tests/support/process.h"
+
+namespace raillomer::mapstore {
+namespace {
+
+const Eigen::Vector3d kStart(432100.0, 3585200.0, 30.0);
+
+/// Submap i of a corridor along easting: ground 8 m wide and a wall 3 m high, 40 m long from
+/// 20 i m (so consecutive submaps overlap by half), on the 0.1 m voxel grid's centres as the
+/// estimator's voxel filter leaves them.
+api::Submap CorridorSubmap(uint32_t i) {
+  api::Submap s;
+  s.sequence = 10 + 2 * i;  // poses take the sequence numbers between
+  s.index = i;
+  s.first_stamp_ns = 1'600'000'000'000'000'000 + int64_t{i} * 2'000'000'000;
+  s.last_stamp_ns = s.first_stamp_ns + 1'900'000'000;
+  s.georeferenced = true;
+  s.utm_zone = "50N";
+  s.origin = kStart + Eigen::Vector3d(20.0 * i, 0.0, 0.0);
+  for (int x = 0; x < 400; ++x) {
+    for (int y = -40; y < 40; ++y) {
+      s.points.emplace_back(0.1f * x + 0.05f, 0.1f * y + 0.05f, 0.05f);
+      s.intensities.push_back(static_cast<float>((x + y + 1000) % 200));
+    }
+    for (int z = 0; z < 30; ++z) {
+      s.points.emplace_back(0.1f * x + 0.05f, 4.05f, 0.1f * z + 0.05f);
+      s.intensities.push_back(220.0f);
+    }
+  }
+  api::StampedPose k;
+  k.stamp_ns = s.first_stamp_ns;
+  k.p_world = s.origin;
+  s.keyframes.push_back(k);
+  return s;
+}
+
+std::unique_ptr<MapStore> OpenStore(const std::string& dir, std::string* error) {
+  StoreOptions options;
+  return MapStore::Open(dir, options, error);
+}
+
+int64_t NewRunId(MapStore& store, const std::string& line = "Test line") {
+  RunInfo run;
+  const Result r = store.CreateRun({line, "RLM-1", 1'600'000'000'000'000'000}, &run);
+  EXPECT_TRUE(r) << r.message;
+  return run.id;
+}
+
+/// Every point of the run's level-0 tiles, as UTM.
+std::vector<Eigen::Vector3d> AllPoints(MapStore& store, int64_t run_id, int level = 0) {
+  std::vector<TileInfo> tiles;
+  const Eigen::AlignedBox2d everywhere(Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(1e6, 1e7));
+  EXPECT_TRUE(store.TilesInBox(run_id, level, everywhere, &tiles));
+  std::vector<Eigen::Vector3d> points;
+  for (const TileInfo& t : tiles) {
+    std::string bytes, error;
+    EXPECT_TRUE(store.Tile(run_id, t.key, nullptr, &bytes));
+    TilePoints decoded;
+    EXPECT_TRUE(DecodeTile(bytes, &decoded, &error)) << error;
+    EXPECT_EQ(static_cast<int64_t>(decoded.points.size()), t.points);
+    for (const Eigen::Vector3f& p : decoded.points)
+      points.push_back(decoded.origin + p.cast<double>());
+  }
+  return points;
+}
+
+/// The 0.1 m voxels (UTM) that the points fall in.
+std::set<std::tuple<int64_t, int64_t, int64_t>> Voxels(const std::vector<Eigen::Vector3d>& points) {
+  std::set<std::tuple<int64_t, int64_t, int64_t>> v;
+  for (const Eigen::Vector3d& p : points) {
+    v.emplace(std::llround(std::floor(p.x() * 10.0)),
+              std::llround(std::floor(p.y() * 10.0)),
+              std::llround(std::floor(p.z() * 10.0)));
+  }
+  return v;
+}
+
+TEST(MapStore, StoresSubmapsAsTilesWithALevelOfDetailPyramid) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store);
+  std::set<std::tuple<int64_t, int64_t, int64_t>> expected;
+  for (uint32_t i = 0; i < 5; ++i) {
+    const api::Submap s = CorridorSubmap(i);
+    IngestReceipt receipt;
+    const Result r = store->IngestSubmap(run, api::EncodeSubmapPcd(s), &receipt);
+    ASSERT_EQ(r.outcome, Outcome::kOk) << r.message;
+    EXPECT_EQ(receipt.points, s.points.size());
+    // Half of each later submap lies on ground the one before covered.
+    if (i > 0) {
+      EXPECT_NEAR(double(receipt.points_new) / receipt.points, 0.5, 0.01);
+    }
+    std::vector<Eigen::Vector3d> utm;
+    for (const Eigen::Vector3f& p : s.points) utm.push_back(s.origin + p.cast<double>());
+    const auto v = Voxels(utm);
+    expected.insert(v.begin(), v.end());
+  }
+  ASSERT_TRUE(store->Flush());
+  RunInfo info;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps, 5);
+  EXPECT_EQ(info.utm_zone, "50N");
+  EXPECT_EQ(info.status, "live");
+
+  // Level 0 holds one point per voxel the submaps filled, each within the stated error.
+  const std::vector<Eigen::Vector3d> level0 = AllPoints(*store, run, 0);
+  EXPECT_EQ(level0.size(), expected.size());
+  EXPECT_EQ(Voxels(level0), expected);
+  // Coarser levels hold fewer points over the same ground.
+  size_t previous = level0.size();
+  for (int level = 1; level < store->options().grid.levels; ++level) {
+    const std::vector<Eigen::Vector3d> coarse = AllPoints(*store, run, level);
+    EXPECT_LT(coarse.size(), previous / 3) << "level " << level;
+    EXPECT_GT(coarse.size(), 0u);
+    previous = coarse.size();
+  }
+  // The corridor runs 120 m east from x = 432100: tiles 6751-6753 of 64 m at level 0.
+  std::vector<TileInfo> tiles;
+  const Eigen::AlignedBox2d first(Eigen::Vector2d(432100.0, 3585190.0),
+                                  Eigen::Vector2d(432110.0, 3585210.0));
+  ASSERT_TRUE(store->TilesInBox(run, 0, first, &tiles));
+  ASSERT_EQ(tiles.size(), 1u);
+  EXPECT_EQ(tiles[0].key.ix, 6751);
+  EXPECT_EQ(tiles[0].key.iy, 56018);
+  EXPECT_LE(tiles[0].max_error_m, 0.005);
+  EXPECT_EQ(tiles[0].version, 1);
+  EXPECT_EQ(tiles[0].etag.front(), '"');
+  // Compression: at most 24 bits per point with intensity.
+  const double bits = 8.0 * tiles[0].bytes / tiles[0].points;
+  EXPECT_LE(bits, 24.0) << bits;
+}
+
+TEST(MapStore, IngestIsIdempotentAndRefusesADifferentPayloadUnderATakenSequence) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store);
+  const std::string payload = api::EncodeSubmapPcd(CorridorSubmap(0));
+  ASSERT_EQ(store->IngestSubmap(run, payload, nullptr).outcome, Outcome::kOk);
+  ASSERT_TRUE(store->Flush());
+  const std::vector<Eigen::Vector3d> before = AllPoints(*store, run);
+  std::vector<TileInfo> tiles_before;
+  const Eigen::AlignedBox2d everywhere(Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(1e6, 1e7));
+  ASSERT_TRUE(store->TilesInBox(run, 0, everywhere, &tiles_before));
+
+  EXPECT_EQ(store->IngestSubmap(run, payload, nullptr).outcome, Outcome::kDuplicate);
+  api::Submap changed = CorridorSubmap(0);
+  changed.points[7].x() += 1.0f;
+  const Result conflict = store->IngestSubmap(run, api::EncodeSubmapPcd(changed), nullptr);
+  EXPECT_EQ(conflict.outcome, Outcome::kConflict);
+  EXPECT_NE(conflict.message.find("sequence 10"), std::string::npos) << conflict.message;
+  ASSERT_TRUE(store->Flush());
+  std::vector<TileInfo> tiles_after;
+  ASSERT_TRUE(store->TilesInBox(run, 0, everywhere, &tiles_after));
+  ASSERT_EQ(tiles_after.size(), tiles_before.size());
+  for (size_t i = 0; i < tiles_after.size(); ++i)
+    EXPECT_EQ(tiles_after[i].etag, tiles_before[i].etag);
+  EXPECT_EQ(AllPoints(*store, run).size(), before.size());
+  RunInfo info;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps, 1);
+
+  // Poses: stored once; the same again is a duplicate; a changed one a conflict.
+  std::vector<api::StreamPose> poses(3);
+  for (size_t i = 0; i < poses.size(); ++i) {
+    poses[i].sequence = i;
+    poses[i].stamp_ns = 1'600'000'000'000'000'000 + int64_t(i) * 100'000'000;
+    poses[i].georeferenced = true;
+    poses[i].utm_zone = "50N";
+    poses[i].p = kStart + Eigen::Vector3d(double(i), 0.0, 0.0);
+  }
+  int stored = 0;
+  ASSERT_EQ(store->IngestPoses(run, poses, &stored).outcome, Outcome::kOk);
+  EXPECT_EQ(stored, 3);
+  EXPECT_EQ(store->IngestPoses(run, poses, &stored).outcome, Outcome::kDuplicate);
+  EXPECT_EQ(stored, 0);
+  poses[1].p.x() += 0.5;
+  EXPECT_EQ(store->IngestPoses(run, poses, &stored).outcome, Outcome::kConflict);
+  std::vector<api::StreamPose> trajectory;
+  ASSERT_TRUE(store->Trajectory(run, &trajectory));
+  ASSERT_EQ(trajectory.size(), 3u);
+  EXPECT_EQ(trajectory[1].p, kStart + Eigen::Vector3d(1.0, 0.0, 0.0));
+}
+
+TEST(MapStore, BadInputIsRefusedWithAMessageAndChangesNothing) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store);
+  ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(0)), nullptr));
+  ASSERT_TRUE(store->Flush());
+  const size_t points = AllPoints(*store, run).size();
+
+  auto expect = [&](const std::string& payload, Outcome outcome, const std::string& words) {
+    const Result r = store->IngestSubmap(run, payload, nullptr);
+    EXPECT_EQ(r.outcome, outcome) << r.message;
+    EXPECT_NE(r.message.find(words), std::string::npos) << r.message;
+  };
+  const std::string good = api::EncodeSubmapPcd(CorridorSubmap(1));
+  expect(good.substr(0, good.size() - 5), Outcome::kInvalid, "truncated");
+  expect("hello", Outcome::kInvalid, "submap PCD");
+  api::Submap nan = CorridorSubmap(1);
+  nan.points[12].y() = NAN;
+  expect(api::EncodeSubmapPcd(nan), Outcome::kInvalid, "point 12");
+  api::Submap local = CorridorSubmap(1);
+  local.georeferenced = false;
+  expect(api::EncodeSubmapPcd(local), Outcome::kInvalid, "not georeferenced");
+  api::Submap far = CorridorSubmap(1);
+  far.origin.x() = -5.0;
+  expect(api::EncodeSubmapPcd(far), Outcome::kInvalid, "not a UTM position");
+  api::Submap zone = CorridorSubmap(1);
+  zone.utm_zone = "51N";
+  expect(api::EncodeSubmapPcd(zone), Outcome::kInvalid, "zone 51N");
+  EXPECT_EQ(store->IngestSubmap(run + 7, good, nullptr).outcome, Outcome::kNotFound);
+  std::vector<api::StreamPose> bad(1);
+  bad[0].p.x() = NAN;
+  EXPECT_EQ(store->IngestPoses(run, bad, nullptr).outcome, Outcome::kInvalid);
+  RunInfo ignored;
+  EXPECT_EQ(store->CreateRun({"", "RLM-1", 0}, &ignored).outcome, Outcome::kInvalid);
+
+  // A finished run takes no more submaps; a finished run's submap re-sent is a duplicate.
+  RunInfo info;
+  ASSERT_TRUE(store->FinishRun(run, 1'600'000'100'000'000'000, &info));
+  EXPECT_EQ(info.status, "finished");
+  EXPECT_EQ(store->IngestSubmap(run, good, nullptr).outcome, Outcome::kConflict);
+  EXPECT_EQ(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(0)), nullptr).outcome,
+            Outcome::kDuplicate);
+
+  ASSERT_TRUE(store->Flush());
+  EXPECT_EQ(AllPoints(*store, run).size(), points);
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps, 1);
+  EXPECT_EQ(store->stats().submaps_rejected, 8u);
+}
+
+TEST(MapStore, ReopensWithEverythingAndMergesIncrementally) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  int64_t run = 0;
+  {
+    auto store = OpenStore(dir.path().string(), &error);
+    ASSERT_TRUE(store) << error;
+    run = NewRunId(*store);
+    for (uint32_t i = 0; i < 2; ++i)
+      ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
+  }  // closing writes the tiles
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const size_t two = AllPoints(*store, run).size();
+  EXPECT_EQ(two, Voxels(AllPoints(*store, run)).size());
+  // A third submap merges into the written tiles: half of it is new ground.
+  IngestReceipt receipt;
+  ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(2)), &receipt));
+  ASSERT_TRUE(store->Flush());
+  EXPECT_EQ(AllPoints(*store, run).size(), two + receipt.points_new);
+  EXPECT_NEAR(double(receipt.points_new) / receipt.points, 0.5, 0.01);
+  std::vector<RunInfo> runs = store->ListRuns();
+  ASSERT_EQ(runs.size(), 1u);
+  EXPECT_EQ(runs[0].submaps, 3);
+}
+
+TEST(MapStore, ASubmapAcknowledgedBeforeACrashIsInTheTilesAfterRestart) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  int64_t run = 0;
+  {
+    auto store = OpenStore(dir.path().string(), &error);
+    ASSERT_TRUE(store) << error;
+    run = NewRunId(*store);
+    ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(0)), nullptr));
+  }
+  // A child process stores three more submaps, acknowledged but not yet in written tiles, and
+  // dies without cleaning up.
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    std::string e;
+    auto store = OpenStore(dir.path().string(), &e);
+    bool ok = store != nullptr;
+    for (uint32_t i = 1; ok && i < 4; ++i)
+      ok = store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr).ok();
+    kill(getpid(), SIGKILL);
+    _exit(ok ? 0 : 1);
+  }
+  int status = 0;
+  waitpid(child, &status, 0);
+  ASSERT_TRUE(WIFSIGNALED(status));
+
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  EXPECT_EQ(store->stats().submaps_recovered, 3u);
+  std::set<std::tuple<int64_t, int64_t, int64_t>> expected;
+  for (uint32_t i = 0; i < 4; ++i) {
+    const api::Submap s = CorridorSubmap(i);
+    std::vector<Eigen::Vector3d> utm;
+    for (const Eigen::Vector3f& p : s.points) utm.push_back(s.origin + p.cast<double>());
+    const auto v = Voxels(utm);
+    expected.insert(v.begin(), v.end());
+  }
+  EXPECT_EQ(Voxels(AllPoints(*store, run)), expected);
+  RunInfo info;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps, 4);
+  store.reset();
+  // SQLite's own tool (not our code) finds the index sound and every payload let go.
+  const test::CommandResult check = test::RunCommand(
+      "sqlite3 " + test::ShellQuote((dir.path() / "index.sqlite").string()) +
+          " 'PRAGMA integrity_check; SELECT count(*) FROM submaps WHERE tiled = 1; SELECT "
+          "count(*) FROM submap_payloads;'",
+      dir.path());
+  ASSERT_EQ(check.exit_code, 0) << check.err;
+  EXPECT_EQ(check.out, "ok\n4\n0\n");
+}
+
+TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
+  test::ScratchDir dir("raillomer_store_");
+  const std::string path = (dir.path() / "index.sqlite").string();
+  std::string error;
+  {
+    // An index as the first schema version wrote it, with a run on it.
+    Database db;
+    ASSERT_TRUE(db.Open(path, true, &error)) << error;
+    ASSERT_TRUE(MigrateSchemaTo(db, 1, &error)) << error;
+    ASSERT_TRUE(
+        db.Exec("INSERT INTO runs (line, vehicle, status, start_ns, created_ns) VALUES "
+                "('Old line', 'RLM-0', 'finished', 5, 6)",
+                &error))
+        << error;
+  }
+  {
+    auto store = OpenStore(dir.path().string(), &error);
+    ASSERT_TRUE(store) << error;
+    const std::vector<RunInfo> runs = store->ListRuns();
+    ASSERT_EQ(runs.size(), 1u);
+    EXPECT_EQ(runs[0].line, "Old line");
+  }
+  Database db;
+  ASSERT_TRUE(db.Open(path, false, &error)) << error;
+  Statement version(db, "PRAGMA user_version");
+  ASSERT_TRUE(version.Step());
+  EXPECT_EQ(version.Int(0), LatestSchemaVersion());
+  Statement line(db, "SELECT name FROM lines");
+  ASSERT_TRUE(line.Step());
+  EXPECT_EQ(line.Text(0), "Old line");
+  ASSERT_TRUE(db.Exec("PRAGMA user_version = 99", &error));
+  auto newer = OpenStore(dir.path().string(), &error);
+  EXPECT_FALSE(newer);
+  EXPECT_NE(error.find("schema version 99"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace raillomer::mapstore
