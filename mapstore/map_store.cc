@@ -9,10 +9,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <future>
-#include <unordered_set>
+#include <set>
 
+#include "api/atomic_file.h"
 #include "mapstore/schema.h"
 #include "mapstore/sqlite.h"
+#include "mapstore/voxel_set.h"
 
 namespace raillomer::mapstore {
 namespace {
@@ -142,9 +144,10 @@ struct MapStore::HotTile {
   TileKey key;
   TileQuantization quantization;
   TilePoints points;
-  std::unordered_set<uint64_t> voxels;
+  VoxelSet voxels;
   int64_t version = 0;  ///< of the written tile this one continues (0: none yet)
   bool dirty = false;
+  int in_flight = 0;  ///< snapshots being encoded: not to be let go before they are written
   uint64_t touched = 0;
 };
 
@@ -194,8 +197,13 @@ MapStore::MapStore(const std::string& dir, const StoreOptions& options)
     : dir_(dir), options_(options) {}
 
 MapStore::~MapStore() {
-  std::lock_guard<std::mutex> lock(mu_);
-  if (writer_) FlushLocked(nullptr);
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    stopping_ = true;
+  }
+  wake_.notify_all();
+  if (flusher_.joinable()) flusher_.join();
+  if (writer_) Flush(nullptr);
 }
 
 std::unique_ptr<MapStore> MapStore::Open(const std::string& dir,
@@ -220,38 +228,65 @@ std::unique_ptr<MapStore> MapStore::Open(const std::string& dir,
   }
   store->readers_ = std::make_unique<Readers>(store->IndexPath());
   if (!store->Recover(error)) return nullptr;
+  if (options.flush_interval_ms > 0)
+    store->flusher_ = std::thread([s = store.get()]() { s->FlushLoop(); });
   return store;
 }
 
+std::string MapStore::IncomingPath(int64_t run_id, uint64_t sequence) const {
+  return dir_ + "/incoming/" + std::to_string(run_id) + "-" + std::to_string(sequence) + ".pcd";
+}
+
 bool MapStore::Recover(std::string* error) {
-  std::lock_guard<std::mutex> lock(mu_);
+  std::unique_lock<std::mutex> lock(mu_);
+  std::error_code ec;
+  std::filesystem::create_directories(dir_ + "/incoming", ec);
+  if (ec) {
+    *error = "cannot create " + dir_ + "/incoming: " + ec.message();
+    return false;
+  }
   // Submaps acknowledged before a crash whose tiles were not all written: merge them again.
   Statement q(*writer_,
-              "SELECT s.run_id, s.sequence, p.bytes FROM submaps s JOIN submap_payloads p "
-              "USING (run_id, sequence) WHERE s.tiled = 0 ORDER BY s.received_ns, s.run_id, "
-              "s.sequence");
+              "SELECT run_id, sequence FROM submaps WHERE tiled = 0 ORDER BY received_ns, run_id, "
+              "sequence");
   if (!q.ok()) {
     *error = "cannot read the submaps to recover: " + q.error();
     return false;
   }
+  std::vector<std::pair<int64_t, uint64_t>> lost;
+  std::set<std::string> waiting;
   while (q.Step()) {
+    const int64_t run = q.Int(0);
+    const uint64_t sequence = static_cast<uint64_t>(q.Int(1));
+    const std::string path = IncomingPath(run, sequence);
     api::Submap s;
     std::string message;
-    if (!api::DecodeSubmapPcd(q.Blob(2), &s, &message)) {
-      *error = "stored submap " + std::to_string(q.Int(1)) + " of run " + std::to_string(q.Int(0)) +
-               " is unreadable: " + message;
-      return false;
+    if (!api::ReadSubmapFile(path, &s, &message)) {
+      lost.emplace_back(run, sequence);  // the payload did not survive (a power cut)
+      continue;
     }
     IngestReceipt receipt;
-    Merge(q.Int(0), s, &receipt);
-    unflushed_.emplace_back(q.Int(0), static_cast<uint64_t>(q.Int(1)));
+    Merge(run, s, &receipt);
+    unflushed_.emplace_back(run, sequence);
+    waiting.insert(path);
     ++stats_.submaps_recovered;
   }
   if (!q.error().empty()) {
     *error = "cannot read the submaps to recover: " + q.error();
     return false;
   }
-  const Result r = FlushLocked(nullptr);
+  Statement mark(*writer_, "UPDATE submaps SET tiled = -1 WHERE run_id = ? AND sequence = ?");
+  for (const auto& [run, sequence] : lost) {
+    mark.Reset();
+    mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run();
+    ++stats_.submaps_lost;
+  }
+  // Payloads written but never acknowledged (a crash before the commit) are not the store's.
+  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/incoming", ec)) {
+    if (!waiting.count(e.path().string())) std::filesystem::remove(e.path(), ec);
+  }
+  lock.unlock();
+  const Result r = Flush(nullptr);
   if (!r) *error = r.message;
   return r.ok();
 }
@@ -330,17 +365,17 @@ std::vector<RunInfo> MapStore::ListRuns() const {
 }
 
 Result MapStore::FinishRun(int64_t run_id, int64_t end_ns, RunInfo* out) {
+  Result r = Flush(nullptr);  // the run's tiles are all written when it is finished
+  if (!r) return r;
   std::lock_guard<std::mutex> lock(mu_);
   RunInfo run;
-  Result r = RunLocked(*writer_, run_id, &run);
+  r = RunLocked(*writer_, run_id, &run);
   if (!r) return r;
   if (run.status == "finished") {
     if (out) *out = run;
     return {Outcome::kDuplicate, "run " + std::to_string(run_id) + " was finished before"};
   }
   if (end_ns < run.start_ns) return Fail(Outcome::kInvalid, "end_ns is before the run's start_ns");
-  r = FlushLocked(nullptr);
-  if (!r) return r;
   Statement u(*writer_, "UPDATE runs SET status = 'finished', end_ns = ? WHERE id = ?");
   if (!u.Bind(1, end_ns).Bind(2, run_id).Run()) return Fail(Outcome::kError, u.error());
   return RunLocked(*writer_, run_id, out);
@@ -363,7 +398,7 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
   Eigen::AlignedBox3d box;
   for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
 
-  std::lock_guard<std::mutex> lock(mu_);
+  std::unique_lock<std::mutex> lock(mu_);
   RunInfo run;
   Result r = RunLocked(*writer_, run_id, &run);
   if (!r) {
@@ -398,9 +433,19 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
                 "submap " + std::to_string(s.sequence) + " is in UTM zone " + s.utm_zone +
                     ", run " + std::to_string(run_id) + " in " + run.utm_zone);
   }
+  // The payload waits in the incoming folder until its points are in written tiles; it is
+  // there before the submap is committed, so an acknowledged submap always has it.
+  const std::string incoming = IncomingPath(run_id, s.sequence);
+  if (!api::WriteFileAtomically(incoming, payload, &error))
+    return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
   {
+    auto forget = [&](const std::string& message) {
+      std::error_code ec;
+      std::filesystem::remove(incoming, ec);
+      return Fail(Outcome::kError, message);
+    };
     Transaction t(*writer_);
-    if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+    if (!t.ok()) return forget(writer_->Message());
     Statement insert(*writer_,
                      "INSERT INTO submaps (run_id, sequence, idx, first_stamp_ns, last_stamp_ns, "
                      "utm_zone, origin_x, origin_y, origin_z, min_x, min_y, max_x, max_y, "
@@ -423,24 +468,28 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
         .Bind(15, static_cast<int64_t>(s.keyframes.size()))
         .Bind(16, hash)
         .Bind(17, NowNs());
-    Statement body(*writer_,
-                   "INSERT INTO submap_payloads (run_id, sequence, bytes) VALUES (?, ?, ?)");
-    body.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).BindBlob(3, payload);
     Statement count(*writer_,
                     "UPDATE runs SET submaps = submaps + 1, points = points + ?, utm_zone = ? "
                     "WHERE id = ?");
     count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, s.utm_zone).Bind(3, run_id);
-    if (!insert.Run()) return Fail(Outcome::kError, insert.error());
-    if (!body.Run()) return Fail(Outcome::kError, body.error());
-    if (!count.Run()) return Fail(Outcome::kError, count.error());
-    if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+    if (!insert.Run()) return forget(insert.error());
+    if (!count.Run()) return forget(count.error());
+    if (!t.Commit(&error)) return forget(error);
   }
   ++stats_.submaps_stored;
   IngestReceipt local;
   Merge(run_id, s, &local);
   unflushed_.emplace_back(run_id, s.sequence);
   if (receipt) *receipt = local;
-  if (hot_points_ > options_.hot_points_budget) EvictLocked();
+  dirty_points_ += local.points_new;
+  if (dirty_points_ >= options_.flush_dirty_points) wake_.notify_all();
+  if (hot_points_ > options_.hot_points_budget) {
+    // Over the memory budget: write what changed, then let the oldest tiles go.
+    lock.unlock();
+    const Result flushed = Flush(nullptr);
+    lock.lock();
+    if (flushed) EvictLocked();
+  }
   return {};
 }
 
@@ -462,11 +511,15 @@ MapStore::HotTile* MapStore::Hot(int64_t run_id,
   std::string error;
   if (q.Step() && DecodeTile(q.Blob(1), &tile->points, &error, &tile->quantization)) {
     tile->version = q.Int(0);
+    tile->voxels.Reserve(tile->points.points.size());
     for (const Eigen::Vector3f& p : tile->points.points)
-      tile->voxels.insert(TileVoxel(p, grid.VoxelM(key.level)));
+      tile->voxels.Insert(TileVoxel(p, grid.VoxelM(key.level)));
   } else {
     tile->points = TilePoints();
-    tile->points.origin = grid.Origin(key, std::floor(z_m));
+    // The reference height on the coarsest voxel's lattice, like the corners, so that the
+    // levels' voxels nest.
+    const double lattice_m = grid.VoxelM(grid.levels - 1);
+    tile->points.origin = grid.Origin(key, std::floor(z_m / lattice_m) * lattice_m);
     tile->points.utm_zone = zone;
     tile->quantization = grid.Quantization(key.level);
   }
@@ -480,11 +533,17 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
   const TileGrid& grid = options_.grid;
   receipt->points = s.points.size();
   ++touch_;
-  for (int level = 0; level < grid.levels; ++level) {
+  // The levels' voxels nest (tile origins lie on the coarsest voxel's lattice), so a point
+  // whose voxel was taken at one level finds its coarser voxels taken too: only the points
+  // new at a level go on to the next.
+  std::vector<uint32_t> candidates(s.points.size()), next;
+  for (size_t i = 0; i < candidates.size(); ++i) candidates[i] = static_cast<uint32_t>(i);
+  for (int level = 0; level < grid.levels && !candidates.empty(); ++level) {
     const double voxel_m = grid.VoxelM(level);
     HotTile* tile = nullptr;
     Eigen::Vector3f shift = Eigen::Vector3f::Zero();  // submap origin in the tile frame
-    for (size_t i = 0; i < s.points.size(); ++i) {
+    next.clear();
+    for (uint32_t i : candidates) {
       const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
       const TileKey key = grid.KeyOf(p, level);
       if (!tile || !(tile->key == key)) {
@@ -498,114 +557,164 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
         if (level == 0) ++receipt->points_off_grid;
         continue;
       }
-      if (!tile->voxels.insert(TileVoxel(o, voxel_m)).second) continue;
+      if (!tile->voxels.Insert(TileVoxel(o, voxel_m))) continue;
       tile->points.points.push_back(o);
       tile->points.intensities.push_back(
           static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
       tile->dirty = true;
       ++hot_points_;
-      if (level == 0) ++receipt->points_new;
+      next.push_back(i);
     }
+    if (level == 0) receipt->points_new = next.size();
+    candidates.swap(next);
   }
   stats_.points_ingested += s.points.size();
   stats_.points_off_grid += receipt->points_off_grid;
 }
 
 Result MapStore::Flush(std::vector<TileUpdate>* updated) {
-  std::lock_guard<std::mutex> lock(mu_);
-  return FlushLocked(updated);
-}
-
-Result MapStore::FlushLocked(std::vector<TileUpdate>* updated) {
-  std::vector<HotTile*> dirty;
-  std::vector<HotKey> keys;
-  for (auto& [k, tile] : hot_) {
-    if (tile->dirty) {
-      dirty.push_back(tile.get());
-      keys.push_back(k);
+  // One flush at a time, so tiles are written in the order their snapshots were taken.
+  std::lock_guard<std::mutex> serial(flush_mu_);
+  struct Pending {
+    HotKey key;
+    TileKey tile;
+    TilePoints points;
+    TileQuantization quantization;
+    int64_t version = 0;
+    std::string bytes, error;
+    bool ok = false;
+  };
+  std::vector<Pending> pending;
+  std::vector<std::pair<int64_t, uint64_t>> submaps;
+  {
+    // The snapshot: copies of the changed tiles, and the submaps whose points they hold.
+    std::lock_guard<std::mutex> lock(mu_);
+    for (auto& [k, tile] : hot_) {
+      if (!tile->dirty) continue;
+      Pending p;
+      p.key = k;
+      p.tile = tile->key;
+      p.points = tile->points;
+      p.quantization = tile->quantization;
+      p.version = ++tile->version;
+      tile->dirty = false;
+      ++tile->in_flight;
+      pending.push_back(std::move(p));
     }
+    submaps.swap(unflushed_);
+    dirty_points_ = 0;
   }
-  if (dirty.empty() && unflushed_.empty()) return {};
-  // Encode in parallel: Draco is the slow part of ingest.
-  std::vector<std::string> bytes(dirty.size()), errors(dirty.size());
-  std::vector<char> ok(dirty.size(), 0);
-  const int threads = std::max(1, std::min<int>(options_.encode_threads, dirty.size()));
+  if (pending.empty() && submaps.empty()) return {};
+  // Encode in parallel, with ingest going on: Draco is the slow part.
+  const int threads = std::max(1, std::min<int>(options_.encode_threads, pending.size()));
   std::vector<std::future<void>> workers;
   for (int w = 0; w < threads; ++w) {
     workers.push_back(std::async(std::launch::async, [&, w]() {
-      for (size_t i = w; i < dirty.size(); i += threads) {
-        ok[i] = EncodeTile(
-            dirty[i]->points, dirty[i]->quantization, options_.draco_speed, &bytes[i], &errors[i]);
+      for (size_t i = w; i < pending.size(); i += threads) {
+        Pending& p = pending[i];
+        p.ok = EncodeTile(p.points, p.quantization, options_.draco_speed, &p.bytes, &p.error);
+        p.points = TilePoints();  // let the copy go early
       }
     }));
   }
   for (auto& w : workers) w.get();
-  for (size_t i = 0; i < dirty.size(); ++i) {
-    if (!ok[i]) return Fail(Outcome::kError, "tile " + dirty[i]->key.ToString() + ": " + errors[i]);
+
+  std::unique_lock<std::mutex> lock(mu_);
+  // On failure the tiles are changed again and the submaps still unwritten: the next flush
+  // retries, and a restart would merge the submaps again.
+  auto undo = [&](const std::string& message) {
+    for (Pending& p : pending) {
+      auto it = hot_.find(p.key);
+      if (it == hot_.end()) continue;
+      it->second->dirty = true;
+      --it->second->in_flight;
+    }
+    unflushed_.insert(unflushed_.end(), submaps.begin(), submaps.end());
+    return Fail(Outcome::kError, message);
+  };
+  for (const Pending& p : pending) {
+    if (!p.ok) return undo("tile " + p.tile.ToString() + ": " + p.error);
   }
   Transaction t(*writer_);
-  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  if (!t.ok()) return undo(writer_->Message());
   Statement put(*writer_,
                 "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
                 "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   const int64_t now = NowNs();
   std::vector<TileUpdate> done;
-  for (size_t i = 0; i < dirty.size(); ++i) {
-    HotTile& tile = *dirty[i];
-    const int64_t version = tile.version + 1;
+  for (const Pending& p : pending) {
+    const HotTile& tile = *hot_.at(p.key);
     put.Reset();
-    put.Bind(1, std::get<0>(keys[i]))
-        .Bind(2, tile.key.level)
-        .Bind(3, tile.key.ix)
-        .Bind(4, tile.key.iy)
+    put.Bind(1, std::get<0>(p.key))
+        .Bind(2, p.tile.level)
+        .Bind(3, p.tile.ix)
+        .Bind(4, p.tile.iy)
         .Bind(5, tile.points.utm_zone)
         .Bind(6, tile.points.origin.x())
         .Bind(7, tile.points.origin.y())
         .Bind(8, tile.points.origin.z())
         .Bind(9, static_cast<int64_t>(tile.points.points.size()))
-        .Bind(10, tile.quantization.MaxErrorM())
-        .Bind(11, version)
-        .Bind(12, "\"" + std::to_string(version) + "-" + Hex64(Fnv1a(bytes[i])) + "\"")
+        .Bind(10, p.quantization.MaxErrorM())
+        .Bind(11, p.version)
+        .Bind(12, "\"" + std::to_string(p.version) + "-" + Hex64(Fnv1a(p.bytes)) + "\"")
         .Bind(13, now)
-        .BindBlob(14, bytes[i]);
-    if (!put.Run()) return Fail(Outcome::kError, put.error());
-    done.push_back({std::get<0>(keys[i]), tile.key, version});
+        .BindBlob(14, p.bytes);
+    if (!put.Run()) return undo(put.error());
+    done.push_back({std::get<0>(p.key), p.tile, p.version});
   }
-  // Every merged submap is in written tiles now: its payload can go.
+  // Every submap of the snapshot is in written tiles now: its payload can go.
   Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
-  Statement drop(*writer_, "DELETE FROM submap_payloads WHERE run_id = ? AND sequence = ?");
-  for (const auto& [run, sequence] : unflushed_) {
+  for (const auto& [run, sequence] : submaps) {
     mark.Reset();
-    drop.Reset();
-    if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
-      return Fail(Outcome::kError, mark.error());
-    if (!drop.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
-      return Fail(Outcome::kError, drop.error());
+    if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run()) return undo(mark.error());
   }
   std::string error;
-  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
-  for (size_t i = 0; i < dirty.size(); ++i) {
-    dirty[i]->dirty = false;
-    ++dirty[i]->version;
-  }
-  unflushed_.clear();
-  stats_.tiles_written += dirty.size();
+  if (!t.Commit(&error)) return undo(error);
+  for (const Pending& p : pending) --hot_.at(p.key)->in_flight;
+  stats_.tiles_written += pending.size();
   ++stats_.flushes;
-  if (updated) *updated = std::move(done);
+  if (updated) *updated = done;
+  const auto listener = listener_;
+  lock.unlock();
+  for (const auto& [run, sequence] : submaps) {
+    std::error_code ec;
+    std::filesystem::remove(IncomingPath(run, sequence), ec);
+  }
+  if (listener && !done.empty()) listener(done);
   return {};
 }
 
 void MapStore::EvictLocked() {
-  if (!FlushLocked(nullptr)) return;  // keep everything in memory; the next flush retries
-  // Let the least recently touched tiles go until half the budget is left.
+  // Let the least recently touched written tiles go until half the budget is left.
   std::vector<std::pair<uint64_t, HotKey>> order;
-  for (const auto& [k, tile] : hot_) order.emplace_back(tile->touched, k);
+  for (const auto& [k, tile] : hot_) {
+    if (!tile->dirty && tile->in_flight == 0) order.emplace_back(tile->touched, k);
+  }
   std::sort(order.begin(), order.end());
   for (const auto& [touched, k] : order) {
-    if (hot_points_ <= options_.hot_points_budget / 2 || touched == touch_) break;
+    if (hot_points_ <= options_.hot_points_budget / 2) break;
     hot_points_ -= hot_.at(k)->points.points.size();
     hot_.erase(k);
+  }
+}
+
+void MapStore::SetTileListener(std::function<void(const std::vector<TileUpdate>&)> listener) {
+  std::lock_guard<std::mutex> lock(mu_);
+  listener_ = std::move(listener);
+}
+
+void MapStore::FlushLoop() {
+  std::unique_lock<std::mutex> lock(mu_);
+  while (!stopping_) {
+    wake_.wait_for(lock, std::chrono::milliseconds(options_.flush_interval_ms), [&] {
+      return stopping_ || dirty_points_ >= options_.flush_dirty_points;
+    });
+    if (stopping_) break;
+    const bool work = dirty_points_ > 0 || !unflushed_.empty();
+    lock.unlock();
+    if (work) Flush(nullptr);
+    lock.lock();
   }
 }
 

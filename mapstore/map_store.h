@@ -1,10 +1,13 @@
 #pragma once
 
+#include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <tuple>
 #include <vector>
 
@@ -44,6 +47,10 @@ struct StoreOptions {
   size_t hot_points_budget = 6'000'000;
   int draco_speed = 5;     ///< Draco's encoding speed (0 smallest ... 9 fastest)
   int encode_threads = 2;  ///< tiles encoded in parallel on a flush
+  /// A background thread writes the changed tiles this often (0: only Flush() writes them),
+  /// and at once when this many new points wait.
+  int flush_interval_ms = 1000;
+  size_t flush_dirty_points = 1'000'000;
   bool IsValid(std::string* error) const;
 };
 
@@ -87,14 +94,17 @@ struct StoreStats {
   uint64_t submaps_stored = 0, submaps_duplicate = 0, submaps_rejected = 0;
   uint64_t points_ingested = 0, points_off_grid = 0;
   uint64_t poses_stored = 0;
-  uint64_t tiles_written = 0, flushes = 0, submaps_recovered = 0;
+  uint64_t tiles_written = 0, flushes = 0;
+  uint64_t submaps_recovered = 0;  ///< merged again on opening, after a crash
+  uint64_t submaps_lost = 0;       ///< acknowledged, but the payload was gone on opening
   size_t hot_tiles = 0, hot_points = 0;
 };
 
 /// A folder holding every run as Draco tiles on a UTM grid with a level-of-detail pyramid, and
-/// an SQLite index (WAL) of runs, submaps, poses and tiles. A submap is acknowledged once it
-/// and its payload are committed; its points go into tiles held in memory, written (encoded)
-/// on Flush, after which the payload is let go. Opening the folder after a crash merges the
+/// an SQLite index (WAL) of runs, submaps, poses and tiles. A submap is acknowledged once its
+/// payload is in the incoming folder and its row committed; its points go into tiles held in
+/// memory, written (encoded) by a background flusher or Flush, after which the payload is let
+/// go. Opening the folder after a crash merges the
 /// payloads of submaps not yet in written tiles again, so nothing acknowledged is lost. Merging
 /// keeps the first point of each voxel (level 0: the submaps' own 0.1 m voxels), so it is
 /// incremental and a repeated merge changes nothing. Safe to call from several threads.
@@ -121,8 +131,11 @@ class MapStore {
   /// stored sequence are a conflict (and nothing of the batch is stored).
   Result IngestPoses(int64_t run_id, const std::vector<api::StreamPose>& poses, int* stored);
 
-  /// Encodes every changed tile and writes them in one transaction; `updated` gets them.
+  /// Encodes every changed tile and writes them in one transaction, ingest going on meanwhile;
+  /// `updated` gets them. The background flusher calls it too.
   Result Flush(std::vector<TileUpdate>* updated = nullptr);
+  /// Called (on the flushing thread) with the tiles each flush wrote: for live notices.
+  void SetTileListener(std::function<void(const std::vector<TileUpdate>&)> listener);
 
   /// The written tiles of a run at `level` that meet the box (UTM easting/northing).
   Result TilesInBox(int64_t run_id,
@@ -146,11 +159,12 @@ class MapStore {
 
   MapStore(const std::string& dir, const StoreOptions& options);
   bool Recover(std::string* error);
+  std::string IncomingPath(int64_t run_id, uint64_t sequence) const;
   /// Merges a submap's points into the hot tiles of every level.
   void Merge(int64_t run_id, const api::Submap& submap, IngestReceipt* receipt);
   HotTile* Hot(int64_t run_id, const std::string& zone, const TileKey& key, double z_m);
-  Result FlushLocked(std::vector<TileUpdate>* updated);
   void EvictLocked();
+  void FlushLoop();
   Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
 
   std::string dir_;
@@ -164,6 +178,12 @@ class MapStore {
   /// Submaps merged into hot tiles that are not all written yet.
   std::vector<std::pair<int64_t, uint64_t>> unflushed_;
   StoreStats stats_;
+  size_t dirty_points_ = 0;  ///< new points since the last snapshot
+  std::function<void(const std::vector<TileUpdate>&)> listener_;
+  std::mutex flush_mu_;  ///< one flush at a time
+  std::condition_variable wake_;
+  bool stopping_ = false;
+  std::thread flusher_;
 };
 
 }  // namespace raillomer::mapstore

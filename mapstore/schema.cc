@@ -8,8 +8,9 @@ namespace {
 // Migration N takes the index from version N-1 to N. Never edit a released migration: add one.
 const std::vector<const char*>& Migrations() {
   static const std::vector<const char*> migrations = {
-      // 1: runs, their submaps (with the payload until its points are in durable tiles), poses
-      // and tiles.
+      // 1: runs, their submaps, poses and tiles. A submap's `tiled` is 0 until its points are in
+      // written tiles (its payload waits in the incoming folder till then), 1 after, -1 if
+      // its payload was lost before.
       R"sql(
 CREATE TABLE runs (
   id INTEGER PRIMARY KEY,
@@ -41,13 +42,6 @@ CREATE TABLE submaps (
   PRIMARY KEY (run_id, sequence)
 ) WITHOUT ROWID;
 CREATE INDEX submaps_untiled ON submaps (tiled) WHERE tiled = 0;
-CREATE TABLE submap_payloads (
-  run_id INTEGER NOT NULL,
-  sequence INTEGER NOT NULL,
-  bytes BLOB NOT NULL,
-  PRIMARY KEY (run_id, sequence),
-  FOREIGN KEY (run_id, sequence) REFERENCES submaps (run_id, sequence) ON DELETE CASCADE
-) WITHOUT ROWID;
 CREATE TABLE poses (
   run_id INTEGER NOT NULL REFERENCES runs(id),
   sequence INTEGER NOT NULL,

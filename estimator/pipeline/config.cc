@@ -5,13 +5,13 @@
 #include <sstream>
 
 #include "estimator/geo/utm.h"
-#include "estimator/io/yaml_map_reader.h"
+#include "api/yaml_map_reader.h"
 
 namespace raillomer {
 
 namespace {
 
-using io::MapReader;
+using api::MapReader;
 
 Eigen::Isometry3d PoseFromYaml(const std::array<double, 3>& t,
                                const std::array<double, 3>& rpy_deg) {
@@ -28,7 +28,7 @@ Eigen::Isometry3d PoseFromYaml(const std::array<double, 3>& t,
 Eigen::Vector3d Vec(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
 
 void ParseLidars(MapReader& root, RigConfig* rig) {
-  io::ForEachMap(root, "lidars", [&](MapReader& r, const YAML::Node& node) {
+  api::ForEachMap(root, "lidars", [&](MapReader& r, const YAML::Node& node) {
     LidarRig lidar;
     std::array<double, 3> t{0, 0, 0}, rpy{0, 0, 0};
     std::string model;
@@ -272,7 +272,7 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
   try {
     const YAML::Node root_node = YAML::Load(yaml_text);
     if (!root_node || root_node.IsNull())
-      throw io::YamlError(source_name + ": the config is empty");
+      throw api::YamlError(source_name + ": the config is empty");
     MapReader root(root_node, "", source_name);
     root.Read("rig", &rig.rig);
     root.Read("utm_zone", &rig.utm_zone);
@@ -332,7 +332,7 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
     }
     ParseEstimatorSection(root, &c.options, &rig.noise);
     root.Finish();
-  } catch (const io::YamlError& e) {
+  } catch (const api::YamlError& e) {
     if (error) *error = e.what();
     return false;
   } catch (const YAML::Exception& e) {

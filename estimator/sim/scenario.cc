@@ -9,7 +9,7 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "estimator/io/yaml_map_reader.h"
+#include "api/yaml_map_reader.h"
 #include "estimator/sim/alignment.h"
 #include "estimator/sim/builtin_scenarios.h"
 #include "estimator/sim/motion.h"
@@ -18,9 +18,9 @@ namespace raillomer::sim {
 
 namespace {
 
-using io::MapReader;
-using ScenarioError = io::YamlError;
-using io::ForEachMap;
+using api::MapReader;
+using ScenarioError = api::YamlError;
+using api::ForEachMap;
 
 constexpr double kKmh = 1.0 / 3.6;
 

@@ -8,7 +8,7 @@
 
 #include <yaml-cpp/yaml.h>
 
-namespace raillomer::io {
+namespace raillomer::api {
 
 /// A parse failure that already carries the key path and line.
 struct YamlError : std::runtime_error {
@@ -121,4 +121,4 @@ inline void ForEachMap(MapReader& parent, const char* key, Fn fn) {
   }
 }
 
-}  // namespace raillomer::io
+}  // namespace raillomer::api

@@ -1,0 +1,140 @@
+#include "server/server_config.h"
+
+#include <sys/stat.h>
+
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "api/yaml_map_reader.h"
+
+namespace raillomer::server {
+
+bool ServerConfig::IsValid(std::string* error) const {
+  if (data_dir.empty()) return *error = "data_dir (--data) is required", false;
+  if (port < 0 || port > 65535) return *error = "port must be in [0, 65535]", false;
+  if (ws_port < 0 || ws_port > 65535) return *error = "ws_port must be in [0, 65535]", false;
+  if (max_body_bytes < 1024) return *error = "max_body_bytes must be at least 1024", false;
+  if (request_timeout_s < 1 || request_timeout_s > 3600)
+    return *error = "request_timeout_s must be in [1, 3600]", false;
+  if (http_threads < 2 || http_threads > 4096)
+    return *error = "http_threads must be in [2, 4096]", false;
+  if (ws_threads < 1 || ws_threads > 64) return *error = "ws_threads must be in [1, 64]", false;
+  if (ws_queue_messages < 8) return *error = "ws_queue_messages must be at least 8", false;
+  if (!ingest_token.empty() && ingest_token.size() < 16)
+    return *error = "ingest_token must be at least 16 characters", false;
+  if (!read_token.empty() && read_token.size() < 16)
+    return *error = "read_token must be at least 16 characters", false;
+  return store.IsValid(error);
+}
+
+bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* error) {
+  try {
+    const YAML::Node root_node = YAML::LoadFile(path);
+    api::MapReader root(root_node, "", path);
+    root.Read("data_dir", &c->data_dir);
+    root.Read("host", &c->host);
+    root.Read("port", &c->port);
+    root.Read("ws_port", &c->ws_port);
+    root.Read("ingest_token", &c->ingest_token);
+    root.Read("reads_need_token", &c->reads_need_token);
+    root.Read("read_token", &c->read_token);
+    root.Read("max_body_bytes", &c->max_body_bytes);
+    root.Read("request_timeout_s", &c->request_timeout_s);
+    root.Read("http_threads", &c->http_threads);
+    root.Read("ws_threads", &c->ws_threads);
+    root.Read("ws_queue_messages", &c->ws_queue_messages);
+    root.Read("web_root", &c->web_root);
+    if (root.Has("store")) {
+      api::MapReader s(root.Node("store"), "store", path);
+      mapstore::StoreOptions& o = c->store;
+      s.Read("tile_m", &o.grid.tile_m);
+      s.Read("voxel_m", &o.grid.voxel_m);
+      s.Read("levels", &o.grid.levels);
+      s.Read("max_error_m", &o.grid.max_error_m);
+      s.Read("max_points_per_submap", &o.max_points_per_submap);
+      s.Read("hot_points_budget", &o.hot_points_budget);
+      s.Read("draco_speed", &o.draco_speed);
+      s.Read("encode_threads", &o.encode_threads);
+      s.Read("flush_interval_ms", &o.flush_interval_ms);
+      s.Read("flush_dirty_points", &o.flush_dirty_points);
+      s.Finish();
+    }
+    root.Finish();
+  } catch (const api::YamlError& e) {
+    *error = e.what();
+    return false;
+  } catch (const YAML::Exception& e) {
+    *error = path + ": " + e.what();
+    return false;
+  }
+  return true;
+}
+
+std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConfig& c) {
+  auto s = [](auto v) {
+    std::ostringstream out;
+    out << v;
+    return out.str();
+  };
+  const mapstore::StoreOptions& o = c.store;
+  return {
+      {"data_dir", c.data_dir},
+      {"host", c.host},
+      {"port", s(c.port)},
+      {"ws_port", s(c.ws_port)},
+      {"ingest_token", c.ingest_token.empty() ? "(from data_dir/ingest.token)" : "(set, hidden)"},
+      {"reads_need_token", c.reads_need_token ? "true" : "false"},
+      {"read_token", c.read_token.empty() ? "(none)" : "(set, hidden)"},
+      {"max_body_bytes", s(c.max_body_bytes)},
+      {"request_timeout_s", s(c.request_timeout_s)},
+      {"http_threads", s(c.http_threads)},
+      {"ws_threads", s(c.ws_threads)},
+      {"ws_queue_messages", s(c.ws_queue_messages)},
+      {"web_root", c.web_root.empty() ? "(none)" : c.web_root},
+      {"store.tile_m", s(o.grid.tile_m)},
+      {"store.voxel_m", s(o.grid.voxel_m)},
+      {"store.levels", s(o.grid.levels)},
+      {"store.max_error_m", s(o.grid.max_error_m)},
+      {"store.max_points_per_submap", s(o.max_points_per_submap)},
+      {"store.hot_points_budget", s(o.hot_points_budget)},
+      {"store.draco_speed", s(o.draco_speed)},
+      {"store.encode_threads", s(o.encode_threads)},
+      {"store.flush_interval_ms", s(o.flush_interval_ms)},
+      {"store.flush_dirty_points", s(o.flush_dirty_points)},
+  };
+}
+
+bool ResolveIngestToken(ServerConfig* c, std::string* path, std::string* error) {
+  path->clear();
+  if (!c->ingest_token.empty()) return true;
+  *path = c->data_dir + "/ingest.token";
+  std::ifstream in(*path);
+  if (in) {
+    std::getline(in, c->ingest_token);
+    if (c->ingest_token.size() < 16) {
+      *error = *path + " holds no usable token (at least 16 characters); delete it to make one";
+      return false;
+    }
+    return true;
+  }
+  std::random_device random;
+  std::ostringstream hex;
+  for (int i = 0; i < 32; ++i) {
+    char byte[3];
+    std::snprintf(byte, sizeof(byte), "%02x", static_cast<unsigned>(random() & 0xff));
+    hex << byte;
+  }
+  c->ingest_token = hex.str();
+  const mode_t old = umask(077);
+  std::ofstream out(*path);
+  out << c->ingest_token << "\n";
+  umask(old);
+  if (!out) {
+    *error = "cannot write the ingest token to " + *path;
+    return false;
+  }
+  return true;
+}
+
+}  // namespace raillomer::server

@@ -1,0 +1,45 @@
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "mapstore/map_store.h"
+
+namespace raillomer::server {
+
+/// Everything raillomer-server runs with: a YAML file (`--config`) overridden by flags.
+struct ServerConfig {
+  std::string data_dir;            ///< the store's folder (index, tiles, tokens)
+  std::string host = "127.0.0.1";  ///< the address to listen on
+  int port = 8470;                 ///< HTTP; 0 lets the OS pick
+  int ws_port = 0;                 ///< WebSocket live hub; 0: port + 1 (or OS-picked with port 0)
+  /// The bearer token for ingest and every write. Empty: read from <data_dir>/ingest.token,
+  /// generated there on first start.
+  std::string ingest_token;
+  /// Reads (GET, the live hub) need a token too when true: read_token, or the ingest token.
+  bool reads_need_token = false;
+  std::string read_token;
+  size_t max_body_bytes = 64u << 20;  ///< a request body beyond it is refused (413)
+  int request_timeout_s = 30;         ///< reading or writing a request, per socket operation
+  int http_threads = 96;              ///< one per open connection (keep-alive holds one)
+  int ws_threads = 2;
+  size_t ws_queue_messages = 512;  ///< per live client; beyond it old poses are dropped
+  std::string web_root;            ///< the viewer's static files (empty: none served)
+  mapstore::StoreOptions store;
+
+  bool IsValid(std::string* error) const;
+};
+
+/// Reads a YAML config into `config` (keys left out keep their values); unknown keys and
+/// values of the wrong type are refused with the file, line and key.
+bool LoadServerConfig(const std::string& path, ServerConfig* config, std::string* error);
+
+/// Every value in effect, as (key, value) in config-file spelling, tokens redacted.
+std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConfig& config);
+
+/// The ingest token in effect: the config's, else <data_dir>/ingest.token, which is generated
+/// (32 random bytes, hex, mode 0600) if missing. `path` gets where it is kept ("" if config).
+bool ResolveIngestToken(ServerConfig* config, std::string* path, std::string* error);
+
+}  // namespace raillomer::server

@@ -1,0 +1,85 @@
+// raillomer-server: stores runs streamed by raillomer-estimator as tiled, Draco-compressed maps
+// with an SQLite index, and serves them over REST (/api/v1/), a live WebSocket hub and the
+// browser viewer's static files.
+#include <signal.h>
+
+#include <cstdio>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "server/server.h"
+
+using raillomer::server::ServerConfig;
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "raillomer-server: stores each run streamed by raillomer-estimator as a tiled, "
+      "Draco-compressed map with an SQLite index, and serves it over REST (/api/v1/), a live "
+      "WebSocket hub (/live) and the browser viewer.\n\n"
+      "  raillomer-server --data <dir> [--port <n>] [--config <yaml>]\n\n"
+      "The ingest token (for ingest and every write) is generated into <dir>/ingest.token on "
+      "first start unless the config sets one; send it as 'Authorization: Bearer <token>'."};
+  std::string config_path, data_dir, host, web_root;
+  int port = -1, ws_port = -1;
+  app.add_option("--data", data_dir, "the store's folder (created if missing)");
+  app.add_option("--port", port, "HTTP port (default 8470; 0 lets the OS pick)");
+  app.add_option("--ws-port", ws_port, "live WebSocket port (default: port + 1)");
+  app.add_option("--host", host, "address to listen on (default 127.0.0.1)");
+  app.add_option("--web-root", web_root, "the viewer's static files, served at /");
+  app.add_option("--config", config_path, "YAML config; flags override it");
+  CLI11_PARSE(app, argc, argv);
+
+  ServerConfig config;
+  std::string error;
+  if (!config_path.empty() && !raillomer::server::LoadServerConfig(config_path, &config, &error)) {
+    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
+    return 2;
+  }
+  if (!data_dir.empty()) config.data_dir = data_dir;
+  if (port >= 0) config.port = port;
+  if (ws_port >= 0) config.ws_port = ws_port;
+  if (!host.empty()) config.host = host;
+  if (!web_root.empty()) config.web_root = web_root;
+  if (!config.IsValid(&error)) {
+    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
+    return 2;
+  }
+  // Signals are taken by this thread alone (sigwait), never by the serving threads.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  signal(SIGPIPE, SIG_IGN);
+
+  raillomer::server::Server server(config);
+  if (!server.Start(&error)) {
+    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
+    return 1;
+  }
+  std::printf("raillomer-server: config in effect\n");
+  for (const auto& [key, value] : raillomer::server::DescribeConfig(server.config()))
+    std::printf("  %-28s %s\n", key.c_str(), value.c_str());
+  const std::string& h = server.config().host;
+  std::printf(
+      "raillomer-server: serving http://%s:%d/ (REST /api/v1/, health /health, metrics "
+      "/metrics; live ws://%s:%d/live)\n",
+      h.c_str(),
+      server.port(),
+      h.c_str(),
+      server.ws_port());
+  if (server.token_path().empty()) {
+    std::printf("raillomer-server: ingest token: set in the config\n");
+  } else {
+    std::printf("raillomer-server: ingest token: %s\n", server.token_path().c_str());
+  }
+  std::fflush(stdout);
+  int received = 0;
+  sigwait(&signals, &received);
+  std::printf("raillomer-server: %s, writing the last tiles and stopping\n",
+              received == SIGINT ? "interrupted" : "terminated");
+  std::fflush(stdout);
+  server.Stop();
+  return 0;
+}

@@ -1,0 +1,405 @@
+// raillomer-server as a real process on loopback, driven by clients that are not ours: curl for
+// REST, Debian's draco_decoder for a served tile, the sqlite3 tool for the index, and Python's
+// websockets library for the live hub. Also: bad input answered with a 4xx JSON error and no
+// change, and a kill -9 in the middle of ingest that loses nothing acknowledged.
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <set>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "api/stream.h"
+#include "mapstore/tile_codec.h"
+#include "tests/server/server_process.h"
+#include "tests/support/corridor_submap.h"
+
+namespace raillomer::test {
+namespace {
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+/// Writes submap i's payload into `dir`; returns the file.
+fs::path WriteSubmap(const fs::path& dir, const api::Submap& s, const std::string& name) {
+  const fs::path path = dir / name;
+  std::ofstream(path, std::ios::binary) << api::EncodeSubmapPcd(s);
+  return path;
+}
+
+std::string PostFile(const fs::path& file) {
+  return "-X POST -H 'Content-Type: application/octet-stream' --data-binary @" +
+         ShellQuote(file.string()) + " ";
+}
+
+std::string PostJson(const json& body) {
+  return "-X POST -H 'Content-Type: application/json' --data-binary " + ShellQuote(body.dump()) +
+         " ";
+}
+
+int64_t CreateRun(const ServerProcess& server, const fs::path& scratch) {
+  const CurlResult r =
+      Curl(Bearer(server.token()) + PostJson({{"line", "Test line"}, {"vehicle", "RLM-1"}}) +
+               ShellQuote(server.Url("/api/v1/runs")),
+           scratch);
+  EXPECT_EQ(r.status, 201) << r.body;
+  const json j = json::parse(r.body, nullptr, false);
+  return j.is_object() ? j.value("id", int64_t{0}) : 0;
+}
+
+/// Waits until the run's level-0 tiles hold `points` points (the flusher writes them).
+json TilesWhenWritten(const ServerProcess& server,
+                      int64_t run,
+                      int64_t points,
+                      const fs::path& scratch) {
+  json index;
+  for (int i = 0; i < 100; ++i) {
+    const CurlResult r = Curl(
+        ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/tiles?level=0")), scratch);
+    index = json::parse(r.body, nullptr, false);
+    int64_t total = 0;
+    if (index.is_object() && index.contains("tiles"))
+      for (const auto& t : index["tiles"]) total += t["points"].get<int64_t>();
+    if (total == points) return index;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ADD_FAILURE() << "the tiles never held " << points << " points: " << index.dump();
+  return index;
+}
+
+TEST(Server, RestApiWithCurl) {
+  ScratchDir scratch("raillomer_server_");
+  ServerProcess server(scratch.path() / "data");
+  ASSERT_TRUE(server.ok()) << server.log();
+  const fs::path dir = scratch.path();
+  // The start-up log names every value in effect, never the token.
+  EXPECT_NE(server.log().find("store.tile_m"), std::string::npos);
+  EXPECT_EQ(server.log().find(server.token()), std::string::npos);
+
+  CurlResult health = Curl(ShellQuote(server.Url("/health")), dir);
+  EXPECT_EQ(health.status, 200);
+  EXPECT_EQ(json::parse(health.body)["status"], "ok");
+
+  const int64_t run = CreateRun(server, dir);
+  ASSERT_GT(run, 0);
+  const std::string runs = server.Url("/api/v1/runs/" + std::to_string(run));
+  const fs::path s0 = WriteSubmap(dir, CorridorSubmap(0), "s0.pcd");
+  const fs::path s1 = WriteSubmap(dir, CorridorSubmap(1), "s1.pcd");
+  CurlResult r = Curl(Bearer(server.token()) + PostFile(s0) + ShellQuote(runs + "/submaps"), dir);
+  EXPECT_EQ(r.status, 201) << r.body;
+  EXPECT_EQ(json::parse(r.body)["points"], CorridorSubmap(0).points.size());
+  r = Curl(Bearer(server.token()) + PostFile(s1) + ShellQuote(runs + "/submaps"), dir);
+  EXPECT_EQ(r.status, 201) << r.body;
+  // The same submap again changes nothing; a different one under its sequence is a conflict.
+  r = Curl(Bearer(server.token()) + PostFile(s0) + ShellQuote(runs + "/submaps"), dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(json::parse(r.body)["duplicate"], true);
+  api::Submap other = CorridorSubmap(0);
+  other.points[0].z() += 1.0f;
+  r = Curl(Bearer(server.token()) + PostFile(WriteSubmap(dir, other, "other.pcd")) +
+               ShellQuote(runs + "/submaps"),
+           dir);
+  EXPECT_EQ(r.status, 409) << r.body;
+  EXPECT_EQ(json::parse(r.body)["error"]["code"], "conflict");
+
+  // Poses, and the trajectory back as TUM and GeoJSON.
+  json poses = json::array();
+  for (int i = 0; i < 5; ++i) {
+    const Eigen::Vector3d p = CorridorStart() + Eigen::Vector3d(2.0 * i, 0.0, 2.0);
+    poses.push_back({{"sequence", 20 + i},
+                     {"stamp_ns", 1'600'000'000'000'000'000 + int64_t(i) * 100'000'000},
+                     {"georeferenced", true},
+                     {"utm_zone", "50N"},
+                     {"p", {p.x(), p.y(), p.z()}},
+                     {"q", {0.0, 0.0, 0.0, 1.0}}});
+  }
+  r = Curl(Bearer(server.token()) + PostJson({{"poses", poses}}) + ShellQuote(runs + "/poses"),
+           dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(json::parse(r.body)["stored"], 5);
+  r = Curl(ShellQuote(runs + "/trajectory?format=tum"), dir);
+  EXPECT_EQ(r.status, 200);
+  EXPECT_EQ(r.body.rfind("# utm_zone 50N\n1600000000.000000000 432100.", 0), 0u) << r.body;
+  r = Curl(ShellQuote(runs + "/trajectory"), dir);
+  const json geo = json::parse(r.body);
+  const json& coords = geo["features"][0]["geometry"]["coordinates"];
+  ASSERT_EQ(coords.size(), 5u);
+  // UTM 50N (432100, 3585200) is near 32.4 N, 116.3 E (GeoConvert agrees).
+  EXPECT_NEAR(coords[0][0].get<double>(), 116.28, 0.05);
+  EXPECT_NEAR(coords[0][1].get<double>(), 32.40, 0.05);
+
+  // The tiles: the index, then one tile's bytes with its ETag.
+  const int64_t expected_points = 400 * 110 * 3 / 2 * 1 + 0;  // 1.5 submaps' worth of voxels
+  const json index = TilesWhenWritten(server, run, expected_points, dir);
+  ASSERT_FALSE(index["tiles"].empty());
+  const json tile = index["tiles"][0];
+  r = Curl(ShellQuote(server.Url(tile["url"].get<std::string>())), dir);
+  ASSERT_EQ(r.status, 200);
+  EXPECT_NE(r.headers.find("ETag: " + tile["etag"].get<std::string>()), std::string::npos)
+      << r.headers;
+  EXPECT_NE(r.headers.find("Cache-Control: no-cache"), std::string::npos);
+  const CurlResult again =
+      Curl("-H " + ShellQuote("If-None-Match: " + tile["etag"].get<std::string>()) + " " +
+               ShellQuote(server.Url(tile["url"].get<std::string>())),
+           dir);
+  EXPECT_EQ(again.status, 304);
+  // Debian's draco_decoder reads the served tile; each point lies within the stated error of
+  // a submap point.
+  std::ofstream(dir / "tile.drc", std::ios::binary) << r.body;
+  const CommandResult decoded =
+      RunCommand("draco_decoder -i " + ShellQuote((dir / "tile.drc").string()) + " -o " +
+                     ShellQuote((dir / "tile.ply").string()),
+                 dir);
+  ASSERT_EQ(decoded.exit_code, 0) << decoded.out << decoded.err;
+  std::ifstream ply(dir / "tile.ply", std::ios::binary);
+  std::string line;
+  size_t vertices = 0;
+  while (std::getline(ply, line) && line != "end_header")
+    if (line.rfind("element vertex ", 0) == 0) vertices = std::stoul(line.substr(15));
+  ASSERT_EQ(static_cast<int64_t>(vertices), tile["points"].get<int64_t>());
+  const Eigen::Vector3d origin(tile["origin"][0], tile["origin"][1], tile["origin"][2]);
+  double worst = 0.0;
+  for (size_t i = 0; i < vertices; ++i) {
+    float p[3];
+    ply.read(reinterpret_cast<char*>(p), sizeof(p));
+    if (!ply) break;
+    // The corridor's points lie on 0.1 m voxel centres (x.x5) relative to the start.
+    const Eigen::Vector3d q = origin + Eigen::Vector3d(p[0], p[1], p[2]) - CorridorStart();
+    for (int a = 0; a < 3; ++a)
+      worst = std::max(worst, std::abs(q[a] - (std::floor(q[a] * 10.0) / 10.0 + 0.05)));
+  }
+  EXPECT_LE(worst, tile["max_error_m"].get<double>());
+  EXPECT_LE(tile["max_error_m"].get<double>(), 0.005);
+
+  // The sqlite3 tool reads the index.
+  const CommandResult sql = RunCommand(
+      "sqlite3 " + ShellQuote((scratch.path() / "data" / "index.sqlite").string()) +
+          " 'PRAGMA integrity_check; SELECT count(*) FROM submaps; SELECT line FROM runs;'",
+      dir);
+  EXPECT_EQ(sql.exit_code, 0) << sql.err;
+  EXPECT_EQ(sql.out, "ok\n2\nTest line\n");
+
+  // Finishing the run; metrics count what happened.
+  r = Curl(Bearer(server.token()) + PostJson(json::object()) + ShellQuote(runs + "/finish"), dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(json::parse(r.body)["status"], "finished");
+  r = Curl(ShellQuote(server.Url("/metrics")), dir);
+  EXPECT_NE(r.body.find("raillomer_submaps_stored_total 2"), std::string::npos) << r.body;
+  EXPECT_NE(r.body.find("raillomer_http_requests_total{route=\"ingest.submap\",status=\"409\"} 1"),
+            std::string::npos);
+  EXPECT_TRUE(server.Stop(SIGTERM)) << server.log();
+}
+
+TEST(Server, BadInputGetsA4xxJsonErrorAndChangesNothing) {
+  ScratchDir scratch("raillomer_server_");
+  const fs::path dir = scratch.path();
+  fs::create_directories(dir / "web");
+  std::ofstream(dir / "web" / "index.html") << "<html>viewer</html>";
+  std::ofstream(dir / "secret.txt") << "not for the web";
+  std::ofstream(dir / "small.yaml") << "max_body_bytes: 200000\n";
+  ServerProcess server(dir / "data",
+                       "--config " + ShellQuote((dir / "small.yaml").string()) + " --web-root " +
+                           ShellQuote((dir / "web").string()));
+  ASSERT_TRUE(server.ok()) << server.log();
+  const int64_t run = CreateRun(server, dir);
+  const std::string submaps = server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps");
+
+  auto expect = [&](const std::string& args, int status, const std::string& code) {
+    const CurlResult r = Curl(args, dir);
+    EXPECT_EQ(r.status, status) << args << " -> " << r.body;
+    const json j = json::parse(r.body, nullptr, false);
+    ASSERT_TRUE(j.is_object() && j.contains("error")) << r.body;
+    EXPECT_EQ(j["error"]["code"], code) << r.body;
+    EXPECT_FALSE(j["error"]["message"].get<std::string>().empty());
+  };
+  // A small submap that fits the body limit, then broken versions of it.
+  api::Submap small = CorridorSubmap(0);
+  small.points.resize(2000);
+  small.intensities.resize(2000);
+  const std::string good = api::EncodeSubmapPcd(small);
+  std::ofstream(dir / "truncated.pcd", std::ios::binary) << good.substr(0, good.size() - 7);
+  expect(Bearer(server.token()) + PostFile(dir / "truncated.pcd") + ShellQuote(submaps),
+         400,
+         "invalid");
+  api::Submap nan = small;
+  nan.points[5].x() = NAN;
+  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, nan, "nan.pcd")) + ShellQuote(submaps),
+         400,
+         "invalid");
+  std::ofstream(dir / "garbage.pcd", std::ios::binary) << std::string(5000, '\x7f');
+  expect(
+      Bearer(server.token()) + PostFile(dir / "garbage.pcd") + ShellQuote(submaps), 400, "invalid");
+  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, small, "ok.pcd")) +
+             ShellQuote(server.Url("/api/v1/runs/999/submaps")),
+         404,
+         "not_found");
+  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, CorridorSubmap(1), "big.pcd")) +
+             ShellQuote(submaps),
+         413,
+         "too_large");
+  expect(Bearer("wrong-token-wrong-token") + PostFile(dir / "ok.pcd") + ShellQuote(submaps),
+         401,
+         "unauthorized");
+  expect(PostFile(dir / "ok.pcd") + ShellQuote(submaps), 401, "unauthorized");
+  expect(Bearer(server.token()) +
+             "-X POST -H 'Content-Type: application/json' --data-binary '{\"line\": 3' " +
+             ShellQuote(server.Url("/api/v1/runs")),
+         400,
+         "invalid");
+  expect(
+      Bearer(server.token()) +
+          PostJson(
+              {{"poses",
+                {{{"sequence", 1}, {"stamp_ns", 5}, {"p", {NAN, 0, 0}}, {"q", {0, 0, 0, 1}}}}}}) +
+          ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/poses")),
+      400,
+      "invalid");
+  expect(ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/tiles/0/1/1")),
+         404,
+         "not_found");
+  // Static files: the viewer is served, nothing outside its folder is.
+  CurlResult page = Curl(ShellQuote(server.Url("/index.html")), dir);
+  EXPECT_EQ(page.status, 200);
+  EXPECT_EQ(page.body, "<html>viewer</html>");
+  for (const char* path :
+       {"/../secret.txt", "/..%2fsecret.txt", "/%2e%2e/secret.txt", "/../data/index.sqlite"}) {
+    const CurlResult r = Curl("--path-as-is " + ShellQuote(server.Url(path)), dir);
+    EXPECT_GE(r.status, 400) << path;
+    EXPECT_LT(r.status, 500) << path;
+    EXPECT_EQ(r.body.find("not for the web"), std::string::npos) << path;
+  }
+  // Nothing was stored.
+  const CurlResult info = Curl(ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run))), dir);
+  EXPECT_EQ(json::parse(info.body)["submaps"], 0);
+  EXPECT_EQ(json::parse(info.body)["poses"], 0);
+  // And the good one goes in.
+  EXPECT_EQ(
+      Curl(Bearer(server.token()) + PostFile(dir / "ok.pcd") + ShellQuote(submaps), dir).status,
+      201);
+}
+
+TEST(Server, KillDashNineDuringIngestLosesNothingAcknowledged) {
+  ScratchDir scratch("raillomer_server_");
+  const fs::path dir = scratch.path();
+  const int kSubmaps = 24;
+  for (int i = 0; i < kSubmaps; ++i)
+    WriteSubmap(dir, CorridorSubmap(i), "s" + std::to_string(i) + ".pcd");
+  int64_t run = 0;
+  std::string token;
+  {
+    ServerProcess server(dir / "data");
+    ASSERT_TRUE(server.ok()) << server.log();
+    run = CreateRun(server, dir);
+    token = server.token();
+    // curl sends the submaps one after another and notes each answer, while the server is
+    // killed part way through.
+    const std::string url = server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps");
+    const std::string loop = "for i in $(seq 0 " + std::to_string(kSubmaps - 1) +
+                             "); do curl -s -o /dev/null -w \"$i %{http_code}\\n\" " +
+                             Bearer(token) +
+                             "-X POST -H 'Content-Type: application/octet-stream' --data-binary @" +
+                             ShellQuote(dir.string()) + "/s$i.pcd " + ShellQuote(url) + " >> " +
+                             ShellQuote((dir / "answers.txt").string()) + "; done";
+    std::thread sender([&] { std::system(("bash -c " + ShellQuote(loop)).c_str()); });
+    for (int i = 0; i < 600; ++i) {
+      std::ifstream answers(dir / "answers.txt");
+      const auto n = std::count(
+          std::istreambuf_iterator<char>(answers), std::istreambuf_iterator<char>(), '\n');
+      if (n >= kSubmaps / 2) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    server.Stop(SIGKILL);
+    sender.join();
+  }
+  std::set<int> acknowledged;
+  std::ifstream answers(dir / "answers.txt");
+  int i = 0, code = 0;
+  while (answers >> i >> code)
+    if (code == 201) acknowledged.insert(i);
+  ASSERT_GE(acknowledged.size(), static_cast<size_t>(kSubmaps / 2));
+  ASSERT_LT(acknowledged.size(), static_cast<size_t>(kSubmaps)) << "the kill came too late";
+
+  ServerProcess server(dir / "data");
+  ASSERT_TRUE(server.ok()) << server.log();
+  // Every acknowledged submap is there with its payload: sending it again is a duplicate.
+  for (int a : acknowledged) {
+    const CurlResult r =
+        Curl(Bearer(token) + PostFile(dir / ("s" + std::to_string(a) + ".pcd")) +
+                 ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps")),
+             dir);
+    EXPECT_EQ(r.status, 200) << "submap " << a << ": " << r.body;
+  }
+  // Its points are in the tiles: submaps 0..n-1 cover (n + 1) half-lengths of corridor.
+  const CurlResult info = Curl(ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run))), dir);
+  const int stored = json::parse(info.body)["submaps"];
+  EXPECT_GE(stored, static_cast<int>(acknowledged.size()));
+  const int last = *acknowledged.rbegin();
+  EXPECT_EQ(*acknowledged.begin(), 0);
+  EXPECT_EQ(static_cast<int>(acknowledged.size()), last + 1) << "acknowledged out of order";
+  TilesWhenWritten(server, run, int64_t{400 * 110 / 2} * (stored + 1), dir);
+  server.Stop(SIGTERM);
+  const CommandResult check =
+      RunCommand("sqlite3 " + ShellQuote((dir / "data" / "index.sqlite").string()) +
+                     " 'PRAGMA integrity_check;'",
+                 dir);
+  EXPECT_EQ(check.out, "ok\n") << check.err;
+}
+
+TEST(Server, LiveHubStreamsPosesToPythonWebsocketClients) {
+  ScratchDir scratch("raillomer_server_");
+  const fs::path dir = scratch.path();
+  std::ofstream(dir / "live.yaml") << "ws_queue_messages: 32\n";
+  ServerProcess server(dir / "data", "--config " + ShellQuote((dir / "live.yaml").string()));
+  ASSERT_TRUE(server.ok()) << server.log();
+  const int64_t run = CreateRun(server, dir);
+  const int kPoses = 1500;
+  // Three clients read everything; a fourth subscribes and never reads (a tiny receive buffer),
+  // so its queue overflows: the others must still get every pose. Batches of 10 poses, one
+  // after another: far beyond the estimator's 10 Hz, in bursts the 32-message queues take.
+  const std::string script = (SourceDir() / "tests" / "server" / "live_clients.py").string();
+  const std::string command = "/usr/bin/python3 " + ShellQuote(script) + " --port " +
+                              std::to_string(server.ws_port()) + " --run " + std::to_string(run) +
+                              " --clients 3 --slow 1 --expect " + std::to_string(kPoses) +
+                              " --timeout 60 > " + ShellQuote((dir / "live.json").string());
+  std::thread clients([&] { std::system(command.c_str()); });
+  for (int i = 0; i < 200 && !fs::exists(dir / "live.json.ready"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  ASSERT_TRUE(fs::exists(dir / "live.json.ready")) << "the clients did not connect";
+  const std::string poses_url = server.Url("/api/v1/runs/" + std::to_string(run) + "/poses");
+  for (int batch = 0; batch < kPoses / 10; ++batch) {
+    json poses = json::array();
+    for (int i = 0; i < 10; ++i) {
+      const int seq = batch * 10 + i;
+      poses.push_back({{"sequence", seq},
+                       {"stamp_ns", 1'600'000'000'000'000'000 + int64_t(seq) * 10'000'000},
+                       {"georeferenced", true},
+                       {"utm_zone", "50N"},
+                       {"p", {432100.0 + seq * 0.1, 3585200.0, 30.0}},
+                       {"q", {0.0, 0.0, 0.0, 1.0}}});
+    }
+    std::ofstream(dir / "batch.json") << json{{"poses", poses}}.dump();
+    const CurlResult r = Curl(
+        Bearer(server.token()) + "-X POST -H 'Content-Type: application/json' --data-binary @" +
+            ShellQuote((dir / "batch.json").string()) + " " + ShellQuote(poses_url),
+        dir);
+    ASSERT_EQ(r.status, 200) << r.body;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  clients.join();
+  const json result = json::parse(ReadText(dir / "live.json"), nullptr, false);
+  ASSERT_TRUE(result.is_object()) << ReadText(dir / "live.json");
+  for (const auto& c : result["clients"]) {
+    EXPECT_EQ(c["poses"], kPoses) << result.dump();
+    EXPECT_TRUE(c["in_order"].get<bool>()) << result.dump();
+  }
+  const CurlResult metrics = Curl(ShellQuote(server.Url("/metrics")), dir);
+  const std::string name = "\nraillomer_live_messages_dropped_total ";
+  const size_t at = metrics.body.find(name);
+  ASSERT_NE(at, std::string::npos) << metrics.body;
+  EXPECT_GT(std::stoll(metrics.body.substr(at + name.size())), 0)
+      << "the slow client dropped nothing";
+}
+
+}  // namespace
+}  // namespace raillomer::test
