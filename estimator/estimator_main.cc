@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -12,6 +13,7 @@
 #include <CLI/CLI.hpp>
 
 #include "api/atomic_file.h"
+#include "api/ingest_client.h"
 #include "api/trajectory.h"
 #include "estimator/io/bag_reader.h"
 #include "estimator/mapping/map_export.h"
@@ -43,6 +45,9 @@ int main(int argc, char** argv) {
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
   bool no_gnss = false, no_submaps = false;
   std::string map_path, map_box_text;
+  std::string server_url, token, token_file, outbox_dir, line = "unnamed line",
+                                                         vehicle = "unnamed vehicle";
+  double server_wait_s = 120.0;
   double map_voxel_m = 0.1;
   auto* source = app.add_option_group("source", "Where the sensor data comes from");
   source->add_option("--bag", bag_path, "ROS1 bag of the sensor data contract");
@@ -88,6 +93,19 @@ int main(int argc, char** argv) {
                  "northing when georeferenced)");
   app.add_flag(
       "--quiet", quiet, "No progress line, configuration log or milestones (warnings still print)");
+  app.add_option("--server",
+                 server_url,
+                 "Stream poses and submaps to raillomer-server at this URL (http://host:port), "
+                 "through a durable outbox: an outage loses nothing");
+  app.add_option("--token", token, "With --server: the server's ingest token");
+  app.add_option("--token-file", token_file, "With --server: read the ingest token from this file");
+  app.add_option("--outbox", outbox_dir, "With --server: the outbox folder (default <out>/outbox)");
+  app.add_option("--line", line, "With --server: the railway line's name");
+  app.add_option("--vehicle", vehicle, "With --server: the vehicle's name");
+  app.add_option("--server-wait",
+                 server_wait_s,
+                 "With --server: seconds to wait at the end for the backlog to drain (default 120)")
+      ->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
 
   // Sensor source and configuration.
@@ -145,7 +163,7 @@ int main(int argc, char** argv) {
     std::cerr << "raillomer-estimator: " << (bag ? "bag " + bag_path : "simulator " + sim_scenario)
               << " -> " << out_dir << "\n";
     std::istringstream lines(config.Describe());
-    for (std::string line; std::getline(lines, line);) std::cerr << "  " << line << "\n";
+    for (std::string text; std::getline(lines, text);) std::cerr << "  " << text << "\n";
   }
 
   RunWriter writer;
@@ -179,22 +197,51 @@ int main(int argc, char** argv) {
     if (!map) return Fail(error);
   }
   if (!no_submaps && !writer.OpenSubmaps(&error)) return Fail(error);
+  // Streaming to the server, through the durable outbox.
+  std::unique_ptr<api::IngestClient> ingest;
+  if (server_url.empty() && (!token.empty() || !token_file.empty() || !outbox_dir.empty()))
+    return Fail("--token, --token-file and --outbox need --server <url>");
+  if (!server_url.empty()) {
+    if (!token_file.empty()) {
+      std::ifstream in(token_file);
+      if (!in || !std::getline(in, token)) return Fail("cannot read the token from " + token_file);
+    }
+    api::IngestClientOptions o;
+    o.server_url = server_url;
+    o.token = token;
+    o.outbox_dir = outbox_dir.empty() ? out_dir + "/outbox" : outbox_dir;
+    o.line = line;
+    o.vehicle = vehicle;
+    o.start_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                     std::chrono::system_clock::now().time_since_epoch())
+                     .count();
+    ingest = std::make_unique<api::IngestClient>(o);
+    ingest->SetWarningHandler([quiet](const std::string& m) {
+      std::cerr << (quiet ? "" : "\r") << "raillomer-estimator: server: " << m << "\n";
+    });
+    if (!ingest->Start(&error)) return Fail(error);
+  }
   struct Stream : api::StreamSink {
     RunWriter* writer;
     MapExporter* map;
+    api::IngestClient* ingest;
     bool write_submaps;
-    void OnPose(const api::StreamPose&) override {}
+    void OnPose(const api::StreamPose& p) override {
+      if (ingest) ingest->OnPose(p);
+    }
     void OnSubmap(const api::Submap& s) override {
       if (write_submaps) writer->WriteSubmap(s);
       if (map) map->Add(s);
+      if (ingest) ingest->OnSubmap(s);
     }
   } stream;
   stream.writer = &writer;
   stream.map = map.get();
+  stream.ingest = ingest.get();
   stream.write_submaps = !no_submaps;
 
   EstimatorSinks sinks;
-  if (!no_submaps || map) sinks.stream = &stream;
+  if (!no_submaps || map || ingest) sinks.stream = &stream;
   sinks.on_frame = [&](const FrameResult& f) { writer.WriteFrame(f); };
   if (config.options.write_keyframes)
     sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };
@@ -228,13 +275,19 @@ int main(int argc, char** argv) {
       const double total = bag ? data_end_s - data_start_s : data_end_s;
       std::fprintf(stderr,
                    "\r  %6.1f / %.1f s of data, %llu frames, %.2f km, %.1fx real time, median %.1f "
-                   "ms/frame   ",
+                   "ms/frame%s   ",
                    last_s - first_s,
                    total,
                    static_cast<unsigned long long>(estimator.stats().frames),
                    estimator.stats().distance_m / 1000.0,
                    (last_s - first_s) / wall,
-                   writer.MedianFrameMs());
+                   writer.MedianFrameMs(),
+                   ingest ? (", server backlog " + std::to_string(ingest->backlog().messages) +
+                             (ingest->backlog().connected || ingest->backlog().retries == 0
+                                  ? ""
+                                  : " (server away)"))
+                                .c_str()
+                          : "");
       std::fflush(stderr);
     }
   }
@@ -279,6 +332,24 @@ int main(int argc, char** argv) {
                  wall_s > 0 ? data_s / wall_s : 0.0,
                  writer.MedianFrameMs(),
                  writer.PercentileFrameMs(0.95));
+  }
+  if (ingest) {
+    if (!quiet)
+      std::cerr << "  server: sending the last " << ingest->backlog().messages
+                << " messages and finishing the run ...\n";
+    std::string drain_error;
+    const bool drained = ingest->Finish(server_wait_s, &drain_error);
+    const api::IngestClient::Backlog b = ingest->backlog();
+    if (!quiet || !drained) {
+      std::cerr << "  server: run " << b.run_id << ", " << b.sent << " messages acknowledged, "
+                << b.retries << " failed attempts, " << b.rejected << " rejected, " << b.messages
+                << " left in the outbox\n";
+    }
+    if (!drained) return Fail("the server did not take everything: " + drain_error);
+    if (b.rejected > 0)
+      return Fail(std::to_string(b.rejected) +
+                  " messages were rejected by the server (kept in "
+                  "the outbox's rejected/ folder)");
   }
   if (!input_error.empty()) {
     return Fail("the input stopped early: " + input_error + " (the " +

@@ -41,11 +41,12 @@ uint64_t Fnv1a(const std::string& bytes) {
 }
 
 /// A voxel of a tile (tile frame): x and y from 0, z from half a tile below the reference.
-uint64_t TileVoxel(const Eigen::Vector3f& o, double voxel_m) {
+uint64_t TileVoxel(const Eigen::Vector3f& o, float inverse_voxel) {
   constexpr int64_t kBias = int64_t{1} << 20;
   constexpr uint64_t kMask = (uint64_t{1} << 21) - 1;
   const auto axis = [&](float v, int64_t bias) {
-    return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v / voxel_m)) + bias) & kMask;
+    return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v * inverse_voxel)) + bias) &
+           kMask;
   };
   return (axis(o.x(), 0) << 42) | (axis(o.y(), 0) << 21) | axis(o.z(), kBias);
 }
@@ -186,7 +187,7 @@ class MapStore::Readers {
  private:
   void Give(std::unique_ptr<Database> db) {
     std::lock_guard<std::mutex> lock(mu_);
-    if (idle_.size() < 32) idle_.push_back(std::move(db));
+    if (idle_.size() < 512) idle_.push_back(std::move(db));  // one per serving thread
   }
   std::string path_;
   std::mutex mu_;
@@ -513,7 +514,7 @@ MapStore::HotTile* MapStore::Hot(int64_t run_id,
     tile->version = q.Int(0);
     tile->voxels.Reserve(tile->points.points.size());
     for (const Eigen::Vector3f& p : tile->points.points)
-      tile->voxels.Insert(TileVoxel(p, grid.VoxelM(key.level)));
+      tile->voxels.Insert(TileVoxel(p, static_cast<float>(1.0 / grid.VoxelM(key.level))));
   } else {
     tile->points = TilePoints();
     // The reference height on the coarsest voxel's lattice, like the corners, so that the
@@ -538,32 +539,49 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
   // new at a level go on to the next.
   std::vector<uint32_t> candidates(s.points.size()), next;
   for (size_t i = 0; i < candidates.size(); ++i) candidates[i] = static_cast<uint32_t>(i);
+  std::vector<TileKey> keys;                  // the tiles this level's points fall in
+  std::vector<std::vector<uint32_t>> bucket;  // ... and the points of each
   for (int level = 0; level < grid.levels && !candidates.empty(); ++level) {
-    const double voxel_m = grid.VoxelM(level);
-    HotTile* tile = nullptr;
-    Eigen::Vector3f shift = Eigen::Vector3f::Zero();  // submap origin in the tile frame
-    next.clear();
+    // Group the points by tile first: then each tile's voxels are filled in one tight loop.
+    keys.clear();
+    for (auto& b : bucket) b.clear();
+    const double inverse_side = 1.0 / grid.TileM(level);
     for (uint32_t i : candidates) {
       const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
-      const TileKey key = grid.KeyOf(p, level);
-      if (!tile || !(tile->key == key)) {
-        tile = Hot(run_id, s.utm_zone, key, p.z());
-        tile->touched = touch_;
-        shift = (s.origin - tile->points.origin).cast<float>();
+      const TileKey key{level,
+                        static_cast<int64_t>(std::floor(p.x() * inverse_side)),
+                        static_cast<int64_t>(std::floor(p.y() * inverse_side))};
+      size_t k = 0;
+      while (k < keys.size() && !(keys[k] == key)) ++k;
+      if (k == keys.size()) {
+        keys.push_back(key);
+        if (bucket.size() < keys.size()) bucket.emplace_back();
       }
+      bucket[k].push_back(i);
+    }
+    const float inverse_voxel = static_cast<float>(1.0 / grid.VoxelM(level));
+    next.clear();
+    for (size_t k = 0; k < keys.size(); ++k) {
+      const std::vector<uint32_t>& points = bucket[k];
+      HotTile* tile = Hot(run_id, s.utm_zone, keys[k], s.origin.z() + s.points[points[0]].z());
+      tile->touched = touch_;
       // Offsets first, then the shift: both small, so float keeps them to a micrometre.
-      const Eigen::Vector3f o = s.points[i] + shift;
-      if (!tile->quantization.Covers(o)) {
-        if (level == 0) ++receipt->points_off_grid;
-        continue;
+      const Eigen::Vector3f shift = (s.origin - tile->points.origin).cast<float>();
+      const TileQuantization& q = tile->quantization;
+      for (uint32_t i : points) {
+        const Eigen::Vector3f o = s.points[i] + shift;
+        if (!q.Covers(o)) {
+          if (level == 0) ++receipt->points_off_grid;
+          continue;
+        }
+        if (!tile->voxels.Insert(TileVoxel(o, inverse_voxel))) continue;
+        tile->points.points.push_back(o);
+        tile->points.intensities.push_back(
+            static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
+        tile->dirty = true;
+        ++hot_points_;
+        next.push_back(i);
       }
-      if (!tile->voxels.Insert(TileVoxel(o, voxel_m))) continue;
-      tile->points.points.push_back(o);
-      tile->points.intensities.push_back(
-          static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
-      tile->dirty = true;
-      ++hot_points_;
-      next.push_back(i);
     }
     if (level == 0) receipt->points_new = next.size();
     candidates.swap(next);
@@ -581,6 +599,7 @@ Result MapStore::Flush(std::vector<TileUpdate>* updated) {
     TilePoints points;
     TileQuantization quantization;
     int64_t version = 0;
+    size_t points_count = 0;
     std::string bytes, error;
     bool ok = false;
   };
@@ -595,6 +614,7 @@ Result MapStore::Flush(std::vector<TileUpdate>* updated) {
       p.key = k;
       p.tile = tile->key;
       p.points = tile->points;
+      p.points_count = tile->points.points.size();
       p.quantization = tile->quantization;
       p.version = ++tile->version;
       tile->dirty = false;
@@ -673,6 +693,7 @@ Result MapStore::Flush(std::vector<TileUpdate>* updated) {
   if (!t.Commit(&error)) return undo(error);
   for (const Pending& p : pending) --hot_.at(p.key)->in_flight;
   stats_.tiles_written += pending.size();
+  for (const Pending& p : pending) stats_.points_encoded += p.points_count;
   ++stats_.flushes;
   if (updated) *updated = done;
   const auto listener = listener_;
@@ -792,8 +813,9 @@ Result MapStore::Tile(int64_t run_id,
     info->max_error_m = q.Double(7);
     info->etag = q.Text(8);
   }
-  if (bytes) *bytes = q.Blob(9);
-  if (info) info->bytes = static_cast<int64_t>(q.Blob(9).size());
+  std::string blob = q.Blob(9);
+  if (info) info->bytes = static_cast<int64_t>(blob.size());
+  if (bytes) *bytes = std::move(blob);
   return {};
 }
 

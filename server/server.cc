@@ -15,6 +15,7 @@
 #include "mapstore/schema.h"
 #include "server/live_hub.h"
 #include "server/metrics.h"
+#include "server/tile_cache.h"
 
 namespace raillomer::server {
 namespace {
@@ -170,8 +171,10 @@ class Server::Impl {
     hub_ =
         std::make_unique<LiveHub>(hub_options, [this](const std::string& t) { return CanRead(t); });
     if (!hub_->Start(error)) return false;
-    store_->SetTileListener(
-        [this](const std::vector<mapstore::TileUpdate>& u) { hub_->PublishTiles(u); });
+    store_->SetTileListener([this](const std::vector<mapstore::TileUpdate>& u) {
+      tiles_.Invalidate(u);
+      hub_->PublishTiles(u);
+    });
     Routes();
     const int threads = config_.http_threads;
     http_.new_task_queue = [threads] { return new httplib::ThreadPool(threads); };
@@ -179,6 +182,10 @@ class Server::Impl {
     http_.set_read_timeout(config_.request_timeout_s, 0);
     http_.set_write_timeout(config_.request_timeout_s, 0);
     http_.set_keep_alive_timeout(std::min(config_.request_timeout_s, 30));
+    // Keep-alive connections stay open (httplib closes after 5 requests by default), and small
+    // answers go out at once rather than waiting on the client's delayed ACK (40 ms).
+    http_.set_keep_alive_max_count(100000);
+    http_.set_tcp_nodelay(true);
     if (config_.port == 0) {
       port_ = http_.bind_to_any_port(config_.host);
     } else {
@@ -273,6 +280,7 @@ class Server::Impl {
   std::unique_ptr<LiveHub> hub_;
   httplib::Server http_;
   Metrics metrics_;
+  TileCache tiles_{256u << 20};
   int port_ = -1;
   std::thread thread_;
   std::mutex stop_mu_;
@@ -514,36 +522,46 @@ void Server::Impl::Routes() {
                         "application/json");
       }));
 
-  http_.Get(R"(/api/v1/runs/(\d+)/tiles/(\d+)/(-?\d+)/(-?\d+))",
-            Route("tiles.get", false, [this](const httplib::Request& req, httplib::Response& res) {
-              int64_t id = 0;
-              if (!RunId(req, res, &id)) return;
-              mapstore::TileKey key;
-              try {
-                key.level = std::stoi(req.matches[2]);
-                key.ix = std::stoll(req.matches[3]);
-                key.iy = std::stoll(req.matches[4]);
-              } catch (const std::exception&) {
-                return SendError(res, 404, "not_found", "no such tile");
-              }
-              mapstore::TileInfo info;
-              std::string bytes;
-              const mapstore::Result r = store_->Tile(id, key, &info, &bytes);
-              if (!r) return SendResult(res, r);
-              res.set_header("ETag", info.etag);
-              // A tile of a live run changes as submaps arrive: revalidate with its ETag.
-              res.set_header("Cache-Control", "no-cache");
-              res.set_header("X-Tile-Origin",
-                             std::to_string(info.origin.x()) + " " +
-                                 std::to_string(info.origin.y()) + " " +
-                                 std::to_string(info.origin.z()));
-              res.set_header("X-Tile-Zone", info.utm_zone);
-              if (req.get_header_value("If-None-Match") == info.etag) {
-                res.status = 304;
-                return;
-              }
-              res.set_content(std::move(bytes), "application/octet-stream");
-            }));
+  http_.Get(
+      R"(/api/v1/runs/(\d+)/tiles/(\d+)/(-?\d+)/(-?\d+))",
+      Route("tiles.get", false, [this](const httplib::Request& req, httplib::Response& res) {
+        int64_t id = 0;
+        if (!RunId(req, res, &id)) return;
+        mapstore::TileKey key;
+        try {
+          key.level = std::stoi(req.matches[2]);
+          key.ix = std::stoll(req.matches[3]);
+          key.iy = std::stoll(req.matches[4]);
+        } catch (const std::exception&) {
+          return SendError(res, 404, "not_found", "no such tile");
+        }
+        std::shared_ptr<const TileCache::Entry> tile = tiles_.Get(id, key);
+        if (!tile) {
+          auto entry = std::make_shared<TileCache::Entry>();
+          const mapstore::Result r = store_->Tile(id, key, &entry->info, &entry->bytes);
+          if (!r) return SendResult(res, r);
+          tile = entry;
+          tiles_.Put(tile);
+        }
+        const mapstore::TileInfo& info = tile->info;
+        res.set_header("ETag", info.etag);
+        // A tile of a live run changes as submaps arrive: revalidate with its ETag.
+        res.set_header("Cache-Control", "no-cache");
+        res.set_header("X-Tile-Origin",
+                       std::to_string(info.origin.x()) + " " + std::to_string(info.origin.y()) +
+                           " " + std::to_string(info.origin.z()));
+        res.set_header("X-Tile-Zone", info.utm_zone);
+        if (req.get_header_value("If-None-Match") == info.etag) {
+          res.status = 304;
+          return;
+        }
+        // Straight from the cached bytes, without a copy.
+        res.set_content_provider(tile->bytes.size(),
+                                 "application/octet-stream",
+                                 [tile](size_t offset, size_t length, httplib::DataSink& sink) {
+                                   return sink.write(tile->bytes.data() + offset, length);
+                                 });
+      }));
 
   http_.Get(R"(/api/v1/runs/(\d+)/trajectory)",
             Route("trajectory", false, [this](const httplib::Request& req, httplib::Response& res) {

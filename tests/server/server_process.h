@@ -20,12 +20,13 @@ namespace raillomer::test {
 
 class ServerProcess {
  public:
-  /// Starts the server on `data` (extra flags appended) and waits until it serves.
-  ServerProcess(const std::filesystem::path& data, const std::string& flags = "")
+  /// Starts the server on `data` (on `port`, 0: the OS picks; extra flags appended) and waits
+  /// until it serves.
+  ServerProcess(const std::filesystem::path& data, const std::string& flags = "", int port = 0)
       : data_(data), log_(data.string() + ".log") {
     const std::string command = "exec " + (BinDir() / "raillomer-server").string() + " --data " +
-                                ShellQuote(data.string()) + " --port 0 --ws-port 0 " + flags +
-                                " >" + ShellQuote(log_) + " 2>&1";
+                                ShellQuote(data.string()) + " --port " + std::to_string(port) +
+                                " --ws-port 0 " + flags + " >" + ShellQuote(log_) + " 2>&1";
     pid_ = fork();
     if (pid_ == 0) {
       execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));

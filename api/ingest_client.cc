@@ -1,0 +1,302 @@
+#include "api/ingest_client.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cinttypes>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+
+#include <httplib.h>
+#include <nlohmann/json.hpp>
+
+#include "api/atomic_file.h"
+
+namespace raillomer::api {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+std::string ReadAll(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+/// Outbox files in sending order: "<order>.<kind>", order zero-padded.
+std::vector<fs::path> Pending(const std::string& dir) {
+  std::vector<fs::path> files;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (e.is_regular_file() && name.size() > 13 && name[12] == '.' &&
+        std::all_of(name.begin(), name.begin() + 12, ::isdigit))
+      files.push_back(e.path());
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+}  // namespace
+
+IngestClient::IngestClient(IngestClientOptions options) : options_(std::move(options)) {}
+
+IngestClient::~IngestClient() {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    FlushPosesLocked();
+    stopping_ = true;
+  }
+  wake_.notify_all();
+  if (sender_.joinable()) sender_.join();
+}
+
+void IngestClient::SetWarningHandler(std::function<void(const std::string&)> handler) {
+  std::lock_guard<std::mutex> lock(mu_);
+  warn_ = std::move(handler);
+}
+
+bool IngestClient::Start(std::string* error) {
+  if (options_.server_url.rfind("http://", 0) != 0) {
+    *error = "the server URL must start with http:// (got '" + options_.server_url + "')";
+    return false;
+  }
+  if (options_.token.empty()) {
+    *error = "streaming to a server needs its ingest token (--token)";
+    return false;
+  }
+  std::error_code ec;
+  fs::create_directories(fs::path(options_.outbox_dir) / "rejected", ec);
+  if (ec) {
+    *error = "cannot create the outbox " + options_.outbox_dir + ": " + ec.message();
+    return false;
+  }
+  // Resume: a run begun by an earlier start goes on, after what its outbox still holds.
+  const fs::path run_file = fs::path(options_.outbox_dir) / "run.json";
+  if (fs::exists(run_file)) {
+    const json j = json::parse(ReadAll(run_file), nullptr, false);
+    if (j.is_object() && j.value("server", "") == options_.server_url)
+      backlog_.run_id = j.value("run_id", int64_t{0});
+  }
+  for (const fs::path& f : Pending(options_.outbox_dir)) {
+    next_file_ =
+        std::max<uint64_t>(next_file_, std::stoull(f.filename().string().substr(0, 12)) + 1);
+    ++backlog_.messages;
+    backlog_.bytes += fs::file_size(f, ec);
+  }
+  sender_ = std::thread([this] { SenderLoop(); });
+  return true;
+}
+
+void IngestClient::WriteMessage(const std::string& kind, const std::string& bytes) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "%012" PRIu64 ".", next_file_++);
+  std::string error;
+  if (!WriteFileAtomically(
+          (fs::path(options_.outbox_dir) / (name + kind)).string(), bytes, &error)) {
+    backlog_.last_error = "cannot write to the outbox: " + error;
+    if (warn_) warn_(backlog_.last_error);
+    return;
+  }
+  ++backlog_.messages;
+  backlog_.bytes += bytes.size();
+  wake_.notify_all();
+}
+
+void IngestClient::FlushPosesLocked() {
+  if (poses_.empty()) return;
+  json list = json::array();
+  for (const StreamPose& p : poses_) {
+    list.push_back({{"sequence", p.sequence},
+                    {"stamp_ns", p.stamp_ns},
+                    {"georeferenced", p.georeferenced},
+                    {"utm_zone", p.utm_zone},
+                    {"p", {p.p.x(), p.p.y(), p.p.z()}},
+                    {"q", {p.q.x(), p.q.y(), p.q.z(), p.q.w()}}});
+  }
+  poses_.clear();
+  WriteMessage("poses.json", json{{"poses", list}}.dump());
+}
+
+void IngestClient::OnPose(const StreamPose& pose) {
+  std::lock_guard<std::mutex> lock(mu_);
+  poses_.push_back(pose);
+  if (poses_.size() >= std::max<size_t>(1, options_.poses_per_batch)) FlushPosesLocked();
+}
+
+void IngestClient::OnSubmap(const Submap& submap) {
+  const std::string bytes = EncodeSubmapPcd(submap);
+  std::lock_guard<std::mutex> lock(mu_);
+  FlushPosesLocked();  // the poses before it go first
+  WriteMessage("submap.pcd", bytes);
+}
+
+bool IngestClient::Finish(double wait_s, std::string* error) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    FlushPosesLocked();
+    const int64_t end_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                               std::chrono::system_clock::now().time_since_epoch())
+                               .count();
+    WriteMessage("finish.json", json{{"end_ns", end_ns}}.dump());
+    finishing_ = true;
+  }
+  std::unique_lock<std::mutex> lock(mu_);
+  const bool drained = wake_.wait_for(lock,
+                                      std::chrono::duration<double>(std::max(0.0, wait_s)),
+                                      [this] { return backlog_.messages == 0; });
+  if (!drained) {
+    *error = std::to_string(backlog_.messages) + " messages (" +
+             std::to_string(backlog_.bytes / 1024) + " KiB) are still in the outbox " +
+             options_.outbox_dir +
+             (backlog_.last_error.empty() ? "" : " (" + backlog_.last_error + ")") +
+             ": the next start with this outbox sends them";
+  }
+  return drained;
+}
+
+IngestClient::Backlog IngestClient::backlog() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return backlog_;
+}
+
+bool IngestClient::EnsureRun(std::string* error) {
+  if (backlog_.run_id != 0) return true;
+  httplib::Client client(options_.server_url);
+  client.set_bearer_token_auth(options_.token);
+  client.set_connection_timeout(2, 0);
+  client.set_read_timeout(static_cast<time_t>(options_.request_timeout_s), 0);
+  const json body = {
+      {"line", options_.line}, {"vehicle", options_.vehicle}, {"start_ns", options_.start_ns}};
+  const auto r = client.Post("/api/v1/runs", body.dump(), "application/json");
+  if (!r) {
+    *error = "cannot reach " + options_.server_url + ": " + httplib::to_string(r.error());
+    return false;
+  }
+  if (r->status != 201) {
+    *error = "the server refused to create the run (" + std::to_string(r->status) + "): " + r->body;
+    return false;
+  }
+  const json j = json::parse(r->body, nullptr, false);
+  const int64_t id = j.is_object() ? j.value("id", int64_t{0}) : 0;
+  if (id <= 0) {
+    *error = "the server's answer has no run id: " + r->body;
+    return false;
+  }
+  std::string write_error;
+  WriteFileAtomically((fs::path(options_.outbox_dir) / "run.json").string(),
+                      json{{"run_id", id}, {"server", options_.server_url}}.dump(),
+                      &write_error);
+  std::lock_guard<std::mutex> lock(mu_);
+  backlog_.run_id = id;
+  return true;
+}
+
+bool IngestClient::SendOne(const std::string& path, std::string* error, bool* rejected) {
+  *rejected = false;
+  const std::string name = fs::path(path).filename().string();
+  const std::string kind = name.substr(13);
+  const std::string run = "/api/v1/runs/" + std::to_string(backlog_.run_id);
+  std::string target, content_type = "application/json";
+  if (kind == "poses.json") {
+    target = run + "/poses";
+  } else if (kind == "submap.pcd") {
+    target = run + "/submaps";
+    content_type = "application/octet-stream";
+  } else if (kind == "finish.json") {
+    target = run + "/finish";
+  } else {
+    *error = "unknown outbox file " + name;
+    *rejected = true;
+    return false;
+  }
+  httplib::Client client(options_.server_url);
+  client.set_bearer_token_auth(options_.token);
+  client.set_connection_timeout(2, 0);
+  client.set_read_timeout(static_cast<time_t>(options_.request_timeout_s), 0);
+  const auto r = client.Post(target, ReadAll(path), content_type);
+  if (!r) {
+    *error = "cannot reach " + options_.server_url + ": " + httplib::to_string(r.error());
+    return false;
+  }
+  if (r->status >= 200 && r->status < 300) return true;
+  *error = name + ": the server answered " + std::to_string(r->status) + ": " + r->body;
+  // A bad message stays bad; a refused token or a failing server may be fixed: retry those.
+  *rejected = r->status >= 400 && r->status < 500 && r->status != 401 && r->status != 408 &&
+              r->status != 429;
+  return false;
+}
+
+void IngestClient::SenderLoop() {
+  double backoff_s = 0.05;
+  auto warn = [&](const std::string& m) {
+    std::function<void(const std::string&)> w;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      backlog_.last_error = m;
+      w = warn_;
+    }
+    if (w) w(m);
+  };
+  auto wait = [&](double s) {
+    std::unique_lock<std::mutex> lock(mu_);
+    wake_.wait_for(lock, std::chrono::duration<double>(s), [this] { return stopping_; });
+  };
+  bool was_connected = true;
+  while (true) {
+    std::vector<fs::path> files = Pending(options_.outbox_dir);
+    if (files.empty()) {
+      std::unique_lock<std::mutex> lock(mu_);
+      if (stopping_) return;
+      wake_.wait_for(lock, std::chrono::milliseconds(200));
+      continue;
+    }
+    std::string error;
+    bool rejected = false;
+    bool ok = EnsureRun(&error);
+    if (ok) ok = SendOne(files.front().string(), &error, &rejected);
+    std::error_code ec;
+    const uint64_t size = fs::file_size(files.front(), ec);
+    if (ok || rejected) {
+      if (rejected) {
+        fs::rename(files.front(),
+                   fs::path(options_.outbox_dir) / "rejected" / files.front().filename(),
+                   ec);
+        warn("rejected, kept in " + options_.outbox_dir + "/rejected: " + error);
+      } else {
+        fs::remove(files.front(), ec);
+        if (files.front().filename().string().substr(13) == "finish.json")
+          fs::remove(fs::path(options_.outbox_dir) / "run.json", ec);  // the run is complete
+      }
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        --backlog_.messages;
+        backlog_.bytes -= std::min<uint64_t>(backlog_.bytes, size);
+        ++(rejected ? backlog_.rejected : backlog_.sent);
+        backlog_.connected = true;
+      }
+      wake_.notify_all();
+      if (!was_connected) warn("the server is back; sending the backlog");
+      was_connected = true;
+      backoff_s = 0.05;
+      continue;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      ++backlog_.retries;
+      backlog_.connected = false;
+      if (stopping_ && !finishing_) return;  // the outbox keeps the rest for the next start
+    }
+    if (was_connected) warn(error + "; buffering in " + options_.outbox_dir + " and retrying");
+    was_connected = false;
+    wait(backoff_s);
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (stopping_) return;
+    }
+    backoff_s = std::min(options_.retry_max_s, backoff_s * 2.0);
+  }
+}
+
+}  // namespace raillomer::api
