@@ -1,5 +1,7 @@
 #include "server/server.h"
 
+#include <sys/socket.h>
+
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -181,11 +183,21 @@ class Server::Impl {
     http_.set_payload_max_length(config_.max_body_bytes);
     http_.set_read_timeout(config_.request_timeout_s, 0);
     http_.set_write_timeout(config_.request_timeout_s, 0);
-    http_.set_keep_alive_timeout(std::min(config_.request_timeout_s, 30));
+    http_.set_keep_alive_timeout(std::min(config_.request_timeout_s, 5));
     // Keep-alive connections stay open (httplib closes after 5 requests by default), and small
     // answers go out at once rather than waiting on the client's delayed ACK (40 ms).
     http_.set_keep_alive_max_count(100000);
     http_.set_tcp_nodelay(true);
+    // The listening socket: SO_REUSEADDR (a restart right after a crash binds again) but not
+    // httplib's SO_REUSEPORT (a second server on the same port must fail, not share it); its
+    // fd is kept to widen the accept backlog, which Debian's build of httplib leaves at 5 (64
+    // clients connecting at once would wait for SYN retries, 1-3 s).
+    int listen_fd = -1;
+    http_.set_socket_options([&listen_fd](socket_t sock) {
+      int yes = 1;
+      setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+      listen_fd = sock;
+    });
     if (config_.port == 0) {
       port_ = http_.bind_to_any_port(config_.host);
     } else {
@@ -196,6 +208,7 @@ class Server::Impl {
                " (in use, or not an address of this machine?)";
       return false;
     }
+    if (listen_fd >= 0) ::listen(listen_fd, SOMAXCONN);
     thread_ = std::thread([this] { http_.listen_after_bind(); });
     const auto deadline = Clock::now() + std::chrono::seconds(10);
     while (!http_.is_running()) {

@@ -22,7 +22,7 @@ struct ServerConfig {
   std::string read_token;
   size_t max_body_bytes = 64u << 20;  ///< a request body beyond it is refused (413)
   int request_timeout_s = 30;         ///< reading or writing a request, per socket operation
-  int http_threads = 96;              ///< one per open connection (keep-alive holds one)
+  int http_threads = 256;             ///< one per open connection (keep-alive holds one)
   int ws_threads = 2;
   size_t ws_queue_messages = 512;  ///< per live client; beyond it old poses are dropped
   std::string web_root;            ///< the viewer's static files (empty: none served)

@@ -4,7 +4,7 @@
 // level-0 tiles are decoded and each point checked against the nearest submap point.
 //
 //   map_store_benchmark --submaps <dir> [--store <dir>] [--repeat N] [--no-error-check]
-//                       [--draco-speed N] [--flush-points N]
+//                       [--tile-m M] [--draco-speed N] [--flush-points N]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -54,6 +54,8 @@ int main(int argc, char** argv) {
       submaps_dir = argv[++i];
     } else if (a == "--store" && i + 1 < argc) {
       store_dir = argv[++i];
+    } else if (a == "--tile-m" && i + 1 < argc) {
+      options.grid.tile_m = std::atof(argv[++i]);
     } else if (a == "--draco-speed" && i + 1 < argc) {
       options.draco_speed = std::atoi(argv[++i]);
     } else if (a == "--flush-points" && i + 1 < argc) {
@@ -65,7 +67,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s --submaps <dir> [--store <dir>] [--repeat N] [--no-error-check] "
-                   "[--draco-speed N] [--flush-points N]\n",
+                   "[--tile-m M] [--draco-speed N] [--flush-points N]\n",
                    argv[0]);
       return 2;
     }

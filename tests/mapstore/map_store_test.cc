@@ -105,14 +105,14 @@ TEST(MapStore, StoresSubmapsAsTilesWithALevelOfDetailPyramid) {
     EXPECT_GT(coarse.size(), 0u);
     previous = coarse.size();
   }
-  // The corridor runs 120 m east from x = 432100: tiles 6751-6753 of 64 m at level 0.
+  // The corridor runs 120 m east from x = 432100: tiles 13503-13506 of 32 m at level 0.
   std::vector<TileInfo> tiles;
   const Eigen::AlignedBox2d first(Eigen::Vector2d(432100.0, 3585190.0),
                                   Eigen::Vector2d(432110.0, 3585210.0));
   ASSERT_TRUE(store->TilesInBox(run, 0, first, &tiles));
   ASSERT_EQ(tiles.size(), 1u);
-  EXPECT_EQ(tiles[0].key.ix, 6751);
-  EXPECT_EQ(tiles[0].key.iy, 56018);
+  EXPECT_EQ(tiles[0].key.ix, 13503);
+  EXPECT_EQ(tiles[0].key.iy, 112037);
   EXPECT_LE(tiles[0].max_error_m, 0.005);
   EXPECT_EQ(tiles[0].version, 1);
   EXPECT_EQ(tiles[0].etag.front(), '"');

@@ -17,6 +17,13 @@
 namespace raillomer::mapstore {
 namespace {
 
+/// A grid of 64 m tiles (a 128 m quantisation cube), whatever the default.
+TileGrid Grid64() {
+  TileGrid grid;
+  grid.tile_m = 64.0;
+  return grid;
+}
+
 TilePoints RandomTile(size_t n, const TileQuantization& q, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
@@ -59,7 +66,7 @@ double WorstMatch(const TilePoints& a, const TilePoints& b) {
 
 TEST(TileQuantization, BitsKeepTheErrorWithinWhatIsAsked) {
   EXPECT_EQ(TileQuantization::BitsFor(128.0, 0.005), 14);  // 3.9 mm
-  TileGrid grid;
+  const TileGrid grid = Grid64();
   const TileQuantization q = grid.Quantization(0);
   EXPECT_LE(q.MaxErrorM(), 0.005);
   EXPECT_GT(q.MaxErrorM(), 0.0025);  // not a bit more than needed
@@ -70,7 +77,7 @@ TEST(TileQuantization, BitsKeepTheErrorWithinWhatIsAsked) {
 }
 
 TEST(TileCodec, RoundTripWithinTheStatedErrorAndLosslessOnItsGrid) {
-  const TileQuantization q = TileGrid().Quantization(0);
+  const TileQuantization q = Grid64().Quantization(0);
   const TilePoints tile = RandomTile(2000, q, 1);
   std::string bytes, error;
   ASSERT_TRUE(EncodeTile(tile, q, 5, &bytes, &error)) << error;
@@ -95,7 +102,7 @@ TEST(TileCodec, RoundTripWithinTheStatedErrorAndLosslessOnItsGrid) {
 TEST(TileCodec, RefusesWhatIsNotATile) {
   std::string bytes, error;
   TilePoints empty;
-  const TileQuantization q = TileGrid().Quantization(0);
+  const TileQuantization q = Grid64().Quantization(0);
   EXPECT_FALSE(EncodeTile(empty, q, 5, &bytes, &error));
   TilePoints off = RandomTile(10, q, 2);
   off.points[3].z() = 500.0f;
@@ -111,7 +118,7 @@ TEST(TileCodec, RefusesWhatIsNotATile) {
 TEST(TileCodec, DebiansDracoDecoderReadsOurTiles) {
   test::ScratchDir dir("raillomer_tile_");
   ASSERT_FALSE(dir.path().empty());
-  const TileQuantization q = TileGrid().Quantization(0);
+  const TileQuantization q = Grid64().Quantization(0);
   const TilePoints tile = RandomTile(300, q, 4);
   std::string bytes, error;
   ASSERT_TRUE(EncodeTile(tile, q, 5, &bytes, &error)) << error;
