@@ -5,6 +5,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <sstream>
 
 namespace raillomer::api {
@@ -57,6 +58,7 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
   size_t pos = 0;
   size_t points = 0;
   bool have_points = false, have_origin = false, have_fields = false;
+  std::set<std::string> seen;  // single-valued header lines
   while (pos < bytes.size()) {
     const size_t end = bytes.find('\n', pos);
     if (end == std::string::npos) return fail("the header has no DATA line");
@@ -69,6 +71,8 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
       std::string tag, what;
       in >> tag >> what;
       if (tag != "raillomer") continue;
+      if (what != "keyframe" && !seen.insert(what).second)
+        return fail("the header has a second '" + what + "' line");
       if (what == "sequence") {
         std::string k1, k2;
         size_t keyframes = 0;

@@ -21,6 +21,8 @@ packages=(
   librosbag-storage-dev libsensor-msgs-dev librcpputils-dev libament-index-cpp-dev
   # tests, benchmarks and the independent bag check
   libgtest-dev libgmock-dev libbenchmark-dev python3 python3-rosbag python3-yaml
+  # the slow tier's fuzz target (libFuzzer with clang)
+  clang
 )
 
 if [ "$(id -u)" -ne 0 ]; then
