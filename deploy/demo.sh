@@ -1,18 +1,44 @@
 #!/usr/bin/env bash
 # The main job end to end on the embedded default: simulate the 30 s demo run (two LiDARs, IMU,
-# odometer, GNSS) into runs/demo, run the estimator on the recorded bag, then score the estimate
-# and the GNSS receiver's fixes against the ground truth (the estimate in UTM, as it comes, and
-# its map's sharpness).
+# odometer, GNSS) into runs/demo, start raillomer-server (runs/server, http://127.0.0.1:8470),
+# run the estimator on the recorded bag streaming its poses and submaps to the server, score the
+# estimate and the GNSS receiver's fixes against the ground truth (the estimate in UTM, as it
+# comes, and its map's sharpness), and leave the server up with the run on its API.
 # Usage: bash deploy/demo.sh [scenario] [out_dir]   (as root on Debian 12)
+# Environment: RAILLOMER_PORT (default 8470), RAILLOMER_SERVER_DATA (default runs/server).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scenario="${1:-demo}"
 out="${2:-runs/$scenario}"
+port="${RAILLOMER_PORT:-8470}"
+data="${RAILLOMER_SERVER_DATA:-runs/server}"
 bash deploy/install-deps.sh
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release
-cmake --build build -j2 --target raillomer-sim raillomer-eval raillomer-estimator
+cmake --build build -j2 --target raillomer-sim raillomer-eval raillomer-estimator raillomer-server
 ./build/bin/raillomer-sim --scenario "$scenario" --out "$out"
-./build/bin/raillomer-estimator --bag "$out/run.bag" --config "$out/rig.yaml" --out "$out/estimate"
+
+# The server: reuse one this script started before, else start it in the background.
+mkdir -p "$data"
+if [ -f "$data/server.pid" ] && kill -0 "$(cat "$data/server.pid")" 2>/dev/null &&
+    curl -sf "http://127.0.0.1:$port/health" >/dev/null; then
+  echo "demo: raillomer-server already up on port $port (pid $(cat "$data/server.pid"))"
+else
+  nohup ./build/bin/raillomer-server --data "$data" --port "$port" >"$data/server.log" 2>&1 &
+  echo $! >"$data/server.pid"
+  for _ in $(seq 100); do
+    curl -sf "http://127.0.0.1:$port/health" >/dev/null && break
+    if ! kill -0 "$(cat "$data/server.pid")" 2>/dev/null; then
+      cat "$data/server.log" >&2
+      echo "demo: raillomer-server did not start (port $port in use? set RAILLOMER_PORT)" >&2
+      exit 1
+    fi
+    sleep 0.1
+  done
+fi
+
+./build/bin/raillomer-estimator --bag "$out/run.bag" --config "$out/rig.yaml" --out "$out/estimate" \
+  --server "http://127.0.0.1:$port" --token-file "$data/ingest.token" \
+  --line "Demo line" --vehicle "RLM-1"
 # A georeferenced estimate (GNSS aligned: the trajectory starts with "# utm_zone") is scored in
 # UTM as it is; one left in the local odometry frame is first aligned in SE(3).
 align=se3
@@ -23,5 +49,12 @@ if head -n 1 "$out/estimate/trajectory.tum" | grep -q '^# utm_zone'; then align=
   --scenario "$scenario" --submaps "$out/estimate/submaps"
 ./build/bin/raillomer-eval --estimate "$out/gnss.tum" --truth "$out/truth.tum" --align none \
   --json "$out/gnss_eval.json" --plot "$out/gnss_eval.svg"
+run=$(curl -sf "http://127.0.0.1:$port/api/v1/runs" | /usr/bin/python3 -c \
+  'import json,sys; print(json.load(sys.stdin)["runs"][-1]["id"])')
 echo "demo: outputs in $out (run.bag, truth.tum, gnss.tum, rig.yaml, estimate/, estimate_eval.json,"
 echo "      estimate_eval.svg, gnss_eval.json, gnss_eval.svg)"
+echo "demo: raillomer-server is up at http://127.0.0.1:$port/ (data in $data, log $data/server.log):"
+echo "      curl http://127.0.0.1:$port/api/v1/runs/$run"
+echo "      curl 'http://127.0.0.1:$port/api/v1/runs/$run/tiles?level=0'"
+echo "      curl 'http://127.0.0.1:$port/api/v1/runs/$run/trajectory?format=geojson'"
+echo "      stop it with: kill \$(cat $data/server.pid)"

@@ -8,6 +8,7 @@
 #include <set>
 
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 #include <nlohmann/json.hpp>
 
 #include "api/stream.h"
@@ -399,6 +400,39 @@ TEST(Server, LiveHubStreamsPosesToPythonWebsocketClients) {
   ASSERT_NE(at, std::string::npos) << metrics.body;
   EXPECT_GT(std::stoll(metrics.body.substr(at + name.size())), 0)
       << "the slow client dropped nothing";
+}
+
+TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
+  ScratchDir scratch("raillomer_server_");
+  ServerProcess server(scratch.path() / "data");
+  ASSERT_TRUE(server.ok()) << server.log();
+  CreateRun(server, scratch.path());
+  const YAML::Node doc = YAML::LoadFile((SourceDir() / "api" / "openapi.yaml").string());
+  ASSERT_EQ(doc["openapi"].as<std::string>().rfind("3.", 0), 0u);
+  int routes = 0;
+  for (const auto& entry : doc["paths"]) {
+    std::string path = entry.first.as<std::string>();
+    for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
+             {"{run}", "1"}, {"{level}", "0"}, {"{ix}", "0"}, {"{iy}", "0"}}) {
+      const size_t at = path.find(from);
+      if (at != std::string::npos) path.replace(at, from.size(), to);
+    }
+    for (const char* method : {"get", "post", "put", "delete"}) {
+      if (!entry.second[method]) continue;
+      ++routes;
+      std::string upper = method;
+      for (char& c : upper) c = static_cast<char>(std::toupper(c));
+      const std::string body = upper == "GET" ? "" : "--data-binary '{}' ";
+      const CurlResult r = Curl("-X " + upper + " -H 'Content-Type: application/json' " + body +
+                                    Bearer(server.token()) + ShellQuote(server.Url(path)),
+                                scratch.path());
+      // Anything but the router's own "no resource": the route exists (a 404 for a missing
+      // tile is the route answering).
+      EXPECT_NE(r.status, 0) << upper << " " << path;
+      EXPECT_EQ(r.body.find("no resource at"), std::string::npos) << upper << " " << path;
+    }
+  }
+  EXPECT_GE(routes, 12);
 }
 
 TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
