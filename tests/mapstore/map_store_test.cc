@@ -35,6 +35,18 @@ int64_t NewRunId(MapStore& store, const std::string& line = "Test line") {
   return run.id;
 }
 
+/// Opens a store in `dir`, stores a run of `submaps` corridor submaps and closes it; the run id.
+int64_t StoreRun(const std::string& dir, uint32_t submaps) {
+  std::string error;
+  auto store = OpenStore(dir, &error);
+  EXPECT_TRUE(store) << error;
+  if (!store) return 0;
+  const int64_t run = NewRunId(*store);
+  for (uint32_t i = 0; i < submaps; ++i)
+    EXPECT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
+  return run;
+}
+
 /// Every point of the run's level-0 tiles, as UTM.
 std::vector<Eigen::Vector3d> AllPoints(MapStore& store, int64_t run_id, int level = 0) {
   std::vector<TileInfo> tiles;
@@ -229,14 +241,7 @@ TEST(MapStore, BadInputIsRefusedWithAMessageAndChangesNothing) {
 TEST(MapStore, ReopensWithEverythingAndMergesIncrementally) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
-  int64_t run = 0;
-  {
-    auto store = OpenStore(dir.path().string(), &error);
-    ASSERT_TRUE(store) << error;
-    run = NewRunId(*store);
-    for (uint32_t i = 0; i < 2; ++i)
-      ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
-  }  // closing writes the tiles
+  const int64_t run = StoreRun(dir.path().string(), 2);  // closing the store writes the tiles
   auto store = OpenStore(dir.path().string(), &error);
   ASSERT_TRUE(store) << error;
   const size_t two = AllPoints(*store, run).size();
@@ -255,13 +260,7 @@ TEST(MapStore, ReopensWithEverythingAndMergesIncrementally) {
 TEST(MapStore, ASubmapAcknowledgedBeforeACrashIsInTheTilesAfterRestart) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
-  int64_t run = 0;
-  {
-    auto store = OpenStore(dir.path().string(), &error);
-    ASSERT_TRUE(store) << error;
-    run = NewRunId(*store);
-    ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(0)), nullptr));
-  }
+  const int64_t run = StoreRun(dir.path().string(), 1);
   // A child process stores three more submaps, acknowledged but not yet in written tiles, and
   // dies without cleaning up.
   const pid_t child = fork();
