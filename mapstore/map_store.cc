@@ -379,7 +379,222 @@ Result MapStore::FinishRun(int64_t run_id, int64_t end_ns, RunInfo* out) {
   if (end_ns < run.start_ns) return Fail(Outcome::kInvalid, "end_ns is before the run's start_ns");
   Statement u(*writer_, "UPDATE runs SET status = 'finished', end_ns = ? WHERE id = ?");
   if (!u.Bind(1, end_ns).Bind(2, run_id).Run()) return Fail(Outcome::kError, u.error());
+  r = DefineCentrelineLocked(run);
+  if (!r) return r;
   return RunLocked(*writer_, run_id, out);
+}
+
+Result MapStore::DefineCentrelineLocked(const RunInfo& run) {
+  LineInfo line;
+  Result r = LineLocked(*writer_, run.line, &line);
+  if (!r) return r;
+  if (line.reference_run != 0) return {};
+  std::vector<api::StreamPose> poses;
+  Statement q(*writer_,
+              "SELECT georeferenced, utm_zone, x, y, z, qx, qy, qz, qw FROM poses WHERE run_id = "
+              "? ORDER BY sequence");
+  q.Bind(1, run.id);
+  while (q.Step()) {
+    api::StreamPose p;
+    p.georeferenced = q.Int(0) != 0;
+    p.utm_zone = q.Text(1);
+    p.p = Eigen::Vector3d(q.Double(2), q.Double(3), q.Double(4));
+    p.q = Eigen::Quaterniond(q.Double(8), q.Double(5), q.Double(6), q.Double(7));
+    poses.push_back(p);
+  }
+  const std::vector<CentrelinePoint> centreline = BuildCentreline(poses, 1.0);
+  if (centreline.size() < 2) return {};  // nothing usable: a later run may define it
+  std::string zone;
+  for (const auto& p : poses)
+    if (p.georeferenced) {
+      zone = p.utm_zone;
+      break;
+    }
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  Statement put(*writer_,
+                "INSERT INTO centreline (line, seq, chainage_m, x, y, z, cant_m) VALUES (?, ?, "
+                "?, ?, ?, ?, ?)");
+  for (size_t i = 0; i < centreline.size(); ++i) {
+    const CentrelinePoint& c = centreline[i];
+    put.Reset();
+    put.Bind(1, run.line)
+        .Bind(2, static_cast<int64_t>(i))
+        .Bind(3, c.chainage_m)
+        .Bind(4, c.p.x())
+        .Bind(5, c.p.y())
+        .Bind(6, c.p.z())
+        .Bind(7, c.cant_m);
+    if (!put.Run()) return Fail(Outcome::kError, put.error());
+  }
+  Statement set(*writer_, "UPDATE lines SET reference_run = ?, utm_zone = ? WHERE name = ?");
+  if (!set.Bind(1, run.id).Bind(2, zone).Bind(3, run.line).Run())
+    return Fail(Outcome::kError, set.error());
+  std::string error;
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  return {};
+}
+
+Result MapStore::LineLocked(const Database& db, const std::string& name, LineInfo* out) const {
+  Statement q(db,
+              "SELECT l.name, IFNULL(l.reference_run, 0), IFNULL(l.utm_zone, ''), "
+              "l.chainage_offset_m, (SELECT IFNULL(MAX(chainage_m), 0) FROM centreline c WHERE "
+              "c.line = l.name), (SELECT COUNT(*) FROM runs r WHERE r.line = l.name) FROM lines l "
+              "WHERE l.name = ?");
+  if (!q.ok()) return Fail(Outcome::kError, q.error());
+  q.Bind(1, name);
+  if (!q.Step()) {
+    if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+    return Fail(Outcome::kNotFound, "no line '" + name + "'");
+  }
+  LineInfo l;
+  l.name = q.Text(0);
+  l.reference_run = q.Int(1);
+  l.utm_zone = q.Text(2);
+  l.chainage_offset_m = q.Double(3);
+  l.length_m = q.Double(4);
+  l.runs = q.Int(5);
+  if (out) *out = l;
+  return {};
+}
+
+Result MapStore::CentrelineLocked(const Database& db,
+                                  const std::string& name,
+                                  std::vector<CentrelinePoint>* out) const {
+  Statement q(db, "SELECT chainage_m, x, y, z, cant_m FROM centreline WHERE line = ? ORDER BY seq");
+  q.Bind(1, name);
+  out->clear();
+  while (q.Step()) {
+    CentrelinePoint c;
+    c.chainage_m = q.Double(0);
+    c.p = Eigen::Vector3d(q.Double(1), q.Double(2), q.Double(3));
+    c.cant_m = q.Double(4);
+    out->push_back(c);
+  }
+  if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+  return {};
+}
+
+Result MapStore::ListLines(std::vector<LineInfo>* lines) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Statement q(*db, "SELECT name FROM lines ORDER BY name");
+  lines->clear();
+  while (q.Step()) {
+    LineInfo l;
+    const Result r = LineLocked(*db, q.Text(0), &l);
+    if (!r) return r;
+    lines->push_back(l);
+  }
+  return {};
+}
+
+Result MapStore::GetLine(const std::string& name, LineInfo* line) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  return LineLocked(*db, name, line);
+}
+
+Result MapStore::Segment(const std::string& name,
+                         double from_m,
+                         double to_m,
+                         TrackSegment* out) const {
+  if (!std::isfinite(from_m) || !std::isfinite(to_m) || from_m >= to_m)
+    return Fail(Outcome::kInvalid, "the chainage range must be finite with from < to");
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Result r = LineLocked(*db, name, &out->line);
+  if (!r) return r;
+  if (out->line.reference_run == 0)
+    return Fail(Outcome::kNotFound,
+                "line '" + name + "' has no centreline yet (its first run is not finished)");
+  std::vector<CentrelinePoint> centreline;
+  r = CentrelineLocked(*db, name, &centreline);
+  if (!r) return r;
+  const double offset = out->line.chainage_offset_m;
+  for (CentrelinePoint& c : centreline) c.chainage_m += offset;
+  if (centreline.empty() || to_m < centreline.front().chainage_m ||
+      from_m > centreline.back().chainage_m) {
+    char text[160];
+    std::snprintf(text,
+                  sizeof(text),
+                  "the line runs from km %.3f to km %.3f",
+                  centreline.empty() ? 0.0 : centreline.front().chainage_m / 1000.0,
+                  centreline.empty() ? 0.0 : centreline.back().chainage_m / 1000.0);
+    return Fail(Outcome::kNotFound, std::string("no centreline in that range: ") + text);
+  }
+  out->samples.clear();
+  Eigen::AlignedBox2d box;
+  for (const TrackSample& s : TrackGeometry(centreline, 10.0)) {
+    if (s.point.chainage_m < from_m || s.point.chainage_m > to_m) continue;
+    out->samples.push_back(s);
+    box.extend(s.point.p.head<2>());
+  }
+  // The reference run's tiles within 10 m of the segment's centreline.
+  const double margin = 10.0;
+  const double side = options_.grid.TileM(0);
+  std::vector<TileInfo> tiles;
+  box.min().array() -= margin;
+  box.max().array() += margin;
+  r = TilesInBox(out->line.reference_run, 0, box, &tiles);
+  if (!r) return r;
+  out->tiles.clear();
+  for (const TileInfo& t : tiles) {
+    const Eigen::AlignedBox2d square(Eigen::Vector2d(t.key.ix * side, t.key.iy * side),
+                                     Eigen::Vector2d((t.key.ix + 1) * side, (t.key.iy + 1) * side));
+    const bool near =
+        std::any_of(out->samples.begin(), out->samples.end(), [&](const TrackSample& s) {
+          return square.exteriorDistance(s.point.p.head<2>()) <= margin;
+        });
+    if (near) out->tiles.push_back(t);
+  }
+  return {};
+}
+
+Result MapStore::PinKmPost(const std::string& name,
+                           const std::string& label,
+                           double chainage_m,
+                           const Eigen::Vector2d& p_utm,
+                           LineInfo* out) {
+  if (!std::isfinite(chainage_m) || !p_utm.allFinite())
+    return Fail(Outcome::kInvalid, "a km post needs a finite chainage and position");
+  std::lock_guard<std::mutex> lock(mu_);
+  LineInfo line;
+  Result r = LineLocked(*writer_, name, &line);
+  if (!r) return r;
+  std::vector<CentrelinePoint> centreline;
+  r = CentrelineLocked(*writer_, name, &centreline);
+  if (!r) return r;
+  if (centreline.empty())
+    return Fail(Outcome::kConflict, "line '" + name + "' has no centreline to pin a post on yet");
+  double off_m = 0.0;
+  const double along = ProjectChainage(centreline, p_utm, &off_m);
+  if (off_m > 50.0) {
+    return Fail(Outcome::kInvalid,
+                "the post lies " + std::to_string(static_cast<int>(off_m)) +
+                    " m from the line's centreline (at most 50 m)");
+  }
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  Statement post(*writer_,
+                 "INSERT INTO km_posts (line, chainage_m, x, y, z, label, created_ns) VALUES (?, "
+                 "?, ?, ?, 0, ?, ?)");
+  post.Bind(1, name)
+      .Bind(2, chainage_m)
+      .Bind(3, p_utm.x())
+      .Bind(4, p_utm.y())
+      .Bind(5, label)
+      .Bind(6, NowNs());
+  Statement set(*writer_, "UPDATE lines SET chainage_offset_m = ? WHERE name = ?");
+  set.Bind(1, chainage_m - along).Bind(2, name);
+  if (!post.Run()) return Fail(Outcome::kError, post.error());
+  if (!set.Run()) return Fail(Outcome::kError, set.error());
+  std::string error;
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  return LineLocked(*writer_, name, out);
 }
 
 Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, IngestReceipt* receipt) {

@@ -15,6 +15,7 @@
 #include <Eigen/Geometry>
 
 #include "api/stream.h"
+#include "mapstore/chainage.h"
 #include "mapstore/tile_grid.h"
 
 namespace raillomer::mapstore {
@@ -79,6 +80,23 @@ struct TileInfo {
   std::string etag;  ///< quoted, for HTTP
 };
 
+struct LineInfo {
+  std::string name;
+  int64_t reference_run = 0;  ///< the run whose path is the centreline (0: none finished yet)
+  std::string utm_zone;
+  double length_m = 0.0;           ///< of the centreline
+  double chainage_offset_m = 0.0;  ///< added to the distance along it (km posts set it)
+  int64_t runs = 0;
+};
+
+/// A stretch of a line by chainage: its centreline with the track geometry, and the reference
+/// run's level-0 tiles that cover it.
+struct TrackSegment {
+  LineInfo line;
+  std::vector<TrackSample> samples;  ///< chainage includes the line's offset
+  std::vector<TileInfo> tiles;
+};
+
 struct IngestReceipt {
   uint64_t points = 0;           ///< the submap's points
   uint64_t points_new = 0;       ///< ... that filled a level-0 voxel no earlier point had
@@ -124,8 +142,22 @@ class MapStore {
   Result CreateRun(const NewRun& run, RunInfo* out);
   Result GetRun(int64_t run_id, RunInfo* out) const;
   std::vector<RunInfo> ListRuns() const;
-  /// Writes the run's tiles and marks it finished; a finished run takes no more data.
+  /// Writes the run's tiles and marks it finished; a finished run takes no more data. The first
+  /// finished run of a line with a usable path defines the line's centreline and chainage.
   Result FinishRun(int64_t run_id, int64_t end_ns, RunInfo* out);
+
+  /// Every line with its centreline's extent.
+  Result ListLines(std::vector<LineInfo>* lines) const;
+  Result GetLine(const std::string& name, LineInfo* line) const;
+  /// The stretch of `line` from `from_m` to `to_m` of chainage (metres).
+  Result Segment(const std::string& line, double from_m, double to_m, TrackSegment* out) const;
+  /// Pins a kilometre post: the centreline point nearest to `p_utm` gets chainage
+  /// `chainage_m`; every chainage of the line moves by the same offset.
+  Result PinKmPost(const std::string& line,
+                   const std::string& label,
+                   double chainage_m,
+                   const Eigen::Vector2d& p_utm,
+                   LineInfo* out);
 
   /// Stores a submap (EncodeSubmapPcd bytes) under its run and sequence number. The same bytes
   /// again are a duplicate; different bytes under a stored sequence are a conflict.
@@ -169,6 +201,12 @@ class MapStore {
   void EvictLocked();
   void FlushLoop();
   Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
+  Result LineLocked(const Database& db, const std::string& name, LineInfo* out) const;
+  Result CentrelineLocked(const Database& db,
+                          const std::string& name,
+                          std::vector<CentrelinePoint>* out) const;
+  /// Makes the run's path the centreline of its line if the line has none yet.
+  Result DefineCentrelineLocked(const RunInfo& run);
 
   std::string dir_;
   StoreOptions options_;

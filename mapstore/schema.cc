@@ -104,6 +104,11 @@ CREATE TABLE pois (
   updated_ns INTEGER NOT NULL
 );
 )sql",
+      // 3: the centreline's cant, and a line's chainage offset (set by pinning km posts).
+      R"sql(
+ALTER TABLE centreline ADD COLUMN cant_m REAL NOT NULL DEFAULT 0;
+ALTER TABLE lines ADD COLUMN chainage_offset_m REAL NOT NULL DEFAULT 0;
+)sql",
   };
   return migrations;
 }

@@ -97,6 +97,30 @@ json TileJson(const mapstore::TileInfo& t) {
           {"url", "/api/v1/runs/" + std::to_string(t.run_id) + "/tiles/" + t.key.ToString()}};
 }
 
+json LineJson(const mapstore::LineInfo& l) {
+  return {{"name", l.name},
+          {"reference_run", l.reference_run == 0 ? json(nullptr) : json(l.reference_run)},
+          {"utm_zone", l.utm_zone.empty() ? json(nullptr) : json(l.utm_zone)},
+          {"length_m", l.length_m},
+          {"chainage_offset_m", l.chainage_offset_m},
+          {"runs", l.runs}};
+}
+
+/// UTM to WGS84 [lon, lat, h]; false outside the zone's range.
+bool Wgs84(const std::string& zone, const Eigen::Vector3d& p, json* out) {
+  int number = 0;
+  bool north = true;
+  if (!api::ParseUtmZoneName(zone, &number, &north)) return false;
+  double lat = 0.0, lon = 0.0;
+  try {
+    GeographicLib::UTMUPS::Reverse(number, north, p.x(), p.y(), lat, lon);
+  } catch (const std::exception&) {
+    return false;
+  }
+  *out = {lon, lat, p.z()};
+  return true;
+}
+
 /// A JSON body as an object; false (and a 400 sent) if it is not one.
 bool ParseObject(const httplib::Request& req, httplib::Response& res, json* out) {
   *out = json::parse(req.body, nullptr, false);
@@ -623,6 +647,101 @@ void Server::Impl::Routes() {
               res.set_content(json{{"type", "FeatureCollection"}, {"features", {feature}}}.dump(),
                               "application/geo+json");
             }));
+
+  http_.Get("/api/v1/lines",
+            Route("lines.list", false, [this](const httplib::Request&, httplib::Response& res) {
+              std::vector<mapstore::LineInfo> lines;
+              const mapstore::Result r = store_->ListLines(&lines);
+              if (!r) return SendResult(res, r);
+              json list = json::array();
+              for (const auto& l : lines) list.push_back(LineJson(l));
+              res.set_content(json{{"lines", list}}.dump(), "application/json");
+            }));
+
+  http_.Get(R"(/api/v1/lines/([^/]+))",
+            Route("lines.get", false, [this](const httplib::Request& req, httplib::Response& res) {
+              mapstore::LineInfo line;
+              const mapstore::Result r = store_->GetLine(req.matches[1], &line);
+              if (!r) return SendResult(res, r);
+              res.set_content(LineJson(line).dump(), "application/json");
+            }));
+
+  http_.Get(
+      R"(/api/v1/lines/([^/]+)/segment)",
+      Route("lines.segment", false, [this](const httplib::Request& req, httplib::Response& res) {
+        double from_km = 0.0, to_km = 0.0;
+        try {
+          if (!req.has_param("from_km") || !req.has_param("to_km")) throw std::invalid_argument("");
+          size_t used = 0;
+          const std::string a = req.get_param_value("from_km"), b = req.get_param_value("to_km");
+          from_km = std::stod(a, &used);
+          if (used != a.size()) throw std::invalid_argument("");
+          to_km = std::stod(b, &used);
+          if (used != b.size()) throw std::invalid_argument("");
+        } catch (const std::exception&) {
+          return SendError(res,
+                           400,
+                           "invalid",
+                           "from_km and to_km (kilometres of chainage) are required numbers");
+        }
+        mapstore::TrackSegment segment;
+        const mapstore::Result r =
+            store_->Segment(req.matches[1], from_km * 1000.0, to_km * 1000.0, &segment);
+        if (!r) return SendResult(res, r);
+        json coordinates = json::array(), chainage = json::array(), curvature = json::array(),
+             gradient = json::array(), cant = json::array();
+        for (const auto& s : segment.samples) {
+          json c;
+          if (!Wgs84(segment.line.utm_zone, s.point.p, &c)) continue;
+          coordinates.push_back(c);
+          chainage.push_back(s.point.chainage_m);
+          curvature.push_back(s.curvature_per_m);
+          gradient.push_back(s.gradient * 1000.0);
+          cant.push_back(s.point.cant_m * 1000.0);
+        }
+        json tiles = json::array();
+        for (const auto& t : segment.tiles) tiles.push_back(TileJson(t));
+        const json feature = {{"type", "Feature"},
+                              {"geometry", {{"type", "LineString"}, {"coordinates", coordinates}}},
+                              {"properties",
+                               {{"line", segment.line.name},
+                                {"reference_run", segment.line.reference_run},
+                                {"utm_zone", segment.line.utm_zone},
+                                {"from_km", from_km},
+                                {"to_km", to_km},
+                                {"profile",
+                                 {{"chainage_m", chainage},
+                                  {"curvature_per_m", curvature},
+                                  {"gradient_per_mille", gradient},
+                                  {"cant_mm", cant}}},
+                                {"tiles", tiles}}}};
+        res.set_content(json{{"type", "FeatureCollection"}, {"features", {feature}}}.dump(),
+                        "application/geo+json");
+      }));
+
+  http_.Post(
+      R"(/api/v1/lines/([^/]+)/kmposts)",
+      Route("lines.kmpost", true, [this](const httplib::Request& req, httplib::Response& res) {
+        json body;
+        if (!ParseObject(req, res, &body)) return;
+        if (!body.contains("km") || !body["km"].is_number() || !body.contains("easting") ||
+            !body["easting"].is_number() || !body.contains("northing") ||
+            !body["northing"].is_number())
+          return SendError(
+              res,
+              400,
+              "invalid",
+              "a km post needs km, easting and northing (numbers; UTM of the line's zone)");
+        mapstore::LineInfo line;
+        const mapstore::Result r = store_->PinKmPost(
+            req.matches[1],
+            body.value("label", std::string()),
+            body["km"].get<double>() * 1000.0,
+            Eigen::Vector2d(body["easting"].get<double>(), body["northing"].get<double>()),
+            &line);
+        if (!r) return SendResult(res, r);
+        res.set_content(LineJson(line).dump(), "application/json");
+      }));
 
   if (!config_.web_root.empty()) http_.set_mount_point("/", config_.web_root);
 }

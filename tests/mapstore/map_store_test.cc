@@ -305,6 +305,101 @@ TEST(MapStore, ASubmapAcknowledgedBeforeACrashIsInTheTilesAfterRestart) {
   EXPECT_TRUE(std::filesystem::is_empty(dir.path() / "incoming"));
 }
 
+/// Poses along a line from the corridor's start: 200 m east on a 5 per mille rise, then 200 m
+/// of a 500 m radius curve to the left with 0.1 m of cant; then 50 m of reversing and forward
+/// again over the same ground, which the centreline must ignore.
+std::vector<api::StreamPose> LinePoses() {
+  std::vector<api::StreamPose> poses;
+  auto add = [&](const Eigen::Vector3d& p, double heading, double roll) {
+    api::StreamPose pose;
+    pose.sequence = poses.size();
+    pose.stamp_ns = 1'600'000'000'000'000'000 + int64_t(poses.size()) * 100'000'000;
+    pose.georeferenced = true;
+    pose.utm_zone = "50N";
+    pose.p = p;
+    pose.q = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()) *
+             Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX());
+    poses.push_back(pose);
+  };
+  const double radius = 500.0, roll = std::asin(0.1 / kRailHeadSpacingM);
+  auto at = [&](double s) -> Eigen::Vector3d {  // position, s metres along the line
+    if (s <= 200.0) return kStart + Eigen::Vector3d(s, 0.0, 0.005 * s);
+    const double a = (s - 200.0) / radius;
+    return kStart +
+           Eigen::Vector3d(200.0 + radius * std::sin(a), radius * (1.0 - std::cos(a)), 0.005 * s);
+  };
+  for (double s = 0.0; s <= 400.0; s += 1.5)
+    add(at(s), s <= 200.0 ? 0.0 : (s - 200.0) / radius, s <= 200.0 ? 0.0 : roll);
+  for (double s = 400.0; s >= 350.0; s -= 1.5) add(at(s), (s - 200.0) / radius, roll);
+  for (double s = 350.0; s <= 420.0; s += 1.5) add(at(s), (s - 200.0) / radius, roll);
+  return poses;
+}
+
+TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store, "Line A");
+  ASSERT_TRUE(store->IngestPoses(run, LinePoses(), nullptr));
+  for (uint32_t i = 0; i < 4; ++i)
+    ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
+  LineInfo line;
+  ASSERT_TRUE(store->GetLine("Line A", &line));
+  EXPECT_EQ(line.reference_run, 0);
+  TrackSegment segment;
+  EXPECT_EQ(store->Segment("Line A", 0.0, 100.0, &segment).outcome, Outcome::kNotFound);
+  ASSERT_TRUE(store->FinishRun(run, 1'600'000'100'000'000'000, nullptr));
+  ASSERT_TRUE(store->GetLine("Line A", &line));
+  EXPECT_EQ(line.reference_run, run);
+  EXPECT_EQ(line.utm_zone, "50N");
+  // 420 m of line (the reversing adds nothing); chainage is the distance along it.
+  EXPECT_NEAR(line.length_m, 420.0, 2.0);
+
+  // The straight: no curvature, a 5 per mille rise, no cant; the corridor's tiles cover it.
+  ASSERT_TRUE(store->Segment("Line A", 20.0, 120.0, &segment));
+  ASSERT_GE(segment.samples.size(), 99u);
+  EXPECT_NEAR(segment.samples.front().point.chainage_m, 20.0, 0.5);
+  for (const TrackSample& s : segment.samples) {
+    EXPECT_NEAR(s.curvature_per_m, 0.0, 1e-4);
+    EXPECT_NEAR(s.gradient, 0.005, 1e-4);
+    EXPECT_NEAR(s.point.cant_m, 0.0, 1e-6);
+  }
+  EXPECT_FALSE(segment.tiles.empty());
+  // The curve: 1 / 500 m to the left, 0.1 m of cant.
+  ASSERT_TRUE(store->Segment("Line A", 250.0, 350.0, &segment));
+  for (const TrackSample& s : segment.samples) {
+    EXPECT_NEAR(s.curvature_per_m, 1.0 / 500.0, 0.05 / 500.0) << s.point.chainage_m;
+    EXPECT_NEAR(s.point.cant_m, 0.1, 0.002);
+  }
+  EXPECT_EQ(store->Segment("Line A", 5000.0, 6000.0, &segment).outcome, Outcome::kNotFound);
+  EXPECT_EQ(store->Segment("Line A", 10.0, 5.0, &segment).outcome, Outcome::kInvalid);
+  EXPECT_EQ(store->Segment("Line B", 0.0, 5.0, &segment).outcome, Outcome::kNotFound);
+
+  // A km post pinned at 100 m along the line makes that point km 12.400.
+  const Eigen::Vector2d post = (kStart + Eigen::Vector3d(100.0, 0.3, 0.0)).head<2>();
+  ASSERT_TRUE(store->PinKmPost("Line A", "km 12.4", 12400.0, post, &line));
+  EXPECT_NEAR(line.chainage_offset_m, 12300.0, 0.01);
+  ASSERT_TRUE(store->Segment("Line A", 12390.0, 12410.0, &segment));
+  const auto km =
+      std::min_element(segment.samples.begin(), segment.samples.end(), [](auto& a, auto& b) {
+        return std::abs(a.point.chainage_m - 12400.0) < std::abs(b.point.chainage_m - 12400.0);
+      });
+  EXPECT_NEAR(km->point.p.x(), kStart.x() + 100.0, 0.6);  // the centreline every metre
+  EXPECT_EQ(
+      store->PinKmPost("Line A", "far", 0.0, post + Eigen::Vector2d(0.0, 80.0), nullptr).outcome,
+      Outcome::kInvalid);
+  // A second run of the line leaves its centreline as it was.
+  const int64_t second = NewRunId(*store, "Line A");
+  ASSERT_TRUE(store->FinishRun(second, 1'600'000'100'000'000'000, nullptr));
+  ASSERT_TRUE(store->GetLine("Line A", &line));
+  EXPECT_EQ(line.reference_run, run);
+  std::vector<LineInfo> lines;
+  ASSERT_TRUE(store->ListLines(&lines));
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_EQ(lines[0].runs, 2);
+}
+
 TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   test::ScratchDir dir("raillomer_store_");
   const std::string path = (dir.path() / "index.sqlite").string();

@@ -185,6 +185,35 @@ TEST(Server, RestApiWithCurl) {
   r = Curl(Bearer(server.token()) + PostJson(json::object()) + ShellQuote(runs + "/finish"), dir);
   EXPECT_EQ(r.status, 200) << r.body;
   EXPECT_EQ(json::parse(r.body)["status"], "finished");
+  // The finished run defined its line's centreline: 8 m of poses, km 0.000 to 0.008.
+  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line")), dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(json::parse(r.body)["reference_run"], run);
+  EXPECT_NEAR(json::parse(r.body)["length_m"].get<double>(), 8.0, 0.01);
+  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=0.002&to_km=0.006")),
+           dir);
+  ASSERT_EQ(r.status, 200) << r.body;
+  const json segment = json::parse(r.body)["features"][0];
+  EXPECT_EQ(segment["geometry"]["coordinates"].size(), 5u);
+  EXPECT_EQ(segment["properties"]["profile"]["chainage_m"][0], 2.0);
+  EXPECT_FALSE(segment["properties"]["tiles"].empty());
+  // A km post at the line's start makes it km 12.
+  r = Curl(
+      Bearer(server.token()) +
+          PostJson(
+              {{"km", 12.0}, {"easting", 432100.0}, {"northing", 3585200.0}, {"label", "km 12"}}) +
+          ShellQuote(server.Url("/api/v1/lines/Test%20line/kmposts")),
+      dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_NEAR(json::parse(r.body)["chainage_offset_m"].get<double>(), 12000.0, 0.01);
+  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=12.002&to_km=12.006")),
+           dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=abc&to_km=1")), dir);
+  EXPECT_EQ(r.status, 400) << r.body;
+  r = Curl(ShellQuote(server.Url("/api/v1/lines/Nowhere/segment?from_km=0&to_km=1")), dir);
+  EXPECT_EQ(r.status, 404) << r.body;
+
   r = Curl(ShellQuote(server.Url("/metrics")), dir);
   EXPECT_NE(r.body.find("raillomer_submaps_stored_total 2"), std::string::npos) << r.body;
   EXPECT_NE(r.body.find("raillomer_http_requests_total{route=\"ingest.submap\",status=\"409\"} 1"),
@@ -413,7 +442,7 @@ TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
   for (const auto& entry : doc["paths"]) {
     std::string path = entry.first.as<std::string>();
     for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
-             {"{run}", "1"}, {"{level}", "0"}, {"{ix}", "0"}, {"{iy}", "0"}}) {
+             {"{run}", "1"}, {"{level}", "0"}, {"{ix}", "0"}, {"{iy}", "0"}, {"{line}", "L"}}) {
       const size_t at = path.find(from);
       if (at != std::string::npos) path.replace(at, from.size(), to);
     }
