@@ -12,6 +12,7 @@
 #include <set>
 
 #include "api/atomic_file.h"
+#include "api/trajectory.h"
 #include "mapstore/schema.h"
 #include "mapstore/sqlite.h"
 #include "mapstore/voxel_set.h"
@@ -551,6 +552,156 @@ Result MapStore::Segment(const std::string& name,
         });
     if (near) out->tiles.push_back(t);
   }
+  return {};
+}
+
+namespace {
+
+bool ValidPoi(const Poi& p, std::string* error) {
+  auto printable = [](const std::string& t, size_t max) {
+    return t.size() <= max &&
+           std::all_of(t.begin(), t.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
+  };
+  if (p.kind.empty() || !printable(p.kind, 64))
+    return *error = "kind must be 1-64 printable characters", false;
+  if (!printable(p.name, 200))
+    return *error = "name must be at most 200 printable characters", false;
+  if (!printable(p.line, 200))
+    return *error = "line must be at most 200 printable characters", false;
+  int zone = 0;
+  bool north = true;
+  if (!api::ParseUtmZoneName(p.utm_zone, &zone, &north))
+    return *error = "utm_zone must be a UTM zone such as 50N", false;
+  if (!p.p.allFinite() || p.p.x() < 0.0 || p.p.x() > 1.0e6 || p.p.y() < 0.0 || p.p.y() > 1.0e7 ||
+      std::abs(p.p.z()) > 1.0e4)
+    return *error = "the position is not a UTM position", false;
+  if (p.properties_json.size() > 65536) return *error = "properties are limited to 64 KiB", false;
+  return true;
+}
+
+void ReadPoi(const Statement& q, Poi* p) {
+  p->id = q.Int(0);
+  p->line = q.Text(1);
+  p->kind = q.Text(2);
+  p->name = q.Text(3);
+  p->utm_zone = q.Text(4);
+  p->p = Eigen::Vector3d(q.Double(5), q.Double(6), q.Double(7));
+  p->properties_json = q.Text(8);
+  p->created_ns = q.Int(9);
+  p->updated_ns = q.Int(10);
+}
+
+constexpr char kPoiColumns[] =
+    "SELECT id, IFNULL(line, ''), kind, name, utm_zone, x, y, z, properties, created_ns, "
+    "updated_ns FROM pois";
+
+}  // namespace
+
+Result MapStore::CreatePoi(Poi* poi) {
+  std::string error;
+  if (!ValidPoi(*poi, &error)) return Fail(Outcome::kInvalid, "point of interest: " + error);
+  std::lock_guard<std::mutex> lock(mu_);
+  if (!poi->line.empty()) {
+    Result r = LineLocked(*writer_, poi->line, nullptr);
+    if (!r) return r;
+  }
+  poi->created_ns = poi->updated_ns = NowNs();
+  Statement q(*writer_,
+              "INSERT INTO pois (line, kind, name, utm_zone, x, y, z, properties, created_ns, "
+              "updated_ns) VALUES (NULLIF(?, ''), ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  q.Bind(1, poi->line)
+      .Bind(2, poi->kind)
+      .Bind(3, poi->name)
+      .Bind(4, poi->utm_zone)
+      .Bind(5, poi->p.x())
+      .Bind(6, poi->p.y())
+      .Bind(7, poi->p.z())
+      .Bind(8, poi->properties_json)
+      .Bind(9, poi->created_ns)
+      .Bind(10, poi->updated_ns);
+  if (!q.Run()) return Fail(Outcome::kError, q.error());
+  poi->id = writer_->LastInsertId();
+  return {};
+}
+
+Result MapStore::GetPoi(int64_t id, Poi* poi) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Statement q(*db, std::string(kPoiColumns) + " WHERE id = ?");
+  q.Bind(1, id);
+  if (!q.Step()) {
+    if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+    return Fail(Outcome::kNotFound, "no point of interest " + std::to_string(id));
+  }
+  ReadPoi(q, poi);
+  return {};
+}
+
+Result MapStore::ListPois(const std::string& line,
+                          const Eigen::AlignedBox2d* box,
+                          std::vector<Poi>* pois) const {
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  Statement q(*db,
+              std::string(kPoiColumns) +
+                  " WHERE (? = '' OR line = ?) AND x BETWEEN ? AND ? AND y BETWEEN ? AND ? "
+                  "ORDER BY id");
+  q.Bind(1, line)
+      .Bind(2, line)
+      .Bind(3, box ? box->min().x() : -1e300)
+      .Bind(4, box ? box->max().x() : 1e300)
+      .Bind(5, box ? box->min().y() : -1e300)
+      .Bind(6, box ? box->max().y() : 1e300);
+  pois->clear();
+  while (q.Step()) {
+    Poi p;
+    ReadPoi(q, &p);
+    pois->push_back(p);
+  }
+  if (!q.error().empty()) return Fail(Outcome::kError, q.error());
+  return {};
+}
+
+Result MapStore::UpdatePoi(Poi* poi) {
+  std::string error;
+  if (!ValidPoi(*poi, &error)) return Fail(Outcome::kInvalid, "point of interest: " + error);
+  std::lock_guard<std::mutex> lock(mu_);
+  if (!poi->line.empty()) {
+    Result r = LineLocked(*writer_, poi->line, nullptr);
+    if (!r) return r;
+  }
+  poi->updated_ns = NowNs();
+  Statement q(*writer_,
+              "UPDATE pois SET line = NULLIF(?, ''), kind = ?, name = ?, utm_zone = ?, x = ?, y = "
+              "?, z = ?, properties = ?, updated_ns = ? WHERE id = ?");
+  q.Bind(1, poi->line)
+      .Bind(2, poi->kind)
+      .Bind(3, poi->name)
+      .Bind(4, poi->utm_zone)
+      .Bind(5, poi->p.x())
+      .Bind(6, poi->p.y())
+      .Bind(7, poi->p.z())
+      .Bind(8, poi->properties_json)
+      .Bind(9, poi->updated_ns)
+      .Bind(10, poi->id);
+  if (!q.Run()) return Fail(Outcome::kError, q.error());
+  if (writer_->Changes() == 0)
+    return Fail(Outcome::kNotFound, "no point of interest " + std::to_string(poi->id));
+  Statement created(*writer_, "SELECT created_ns FROM pois WHERE id = ?");
+  created.Bind(1, poi->id);
+  if (created.Step()) poi->created_ns = created.Int(0);
+  return {};
+}
+
+Result MapStore::DeletePoi(int64_t id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Statement q(*writer_, "DELETE FROM pois WHERE id = ?");
+  q.Bind(1, id);
+  if (!q.Run()) return Fail(Outcome::kError, q.error());
+  if (writer_->Changes() == 0)
+    return Fail(Outcome::kNotFound, "no point of interest " + std::to_string(id));
   return {};
 }
 

@@ -97,6 +97,16 @@ struct TrackSegment {
   std::vector<TileInfo> tiles;
 };
 
+/// A point of interest: a mast, a signal, a level crossing, a defect to watch.
+struct Poi {
+  int64_t id = 0;
+  std::string line;  ///< may be empty
+  std::string kind, name, utm_zone;
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();  ///< UTM
+  std::string properties_json = "{}";           ///< a JSON object, kept as given
+  int64_t created_ns = 0, updated_ns = 0;
+};
+
 struct IngestReceipt {
   uint64_t points = 0;           ///< the submap's points
   uint64_t points_new = 0;       ///< ... that filled a level-0 voxel no earlier point had
@@ -158,6 +168,16 @@ class MapStore {
                    double chainage_m,
                    const Eigen::Vector2d& p_utm,
                    LineInfo* out);
+
+  /// Points of interest: create (the id is assigned), read, list (of a line, or all when
+  /// `line` is empty, optionally in a UTM box), update (all fields but the id) and delete.
+  Result CreatePoi(Poi* poi);
+  Result GetPoi(int64_t id, Poi* poi) const;
+  Result ListPois(const std::string& line,
+                  const Eigen::AlignedBox2d* box,
+                  std::vector<Poi>* pois) const;
+  Result UpdatePoi(Poi* poi);
+  Result DeletePoi(int64_t id);
 
   /// Stores a submap (EncodeSubmapPcd bytes) under its run and sequence number. The same bytes
   /// again are a duplicate; different bytes under a stored sequence are a conflict.

@@ -121,6 +121,51 @@ bool Wgs84(const std::string& zone, const Eigen::Vector3d& p, json* out) {
   return true;
 }
 
+json PoiJson(const mapstore::Poi& p) {
+  json properties = json::parse(p.properties_json, nullptr, false);
+  if (properties.is_discarded()) properties = json::object();
+  return {{"id", p.id},
+          {"line", p.line.empty() ? json(nullptr) : json(p.line)},
+          {"kind", p.kind},
+          {"name", p.name},
+          {"utm_zone", p.utm_zone},
+          {"position", {p.p.x(), p.p.y(), p.p.z()}},
+          {"properties", properties},
+          {"created_ns", p.created_ns},
+          {"updated_ns", p.updated_ns}};
+}
+
+/// A point of interest from a JSON body: kind, position [easting, northing, height], utm_zone,
+/// and optionally name, line and properties (an object).
+bool ParsePoi(const json& j, mapstore::Poi* p, std::string* error) {
+  auto number3 = [](const json& v) {
+    return v.is_array() && v.size() == 3 && v[0].is_number() && v[1].is_number() &&
+           v[2].is_number();
+  };
+  if (!j.contains("kind") || !j["kind"].is_string() || !j.contains("utm_zone") ||
+      !j["utm_zone"].is_string() || !j.contains("position") || !number3(j["position"])) {
+    *error =
+        "a point of interest needs kind (string), utm_zone (string) and position [easting, "
+        "northing, height]";
+    return false;
+  }
+  if ((j.contains("name") && !j["name"].is_string()) ||
+      (j.contains("line") && !j["line"].is_string() && !j["line"].is_null()) ||
+      (j.contains("properties") && !j["properties"].is_object())) {
+    *error = "name and line must be strings and properties an object";
+    return false;
+  }
+  p->kind = j["kind"];
+  p->utm_zone = j["utm_zone"];
+  p->name = j.value("name", std::string());
+  p->line = j.contains("line") && j["line"].is_string() ? j["line"].get<std::string>() : "";
+  p->p = Eigen::Vector3d(j["position"][0].get<double>(),
+                         j["position"][1].get<double>(),
+                         j["position"][2].get<double>());
+  p->properties_json = j.contains("properties") ? j["properties"].dump() : "{}";
+  return true;
+}
+
 /// A JSON body as an object; false (and a 400 sent) if it is not one.
 bool ParseObject(const httplib::Request& req, httplib::Response& res, json* out) {
   *out = json::parse(req.body, nullptr, false);
@@ -741,6 +786,84 @@ void Server::Impl::Routes() {
             &line);
         if (!r) return SendResult(res, r);
         res.set_content(LineJson(line).dump(), "application/json");
+      }));
+
+  http_.Post(
+      "/api/v1/pois",
+      Route("pois.create", true, [this](const httplib::Request& req, httplib::Response& res) {
+        json body;
+        if (!ParseObject(req, res, &body)) return;
+        mapstore::Poi poi;
+        std::string error;
+        if (!ParsePoi(body, &poi, &error)) return SendError(res, 400, "invalid", error);
+        const mapstore::Result r = store_->CreatePoi(&poi);
+        if (!r) return SendResult(res, r);
+        res.status = 201;
+        res.set_header("Location", "/api/v1/pois/" + std::to_string(poi.id));
+        res.set_content(PoiJson(poi).dump(), "application/json");
+      }));
+
+  http_.Get("/api/v1/pois",
+            Route("pois.list", false, [this](const httplib::Request& req, httplib::Response& res) {
+              Eigen::AlignedBox2d box;
+              const Eigen::AlignedBox2d* in = nullptr;
+              if (req.has_param("bbox")) {
+                double v[4];
+                if (std::sscanf(req.get_param_value("bbox").c_str(),
+                                "%lf,%lf,%lf,%lf",
+                                &v[0],
+                                &v[1],
+                                &v[2],
+                                &v[3]) != 4)
+                  return SendError(
+                      res,
+                      400,
+                      "invalid",
+                      "bbox must be min_easting,min_northing,max_easting,max_northing");
+                box = Eigen::AlignedBox2d(Eigen::Vector2d(v[0], v[1]), Eigen::Vector2d(v[2], v[3]));
+                in = &box;
+              }
+              std::vector<mapstore::Poi> pois;
+              const mapstore::Result r = store_->ListPois(req.get_param_value("line"), in, &pois);
+              if (!r) return SendResult(res, r);
+              json list = json::array();
+              for (const auto& p : pois) list.push_back(PoiJson(p));
+              res.set_content(json{{"pois", list}}.dump(), "application/json");
+            }));
+
+  http_.Get(R"(/api/v1/pois/(\d+))",
+            Route("pois.get", false, [this](const httplib::Request& req, httplib::Response& res) {
+              int64_t id = 0;
+              if (!RunId(req, res, &id)) return;
+              mapstore::Poi poi;
+              const mapstore::Result r = store_->GetPoi(id, &poi);
+              if (!r) return SendResult(res, r);
+              res.set_content(PoiJson(poi).dump(), "application/json");
+            }));
+
+  http_.Put(R"(/api/v1/pois/(\d+))",
+            Route("pois.update", true, [this](const httplib::Request& req, httplib::Response& res) {
+              int64_t id = 0;
+              if (!RunId(req, res, &id)) return;
+              json body;
+              if (!ParseObject(req, res, &body)) return;
+              mapstore::Poi poi;
+              std::string error;
+              if (!ParsePoi(body, &poi, &error)) return SendError(res, 400, "invalid", error);
+              poi.id = id;
+              const mapstore::Result r = store_->UpdatePoi(&poi);
+              if (!r) return SendResult(res, r);
+              res.set_content(PoiJson(poi).dump(), "application/json");
+            }));
+
+  http_.Delete(
+      R"(/api/v1/pois/(\d+))",
+      Route("pois.delete", true, [this](const httplib::Request& req, httplib::Response& res) {
+        int64_t id = 0;
+        if (!RunId(req, res, &id)) return;
+        const mapstore::Result r = store_->DeletePoi(id);
+        if (!r) return SendResult(res, r);
+        res.status = 204;
       }));
 
   if (!config_.web_root.empty()) http_.set_mount_point("/", config_.web_root);

@@ -400,6 +400,68 @@ TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   EXPECT_EQ(lines[0].runs, 2);
 }
 
+TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  NewRunId(*store, "Line A");
+  Poi mast;
+  mast.line = "Line A";
+  mast.kind = "mast";
+  mast.name = "M 12";
+  mast.utm_zone = "50N";
+  mast.p = kStart + Eigen::Vector3d(10.0, 3.2, 0.0);
+  mast.properties_json = R"({"height_m": 8.5})";
+  ASSERT_TRUE(store->CreatePoi(&mast));
+  EXPECT_GT(mast.id, 0);
+  Poi crossing = mast;
+  crossing.line.clear();
+  crossing.kind = "level crossing";
+  crossing.p = kStart + Eigen::Vector3d(500.0, 0.0, 0.0);
+  ASSERT_TRUE(store->CreatePoi(&crossing));
+
+  Poi back;
+  ASSERT_TRUE(store->GetPoi(mast.id, &back));
+  EXPECT_EQ(back.name, "M 12");
+  EXPECT_EQ(back.properties_json, R"({"height_m": 8.5})");
+  std::vector<Poi> list;
+  ASSERT_TRUE(store->ListPois("", nullptr, &list));
+  EXPECT_EQ(list.size(), 2u);
+  ASSERT_TRUE(store->ListPois("Line A", nullptr, &list));
+  ASSERT_EQ(list.size(), 1u);
+  const Eigen::AlignedBox2d near((kStart + Eigen::Vector3d(400.0, -10.0, 0.0)).head<2>(),
+                                 (kStart + Eigen::Vector3d(600.0, 10.0, 0.0)).head<2>());
+  ASSERT_TRUE(store->ListPois("", &near, &list));
+  ASSERT_EQ(list.size(), 1u);
+  EXPECT_EQ(list[0].kind, "level crossing");
+
+  mast.name = "M 12a";
+  ASSERT_TRUE(store->UpdatePoi(&mast));
+  ASSERT_TRUE(store->GetPoi(mast.id, &back));
+  EXPECT_EQ(back.name, "M 12a");
+  EXPECT_GE(back.updated_ns, back.created_ns);
+  // Bad input changes nothing.
+  Poi bad = mast;
+  bad.p.x() = NAN;
+  EXPECT_EQ(store->UpdatePoi(&bad).outcome, Outcome::kInvalid);
+  bad = mast;
+  bad.kind.clear();
+  EXPECT_EQ(store->CreatePoi(&bad).outcome, Outcome::kInvalid);
+  bad = mast;
+  bad.line = "No such line";
+  EXPECT_EQ(store->CreatePoi(&bad).outcome, Outcome::kNotFound);
+  bad = mast;
+  bad.id = 999;
+  EXPECT_EQ(store->UpdatePoi(&bad).outcome, Outcome::kNotFound);
+  ASSERT_TRUE(store->GetPoi(mast.id, &back));
+  EXPECT_EQ(back.name, "M 12a");
+
+  ASSERT_TRUE(store->DeletePoi(mast.id));
+  EXPECT_EQ(store->GetPoi(mast.id, &back).outcome, Outcome::kNotFound);
+  EXPECT_EQ(store->DeletePoi(mast.id).outcome, Outcome::kNotFound);
+}
+
 TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   test::ScratchDir dir("raillomer_store_");
   const std::string path = (dir.path() / "index.sqlite").string();

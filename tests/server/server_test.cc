@@ -214,6 +214,32 @@ TEST(Server, RestApiWithCurl) {
   r = Curl(ShellQuote(server.Url("/api/v1/lines/Nowhere/segment?from_km=0&to_km=1")), dir);
   EXPECT_EQ(r.status, 404) << r.body;
 
+  // Points of interest: create, read, list by line, update, delete.
+  const json mast = {{"kind", "mast"},
+                     {"name", "M 7"},
+                     {"line", "Test line"},
+                     {"utm_zone", "50N"},
+                     {"position", {432110.0, 3585203.2, 30.0}},
+                     {"properties", {{"height_m", 8.5}}}};
+  r = Curl(Bearer(server.token()) + PostJson(mast) + ShellQuote(server.Url("/api/v1/pois")), dir);
+  ASSERT_EQ(r.status, 201) << r.body;
+  const std::string poi =
+      server.Url("/api/v1/pois/" + std::to_string(json::parse(r.body)["id"].get<int>()));
+  r = Curl(ShellQuote(poi), dir);
+  EXPECT_EQ(json::parse(r.body)["properties"]["height_m"], 8.5);
+  r = Curl(ShellQuote(server.Url("/api/v1/pois?line=Test%20line")), dir);
+  EXPECT_EQ(json::parse(r.body)["pois"].size(), 1u);
+  json renamed = mast;
+  renamed["name"] = "M 7a";
+  r = Curl(Bearer(server.token()) + "-X PUT -H 'Content-Type: application/json' --data-binary " +
+               ShellQuote(renamed.dump()) + " " + ShellQuote(poi),
+           dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(json::parse(r.body)["name"], "M 7a");
+  EXPECT_EQ(Curl("-X DELETE " + ShellQuote(poi), dir).status, 401);
+  EXPECT_EQ(Curl(Bearer(server.token()) + "-X DELETE " + ShellQuote(poi), dir).status, 204);
+  EXPECT_EQ(Curl(ShellQuote(poi), dir).status, 404);
+
   r = Curl(ShellQuote(server.Url("/metrics")), dir);
   EXPECT_NE(r.body.find("raillomer_submaps_stored_total 2"), std::string::npos) << r.body;
   EXPECT_NE(r.body.find("raillomer_http_requests_total{route=\"ingest.submap\",status=\"409\"} 1"),
@@ -441,8 +467,12 @@ TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
   int routes = 0;
   for (const auto& entry : doc["paths"]) {
     std::string path = entry.first.as<std::string>();
-    for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
-             {"{run}", "1"}, {"{level}", "0"}, {"{ix}", "0"}, {"{iy}", "0"}, {"{line}", "L"}}) {
+    for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{{"{run}", "1"},
+                                                                                   {"{level}", "0"},
+                                                                                   {"{ix}", "0"},
+                                                                                   {"{iy}", "0"},
+                                                                                   {"{line}", "L"},
+                                                                                   {"{id}", "1"}}) {
       const size_t at = path.find(from);
       if (at != std::string::npos) path.replace(at, from.size(), to);
     }
