@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <future>
 #include <set>
+#include <unordered_map>
 
 #include "api/atomic_file.h"
 #include "api/trajectory.h"
@@ -551,6 +552,80 @@ Result MapStore::Segment(const std::string& name,
           return square.exteriorDistance(s.point.p.head<2>()) <= margin;
         });
     if (near) out->tiles.push_back(t);
+  }
+  return {};
+}
+
+Result MapStore::Export(const ExportRequest& request,
+                        std::vector<ExportPoint>* points,
+                        std::string* utm_zone) const {
+  points->clear();
+  Eigen::AlignedBox2d box;
+  std::vector<Eigen::Vector2d> centreline;
+  if (!request.line.empty()) {
+    if (!(request.half_width_m > 0.0 && request.half_width_m <= 200.0))
+      return Fail(Outcome::kInvalid, "the half width must be in (0, 200] m");
+    TrackSegment segment;
+    Result r = Segment(request.line, request.from_m, request.to_m, &segment);
+    if (!r) return r;
+    for (const TrackSample& s : segment.samples) {
+      centreline.push_back(s.point.p.head<2>());
+      box.extend(s.point.p.head<2>());
+    }
+    box.min().array() -= request.half_width_m;
+    box.max().array() += request.half_width_m;
+  } else if (request.has_box) {
+    box = request.box;
+  } else {
+    return Fail(Outcome::kInvalid, "an export needs a box or a line's km range");
+  }
+  // The centreline's points by cell, to keep what lies within the half width of it.
+  const double cell = std::max(1.0, request.half_width_m);
+  std::unordered_map<uint64_t, std::vector<Eigen::Vector2d>> near;
+  auto key = [&](int64_t x, int64_t y) {
+    return (static_cast<uint64_t>(x) << 32) ^ static_cast<uint32_t>(y);
+  };
+  for (const Eigen::Vector2d& c : centreline)
+    near[key(static_cast<int64_t>(std::floor(c.x() / cell)),
+             static_cast<int64_t>(std::floor(c.y() / cell)))]
+        .push_back(c);
+  auto inside = [&](const Eigen::Vector2d& p) {
+    if (!box.contains(p)) return false;
+    if (centreline.empty()) return true;
+    const int64_t cx = static_cast<int64_t>(std::floor(p.x() / cell));
+    const int64_t cy = static_cast<int64_t>(std::floor(p.y() / cell));
+    for (int64_t dx = -1; dx <= 1; ++dx)
+      for (int64_t dy = -1; dy <= 1; ++dy) {
+        auto it = near.find(key(cx + dx, cy + dy));
+        if (it == near.end()) continue;
+        for (const Eigen::Vector2d& c : it->second)
+          if ((c - p).squaredNorm() <= request.half_width_m * request.half_width_m) return true;
+      }
+    return false;
+  };
+  std::vector<TileInfo> tiles;
+  Result r = TilesInBox(request.run_id, request.level, box, &tiles);
+  if (!r) return r;
+  utm_zone->clear();
+  for (const TileInfo& t : tiles) {
+    std::string bytes, error;
+    r = Tile(request.run_id, t.key, nullptr, &bytes);
+    if (!r) return r;
+    TilePoints decoded;
+    if (!DecodeTile(bytes, &decoded, &error))
+      return Fail(Outcome::kError, "tile " + t.key.ToString() + ": " + error);
+    *utm_zone = decoded.utm_zone;
+    for (size_t i = 0; i < decoded.points.size(); ++i) {
+      const Eigen::Vector3d p = decoded.origin + decoded.points[i].cast<double>();
+      if (!inside(p.head<2>())) continue;
+      if (points->size() >= request.max_points) {
+        points->clear();
+        return Fail(Outcome::kInvalid,
+                    "the export would hold more than " + std::to_string(request.max_points) +
+                        " points: narrow the box or take a coarser level");
+      }
+      points->push_back({p, decoded.intensities[i]});
+    }
   }
   return {};
 }

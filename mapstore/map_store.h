@@ -16,6 +16,7 @@
 
 #include "api/stream.h"
 #include "mapstore/chainage.h"
+#include "mapstore/export.h"
 #include "mapstore/tile_grid.h"
 
 namespace raillomer::mapstore {
@@ -107,6 +108,18 @@ struct Poi {
   int64_t created_ns = 0, updated_ns = 0;
 };
 
+/// What to export: a run's points at a level, in a UTM box or along a line's km range.
+struct ExportRequest {
+  int64_t run_id = 0;
+  int level = 0;
+  bool has_box = false;
+  Eigen::AlignedBox2d box;  ///< UTM easting/northing
+  std::string line;         ///< with a km range: the points within half_width_m of its centreline
+  double from_m = 0.0, to_m = 0.0;
+  double half_width_m = 15.0;
+  size_t max_points = 20'000'000;
+};
+
 struct IngestReceipt {
   uint64_t points = 0;           ///< the submap's points
   uint64_t points_new = 0;       ///< ... that filled a level-0 voxel no earlier point had
@@ -168,6 +181,12 @@ class MapStore {
                    double chainage_m,
                    const Eigen::Vector2d& p_utm,
                    LineInfo* out);
+
+  /// The points of a run in a box or along a km range (tile points, within their stated
+  /// error); refused if they would be more than request.max_points.
+  Result Export(const ExportRequest& request,
+                std::vector<ExportPoint>* points,
+                std::string* utm_zone) const;
 
   /// Points of interest: create (the id is assigned), read, list (of a line, or all when
   /// `line` is empty, optionally in a UTM box), update (all fields but the id) and delete.

@@ -866,6 +866,66 @@ void Server::Impl::Routes() {
         res.status = 204;
       }));
 
+  http_.Get(
+      R"(/api/v1/runs/(\d+)/export)",
+      Route("export", false, [this](const httplib::Request& req, httplib::Response& res) {
+        int64_t id = 0;
+        if (!RunId(req, res, &id)) return;
+        mapstore::ExportRequest request;
+        request.run_id = id;
+        mapstore::ExportFormat format = mapstore::ExportFormat::kLas;
+        if (req.has_param("format") &&
+            !mapstore::ParseExportFormat(req.get_param_value("format"), &format))
+          return SendError(res, 400, "invalid", "format must be ply, pcd or las");
+        try {
+          if (req.has_param("level")) request.level = std::stoi(req.get_param_value("level"));
+          if (req.has_param("half_width_m"))
+            request.half_width_m = std::stod(req.get_param_value("half_width_m"));
+          if (req.has_param("line")) {
+            request.line = req.get_param_value("line");
+            request.from_m = 1000.0 * std::stod(req.get_param_value("from_km"));
+            request.to_m = 1000.0 * std::stod(req.get_param_value("to_km"));
+          }
+        } catch (const std::exception&) {
+          return SendError(res,
+                           400,
+                           "invalid",
+                           "level, half_width_m, from_km and to_km must be numbers (a line needs "
+                           "from_km and to_km)");
+        }
+        if (req.has_param("bbox")) {
+          double v[4];
+          if (std::sscanf(req.get_param_value("bbox").c_str(),
+                          "%lf,%lf,%lf,%lf",
+                          &v[0],
+                          &v[1],
+                          &v[2],
+                          &v[3]) != 4)
+            return SendError(res,
+                             400,
+                             "invalid",
+                             "bbox must be min_easting,min_northing,max_easting,max_northing");
+          request.has_box = true;
+          request.box =
+              Eigen::AlignedBox2d(Eigen::Vector2d(v[0], v[1]), Eigen::Vector2d(v[2], v[3]));
+        }
+        if (request.level < 0 || request.level >= store_->options().grid.levels)
+          return SendError(
+              res,
+              400,
+              "invalid",
+              "level must be in [0, " + std::to_string(store_->options().grid.levels - 1) + "]");
+        std::vector<mapstore::ExportPoint> points;
+        std::string zone;
+        const mapstore::Result r = store_->Export(request, &points, &zone);
+        if (!r) return SendResult(res, r);
+        res.set_header("Content-Disposition",
+                       "attachment; filename=\"run-" + std::to_string(id) + "." +
+                           mapstore::ExtensionOf(format) + "\"");
+        res.set_header("X-Points", std::to_string(points.size()));
+        res.set_content(mapstore::EncodeExport(points, format, zone), "application/octet-stream");
+      }));
+
   if (!config_.web_root.empty()) http_.set_mount_point("/", config_.web_root);
 }
 

@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "mapstore/export.h"
 #include "mapstore/map_store.h"
 #include "mapstore/schema.h"
 #include "mapstore/sqlite.h"
@@ -398,6 +399,57 @@ TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   ASSERT_TRUE(store->ListLines(&lines));
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_EQ(lines[0].runs, 2);
+}
+
+TEST(MapStore, ExportsABoxOrAKmRangeAsPlyPcdAndLas) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store, "Line A");
+  ASSERT_TRUE(store->IngestPoses(run, LinePoses(), nullptr));
+  for (uint32_t i = 0; i < 4; ++i)
+    ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
+  ASSERT_TRUE(store->FinishRun(run, 1'600'000'100'000'000'000, nullptr));
+
+  // A box 10-30 m along the corridor: its ground (8 m wide) and wall, one point per voxel.
+  ExportRequest box;
+  box.run_id = run;
+  box.has_box = true;
+  box.box = Eigen::AlignedBox2d((kStart + Eigen::Vector3d(10.0, -10.0, 0.0)).head<2>(),
+                                (kStart + Eigen::Vector3d(30.0, 10.0, 0.0)).head<2>());
+  std::vector<ExportPoint> points;
+  std::string zone;
+  ASSERT_TRUE(store->Export(box, &points, &zone));
+  EXPECT_EQ(zone, "50N");
+  EXPECT_EQ(points.size(), 200u * 110u);
+  for (ExportFormat format : {ExportFormat::kPly, ExportFormat::kPcd, ExportFormat::kLas}) {
+    std::vector<ExportPoint> back;
+    ASSERT_TRUE(DecodeExport(EncodeExport(points, format, zone), format, &back, &error)) << error;
+    ASSERT_EQ(back.size(), points.size()) << ExtensionOf(format);
+    double worst = 0.0;
+    for (size_t i = 0; i < back.size(); ++i) {
+      worst = std::max(worst, (back[i].p - points[i].p).cwiseAbs().maxCoeff());
+      EXPECT_EQ(back[i].intensity, points[i].intensity);
+    }
+    EXPECT_LE(worst, 0.001) << ExtensionOf(format);  // LAS keeps millimetres
+  }
+  // Along the line from 20 m to 40 m, within 3 m of the centreline: ground only (the wall
+  // stands 4 m off), 20 m by 6 m with a half disc at either end, 100 points per square metre.
+  ExportRequest along;
+  along.run_id = run;
+  along.line = "Line A";
+  along.from_m = 20.0;
+  along.to_m = 40.0;
+  along.half_width_m = 3.0;
+  ASSERT_TRUE(store->Export(along, &points, &zone));
+  EXPECT_NEAR(static_cast<double>(points.size()), 100.0 * (20.0 * 6.0 + M_PI * 9.0), 100.0);
+  for (const ExportPoint& p : points) EXPECT_LE(std::abs(p.p.y() - kStart.y()), 3.05);
+  along.max_points = 100;
+  EXPECT_EQ(store->Export(along, &points, &zone).outcome, Outcome::kInvalid);
+  ExportRequest nothing;
+  nothing.run_id = run;
+  EXPECT_EQ(store->Export(nothing, &points, &zone).outcome, Outcome::kInvalid);
 }
 
 TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {

@@ -214,6 +214,20 @@ TEST(Server, RestApiWithCurl) {
   r = Curl(ShellQuote(server.Url("/api/v1/lines/Nowhere/segment?from_km=0&to_km=1")), dir);
   EXPECT_EQ(r.status, 404) << r.body;
 
+  // Exports: the run's points in a box as LAS and PLY, and along the line's first 8 m.
+  r = Curl(ShellQuote(runs + "/export?format=las&bbox=432100,3585190,432110,3585210"), dir);
+  ASSERT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(r.body.compare(0, 4, "LASF"), 0);
+  EXPECT_NE(r.headers.find("filename=\"run-" + std::to_string(run) + ".las\""), std::string::npos);
+  // 10 m of corridor: 100 columns of 110 voxels (ground and wall), 20 bytes each.
+  EXPECT_EQ(r.body.size(), 227u + 20u * 100u * 110u);
+  r = Curl(ShellQuote(runs + "/export?format=ply&line=Test%20line&from_km=12.000&to_km=12.008"),
+           dir);
+  EXPECT_EQ(r.status, 200) << r.body;
+  EXPECT_EQ(r.body.rfind("ply\n", 0), 0u);
+  EXPECT_EQ(Curl(ShellQuote(runs + "/export?format=xyz&bbox=0,0,1,1"), dir).status, 400);
+  EXPECT_EQ(Curl(ShellQuote(runs + "/export"), dir).status, 400);
+
   // Points of interest: create, read, list by line, update, delete.
   const json mast = {{"kind", "mast"},
                      {"name", "M 7"},

@@ -1,0 +1,36 @@
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace raillomer::mapstore {
+
+enum class ExportFormat { kPly, kPcd, kLas };
+
+/// "ply", "pcd" or "las"; false for anything else.
+bool ParseExportFormat(const std::string& name, ExportFormat* format);
+const char* ExtensionOf(ExportFormat format);
+
+struct ExportPoint {
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();  ///< UTM
+  uint8_t intensity = 0;
+};
+
+/// The points as a file: binary PLY (double x y z, uchar intensity), binary PCD (x y z as F 8,
+/// intensity as U 1) or LAS 1.2 (point format 0, 1 mm scale, the offset at the points' minimum
+/// corner, the UTM zone in the header's system identifier). Coordinates are UTM in every case,
+/// so every tool places them without a transform.
+std::string EncodeExport(const std::vector<ExportPoint>& points,
+                         ExportFormat format,
+                         const std::string& utm_zone);
+
+/// Reads back what EncodeExport wrote (for tests and tools); false with a message otherwise.
+bool DecodeExport(const std::string& bytes,
+                  ExportFormat format,
+                  std::vector<ExportPoint>* points,
+                  std::string* error);
+
+}  // namespace raillomer::mapstore
