@@ -106,4 +106,44 @@ double ProjectChainage(const std::vector<CentrelinePoint>& c,
   return chainage;
 }
 
+ChainageIndex::ChainageIndex(std::vector<CentrelinePoint> centreline, double cell_m)
+    : c_(std::move(centreline)), cell_m_(cell_m) {
+  for (size_t i = 0; i + 1 < c_.size(); ++i) {
+    const Eigen::Vector2d a = c_[i].p.head<2>(), b = c_[i + 1].p.head<2>();
+    const int64_t x0 = static_cast<int64_t>(std::floor(std::min(a.x(), b.x()) / cell_m_));
+    const int64_t x1 = static_cast<int64_t>(std::floor(std::max(a.x(), b.x()) / cell_m_));
+    const int64_t y0 = static_cast<int64_t>(std::floor(std::min(a.y(), b.y()) / cell_m_));
+    const int64_t y1 = static_cast<int64_t>(std::floor(std::max(a.y(), b.y()) / cell_m_));
+    for (int64_t x = x0; x <= x1; ++x)
+      for (int64_t y = y0; y <= y1; ++y) cells_[Key(x, y)].push_back(static_cast<uint32_t>(i));
+  }
+}
+
+bool ChainageIndex::Project(const Eigen::Vector2d& p,
+                            double max_off_m,
+                            double* chainage_m,
+                            double* off_m) const {
+  const int64_t cx = static_cast<int64_t>(std::floor(p.x() / cell_m_));
+  const int64_t cy = static_cast<int64_t>(std::floor(p.y() / cell_m_));
+  const int64_t reach = static_cast<int64_t>(std::ceil(max_off_m / cell_m_));
+  double best = std::numeric_limits<double>::infinity();
+  for (int64_t x = cx - reach; x <= cx + reach; ++x) {
+    for (int64_t y = cy - reach; y <= cy + reach; ++y) {
+      auto it = cells_.find(Key(x, y));
+      if (it == cells_.end()) continue;
+      for (uint32_t i : it->second) {
+        const Eigen::Vector2d a = c_[i].p.head<2>(), ab = c_[i + 1].p.head<2>() - a;
+        const double t = std::clamp((p - a).dot(ab) / std::max(ab.squaredNorm(), 1e-12), 0.0, 1.0);
+        const double d = (a + t * ab - p).norm();
+        if (d < best) {
+          best = d;
+          *chainage_m = c_[i].chainage_m + t * (c_[i + 1].chainage_m - c_[i].chainage_m);
+        }
+      }
+    }
+  }
+  if (off_m) *off_m = best;
+  return best <= max_off_m;
+}
+
 }  // namespace raillomer::mapstore

@@ -1,6 +1,8 @@
 #pragma once
 
+#include <cstdint>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Core>
@@ -44,5 +46,22 @@ std::vector<TrackSample> TrackGeometry(const std::vector<CentrelinePoint>& centr
 double ProjectChainage(const std::vector<CentrelinePoint>& centreline,
                        const Eigen::Vector2d& p,
                        double* distance_m = nullptr);
+
+/// ProjectChainage for many points: the centreline's segments indexed on a grid.
+class ChainageIndex {
+ public:
+  explicit ChainageIndex(std::vector<CentrelinePoint> centreline, double cell_m = 25.0);
+  /// The chainage of the nearest point of the centreline within `max_off_m` (horizontal);
+  /// false if there is none that near.
+  bool Project(const Eigen::Vector2d& p, double max_off_m, double* chainage_m, double* off_m) const;
+
+ private:
+  uint64_t Key(int64_t x, int64_t y) const {
+    return (static_cast<uint64_t>(x) << 32) ^ static_cast<uint32_t>(y);
+  }
+  std::vector<CentrelinePoint> c_;
+  double cell_m_;
+  std::unordered_map<uint64_t, std::vector<uint32_t>> cells_;  ///< segment i: c_[i] to c_[i+1]
+};
 
 }  // namespace raillomer::mapstore

@@ -1350,6 +1350,33 @@ Result MapStore::Trajectory(int64_t run_id, std::vector<api::StreamPose>* poses)
   return {};
 }
 
+Result MapStore::ChainageOfPoses(int64_t run_id,
+                                 const std::vector<api::StreamPose>& poses,
+                                 std::vector<double>* chainage_m,
+                                 double max_off_m) const {
+  chainage_m->assign(poses.size(), std::nan(""));
+  std::string error;
+  auto db = readers_->Take(&error);
+  if (!db) return Fail(Outcome::kError, error);
+  RunInfo run;
+  Result r = RunLocked(*db, run_id, &run);
+  if (!r) return r;
+  LineInfo line;
+  r = LineLocked(*db, run.line, &line);
+  if (!r || line.reference_run == 0) return r;
+  std::vector<CentrelinePoint> centreline;
+  r = CentrelineLocked(*db, run.line, &centreline);
+  if (!r) return r;
+  const ChainageIndex index(std::move(centreline));
+  for (size_t i = 0; i < poses.size(); ++i) {
+    double along = 0.0;
+    if (poses[i].georeferenced && poses[i].utm_zone == line.utm_zone &&
+        index.Project(poses[i].p.head<2>(), max_off_m, &along, nullptr))
+      (*chainage_m)[i] = along + line.chainage_offset_m;
+  }
+  return {};
+}
+
 StoreStats MapStore::stats() const {
   std::lock_guard<std::mutex> lock(mu_);
   StoreStats s = stats_;

@@ -220,6 +220,13 @@ class MapStore {
   Result Tile(int64_t run_id, const TileKey& key, TileInfo* info, std::string* bytes) const;
   /// The run's poses in sequence order.
   Result Trajectory(int64_t run_id, std::vector<api::StreamPose>* poses) const;
+  /// Each pose's chainage on its run's line (offset included), NaN where the pose lies more
+  /// than `max_off_m` from the centreline or the line has none yet: every run of a line is
+  /// referenced to the centreline its first run defined.
+  Result ChainageOfPoses(int64_t run_id,
+                         const std::vector<api::StreamPose>& poses,
+                         std::vector<double>* chainage_m,
+                         double max_off_m = 10.0) const;
 
   StoreStats stats() const;
   const StoreOptions& options() const { return options_; }

@@ -670,25 +670,27 @@ void Server::Impl::Routes() {
                 return;
               }
               // GeoJSON (RFC 7946): WGS84 longitude, latitude, ellipsoidal height.
-              json coordinates = json::array();
-              int zone_number = 0;
-              bool north = true;
-              if (!zone.empty() && api::ParseUtmZoneName(zone, &zone_number, &north)) {
-                for (const auto& p : poses) {
-                  if (!p.georeferenced || p.utm_zone != zone) continue;
-                  double lat = 0.0, lon = 0.0;
-                  try {
-                    GeographicLib::UTMUPS::Reverse(zone_number, north, p.p.x(), p.p.y(), lat, lon);
-                  } catch (const std::exception&) {
-                    continue;
-                  }
-                  coordinates.push_back({lon, lat, p.p.z()});
-                }
+              // Every run is referenced to its line's centreline: the chainage of each pose
+              // (null off the line, or before the line has one).
+              std::vector<double> chainage;
+              const mapstore::Result c = store_->ChainageOfPoses(id, poses, &chainage);
+              if (!c) return SendResult(res, c);
+              json coordinates = json::array(), chainage_m = json::array();
+              for (size_t i = 0; i < poses.size(); ++i) {
+                json point;
+                if (!poses[i].georeferenced || poses[i].utm_zone != zone ||
+                    !Wgs84(zone, poses[i].p, &point))
+                  continue;
+                coordinates.push_back(point);
+                chainage_m.push_back(std::isnan(chainage[i]) ? json(nullptr) : json(chainage[i]));
               }
-              json feature = {
-                  {"type", "Feature"},
-                  {"geometry", {{"type", "LineString"}, {"coordinates", coordinates}}},
-                  {"properties", {{"run", id}, {"poses", poses.size()}, {"utm_zone", zone}}}};
+              json feature = {{"type", "Feature"},
+                              {"geometry", {{"type", "LineString"}, {"coordinates", coordinates}}},
+                              {"properties",
+                               {{"run", id},
+                                {"poses", poses.size()},
+                                {"utm_zone", zone},
+                                {"chainage_m", chainage_m}}}};
               res.set_content(json{{"type", "FeatureCollection"}, {"features", {feature}}}.dump(),
                               "application/geo+json");
             }));

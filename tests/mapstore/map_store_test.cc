@@ -390,8 +390,24 @@ TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   EXPECT_EQ(
       store->PinKmPost("Line A", "far", 0.0, post + Eigen::Vector2d(0.0, 80.0), nullptr).outcome,
       Outcome::kInvalid);
-  // A second run of the line leaves its centreline as it was.
+  // A second run of the line leaves its centreline as it was, and is referenced to it: its
+  // poses, 0.4 m to the side, get the chainage of the first run's (offset included); one 30 m
+  // off the line gets none.
   const int64_t second = NewRunId(*store, "Line A");
+  std::vector<api::StreamPose> later = LinePoses();
+  later.resize(100);
+  for (api::StreamPose& p : later) p.p.y() += 0.4;
+  later[50].p.y() += 30.0;
+  ASSERT_TRUE(store->IngestPoses(second, later, nullptr));
+  std::vector<double> chainage;
+  ASSERT_TRUE(store->ChainageOfPoses(second, later, &chainage));
+  for (size_t i = 0; i < later.size(); ++i) {
+    if (i == 50) {
+      EXPECT_TRUE(std::isnan(chainage[i]));
+      continue;
+    }
+    EXPECT_NEAR(chainage[i], 12300.0 + 1.5 * static_cast<double>(i), 0.01) << i;
+  }
   ASSERT_TRUE(store->FinishRun(second, 1'600'000'100'000'000'000, nullptr));
   ASSERT_TRUE(store->GetLine("Line A", &line));
   EXPECT_EQ(line.reference_run, run);
