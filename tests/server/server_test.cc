@@ -471,6 +471,52 @@ TEST(Server, LiveHubStreamsPosesToPythonWebsocketClients) {
       << "the slow client dropped nothing";
 }
 
+TEST(Server, ReadsCanNeedATokenAndTheLiveHubSendsTileNotices) {
+  ScratchDir scratch("raillomer_server_");
+  const fs::path dir = scratch.path();
+  std::ofstream(dir / "closed.yaml")
+      << "reads_need_token: true\nread_token: read-token-0123456789\n";
+  ServerProcess server(dir / "data", "--config " + ShellQuote((dir / "closed.yaml").string()));
+  ASSERT_TRUE(server.ok()) << server.log();
+  const int64_t run = CreateRun(server, dir);
+  const std::string runs = server.Url("/api/v1/runs");
+  EXPECT_EQ(Curl(ShellQuote(runs), dir).status, 401);
+  EXPECT_EQ(Curl(Bearer("read-token-0123456789") + ShellQuote(runs), dir).status, 200);
+  EXPECT_EQ(Curl(Bearer(server.token()) + ShellQuote(runs), dir).status, 200);
+  // The read token may read, not write.
+  EXPECT_EQ(Curl(Bearer("read-token-0123456789") + PostJson({{"line", "x"}, {"vehicle", "y"}}) +
+                     ShellQuote(runs),
+                 dir)
+                .status,
+            401);
+  EXPECT_EQ(server.log().find("read-token-0123456789"), std::string::npos);
+
+  // The live hub refuses a client without the token; one with it hears of the tiles a submap
+  // wrote.
+  const std::string script = (SourceDir() / "tests" / "server" / "live_notice.py").string();
+  const std::string base = "/usr/bin/python3 " + ShellQuote(script) + " --port " +
+                           std::to_string(server.ws_port()) + " --run " + std::to_string(run) +
+                           " --ready " + ShellQuote((dir / "ready").string());
+  const CommandResult refused = RunCommand(base + " --timeout 5", dir);
+  EXPECT_EQ(refused.exit_code, 2) << refused.out << refused.err;
+  EXPECT_NE(refused.err.find("401"), std::string::npos) << refused.err;
+  CommandResult notice;
+  std::thread listener([&] { notice = RunCommand(base + " --token read-token-0123456789", dir); });
+  for (int i = 0; i < 200 && !fs::exists(dir / "ready"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const CurlResult r =
+      Curl(Bearer(server.token()) + PostFile(WriteSubmap(dir, CorridorSubmap(0), "s0.pcd")) +
+               ShellQuote(runs + "/" + std::to_string(run) + "/submaps"),
+           dir);
+  EXPECT_EQ(r.status, 201) << r.body;
+  listener.join();
+  ASSERT_EQ(notice.exit_code, 0) << notice.out << notice.err;
+  const json m = json::parse(notice.out);
+  EXPECT_EQ(m["run"], run);
+  EXPECT_FALSE(m["tiles"].empty());
+  EXPECT_EQ(m["tiles"][0]["version"], 1);
+}
+
 TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
   ScratchDir scratch("raillomer_server_");
   ServerProcess server(scratch.path() / "data");
