@@ -239,6 +239,27 @@ TEST(MapStore, BadInputIsRefusedWithAMessageAndChangesNothing) {
   EXPECT_EQ(store->stats().submaps_rejected, 8u);
 }
 
+TEST(MapStore, ASubmapOverThePointLimitIsRefused) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  StoreOptions options;
+  options.max_points_per_submap = 40'000;  // a corridor submap has 44 000
+  auto store = MapStore::Open(dir.path().string(), options, &error);
+  ASSERT_TRUE(store) << error;
+  const int64_t run = NewRunId(*store);
+  const Result r = store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(0)), nullptr);
+  EXPECT_EQ(r.outcome, Outcome::kInvalid);
+  EXPECT_NE(r.message.find("44000 points, more than the 40000 allowed"), std::string::npos)
+      << r.message;
+  RunInfo info;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps, 0);
+  // Options that make no sense are refused when the store opens.
+  options.grid.tile_m = 1.0;
+  EXPECT_FALSE(MapStore::Open((dir.path() / "other").string(), options, &error));
+  EXPECT_NE(error.find("tile_m"), std::string::npos) << error;
+}
+
 TEST(MapStore, ReopensWithEverythingAndMergesIncrementally) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
