@@ -57,25 +57,20 @@ std::string EncodeExport(const std::vector<ExportPoint>& points,
                          const std::string& utm_zone) {
   std::string out;
   const size_t n = points.size();
-  if (format == ExportFormat::kPly) {
+  if (format == ExportFormat::kPly || format == ExportFormat::kPcd) {
     std::ostringstream h;
-    h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer export, UTM zone " << utm_zone
-      << "\nelement vertex " << n
-      << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar intensity\n"
-         "end_header\n";
-    out = h.str();
-    out.reserve(out.size() + 25 * n);
-    for (const ExportPoint& p : points) {
-      Put(&out, p.p.x());
-      Put(&out, p.p.y());
-      Put(&out, p.p.z());
-      Put(&out, p.intensity);
+    if (format == ExportFormat::kPly) {
+      h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer export, UTM zone " << utm_zone
+        << "\nelement vertex " << n
+        << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar "
+           "intensity\nend_header\n";
+    } else {
+      h << "# .PCD v0.7 - RailLoMer export, UTM zone " << utm_zone
+        << "\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 8 8 8 1\nTYPE F F F U\nCOUNT 1 1 1 1\n"
+           "WIDTH "
+        << n << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n << "\nDATA binary\n";
     }
-  } else if (format == ExportFormat::kPcd) {
-    std::ostringstream h;
-    h << "# .PCD v0.7 - RailLoMer export, UTM zone " << utm_zone
-      << "\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 8 8 8 1\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH "
-      << n << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n << "\nDATA binary\n";
+    // The same records in both: three doubles and a byte.
     out = h.str();
     out.reserve(out.size() + 25 * n);
     for (const ExportPoint& p : points) {

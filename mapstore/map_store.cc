@@ -666,6 +666,20 @@ void ReadPoi(const Statement& q, Poi* p) {
   p->updated_ns = q.Int(10);
 }
 
+/// Binds a point of interest's fields as parameters 1-9 (line, kind, name, zone, x, y, z,
+/// properties, updated_ns).
+void BindPoi(Statement& q, const Poi& p) {
+  q.Bind(1, p.line)
+      .Bind(2, p.kind)
+      .Bind(3, p.name)
+      .Bind(4, p.utm_zone)
+      .Bind(5, p.p.x())
+      .Bind(6, p.p.y())
+      .Bind(7, p.p.z())
+      .Bind(8, p.properties_json)
+      .Bind(9, p.updated_ns);
+}
+
 constexpr char kPoiColumns[] =
     "SELECT id, IFNULL(line, ''), kind, name, utm_zone, x, y, z, properties, created_ns, "
     "updated_ns FROM pois";
@@ -682,18 +696,10 @@ Result MapStore::CreatePoi(Poi* poi) {
   }
   poi->created_ns = poi->updated_ns = NowNs();
   Statement q(*writer_,
-              "INSERT INTO pois (line, kind, name, utm_zone, x, y, z, properties, created_ns, "
-              "updated_ns) VALUES (NULLIF(?, ''), ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  q.Bind(1, poi->line)
-      .Bind(2, poi->kind)
-      .Bind(3, poi->name)
-      .Bind(4, poi->utm_zone)
-      .Bind(5, poi->p.x())
-      .Bind(6, poi->p.y())
-      .Bind(7, poi->p.z())
-      .Bind(8, poi->properties_json)
-      .Bind(9, poi->created_ns)
-      .Bind(10, poi->updated_ns);
+              "INSERT INTO pois (line, kind, name, utm_zone, x, y, z, properties, updated_ns, "
+              "created_ns) VALUES (NULLIF(?, ''), ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  BindPoi(q, *poi);
+  q.Bind(10, poi->created_ns);
   if (!q.Run()) return Fail(Outcome::kError, q.error());
   poi->id = writer_->LastInsertId();
   return {};
@@ -751,16 +757,8 @@ Result MapStore::UpdatePoi(Poi* poi) {
   Statement q(*writer_,
               "UPDATE pois SET line = NULLIF(?, ''), kind = ?, name = ?, utm_zone = ?, x = ?, y = "
               "?, z = ?, properties = ?, updated_ns = ? WHERE id = ?");
-  q.Bind(1, poi->line)
-      .Bind(2, poi->kind)
-      .Bind(3, poi->name)
-      .Bind(4, poi->utm_zone)
-      .Bind(5, poi->p.x())
-      .Bind(6, poi->p.y())
-      .Bind(7, poi->p.z())
-      .Bind(8, poi->properties_json)
-      .Bind(9, poi->updated_ns)
-      .Bind(10, poi->id);
+  BindPoi(q, *poi);
+  q.Bind(10, poi->id);
   if (!q.Run()) return Fail(Outcome::kError, q.error());
   if (writer_->Changes() == 0)
     return Fail(Outcome::kNotFound, "no point of interest " + std::to_string(poi->id));

@@ -357,6 +357,16 @@ std::vector<api::StreamPose> LinePoses() {
   return poses;
 }
 
+/// A finished run of "Line A" along LinePoses with four corridor submaps: it defines the line.
+int64_t StoreLineRun(MapStore& store) {
+  const int64_t run = NewRunId(store, "Line A");
+  EXPECT_TRUE(store.IngestPoses(run, LinePoses(), nullptr));
+  for (uint32_t i = 0; i < 4; ++i)
+    EXPECT_TRUE(store.IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
+  EXPECT_TRUE(store.FinishRun(run, 1'600'000'100'000'000'000, nullptr));
+  return run;
+}
+
 TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
@@ -443,11 +453,7 @@ TEST(MapStore, ExportsABoxOrAKmRangeAsPlyPcdAndLas) {
   std::string error;
   auto store = OpenStore(dir.path().string(), &error);
   ASSERT_TRUE(store) << error;
-  const int64_t run = NewRunId(*store, "Line A");
-  ASSERT_TRUE(store->IngestPoses(run, LinePoses(), nullptr));
-  for (uint32_t i = 0; i < 4; ++i)
-    ASSERT_TRUE(store->IngestSubmap(run, api::EncodeSubmapPcd(CorridorSubmap(i)), nullptr));
-  ASSERT_TRUE(store->FinishRun(run, 1'600'000'100'000'000'000, nullptr));
+  const int64_t run = StoreLineRun(*store);
 
   // A box 10-30 m along the corridor: its ground (8 m wide) and wall, one point per voxel.
   ExportRequest box;
