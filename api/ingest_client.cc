@@ -30,8 +30,11 @@ std::vector<fs::path> Pending(const std::string& dir) {
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
+    // Exactly "<12 digits>.<kind>": never a file still being written ("....tmp-<pid>").
+    const std::string kind = name.size() > 13 ? name.substr(13) : "";
     if (e.is_regular_file() && name.size() > 13 && name[12] == '.' &&
-        std::all_of(name.begin(), name.begin() + 12, ::isdigit))
+        std::all_of(name.begin(), name.begin() + 12, ::isdigit) &&
+        (kind == "poses.json" || kind == "submap.pcd" || kind == "finish.json"))
       files.push_back(e.path());
   }
   std::sort(files.begin(), files.end());
@@ -95,8 +98,10 @@ void IngestClient::WriteMessage(const std::string& kind, const std::string& byte
   std::string error;
   if (!WriteFileAtomically(
           (fs::path(options_.outbox_dir) / (name + kind)).string(), bytes, &error)) {
-    backlog_.last_error = "cannot write to the outbox: " + error;
-    if (warn_) warn_(backlog_.last_error);
+    // Told by the sender thread (never under this lock): the message is lost to the server.
+    backlog_.last_error = "cannot write to the outbox, a message is lost: " + error;
+    write_failed_ = true;
+    wake_.notify_all();
     return;
   }
   ++backlog_.messages;
@@ -245,6 +250,15 @@ void IngestClient::SenderLoop() {
   };
   bool was_connected = true;
   while (true) {
+    {
+      std::string lost;
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        if (write_failed_) lost = backlog_.last_error;
+        write_failed_ = false;
+      }
+      if (!lost.empty()) warn(lost);
+    }
     std::vector<fs::path> files = Pending(options_.outbox_dir);
     if (files.empty()) {
       std::unique_lock<std::mutex> lock(mu_);
@@ -271,7 +285,7 @@ void IngestClient::SenderLoop() {
       }
       {
         std::lock_guard<std::mutex> lock(mu_);
-        --backlog_.messages;
+        if (backlog_.messages > 0) --backlog_.messages;
         backlog_.bytes -= std::min<uint64_t>(backlog_.bytes, size);
         ++(rejected ? backlog_.rejected : backlog_.sent);
         backlog_.connected = true;

@@ -74,6 +74,7 @@ class IngestClient : public StreamSink {
   uint64_t next_file_ = 0;  ///< outbox order
   bool stopping_ = false;
   bool finishing_ = false;
+  bool write_failed_ = false;  ///< the outbox refused a message: the sender warns
   Backlog backlog_;
   std::function<void(const std::string&)> warn_;
   std::thread sender_;

@@ -150,7 +150,8 @@ struct MapStore::HotTile {
   VoxelSet voxels;
   int64_t version = 0;  ///< of the written tile this one continues (0: none yet)
   bool dirty = false;
-  int in_flight = 0;  ///< snapshots being encoded: not to be let go before they are written
+  int in_flight = 0;        ///< snapshots being encoded: not to be let go before they are written
+  bool unreadable = false;  ///< its stored version could not be read: never written over
   uint64_t touched = 0;
 };
 
@@ -846,9 +847,25 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
     return r;
   }
   Statement existing(*writer_,
-                     "SELECT payload_hash FROM submaps WHERE run_id = ? AND sequence = ?");
+                     "SELECT payload_hash, tiled FROM submaps WHERE run_id = ? AND sequence = ?");
   existing.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence));
   if (existing.Step()) {
+    if (existing.Text(0) == hash && existing.Int(1) == -1) {
+      // Its payload was lost before its tiles were written (a power cut): the same bytes sent
+      // again restore it.
+      const std::string incoming = IncomingPath(run_id, s.sequence);
+      if (!api::WriteFileAtomically(incoming, payload, &error))
+        return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
+      Statement again(*writer_, "UPDATE submaps SET tiled = 0 WHERE run_id = ? AND sequence = ?");
+      if (!again.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).Run())
+        return Fail(Outcome::kError, again.error());
+      IngestReceipt restored;
+      Merge(run_id, s, &restored);
+      unflushed_.emplace_back(run_id, s.sequence);
+      dirty_points_ += restored.points_new;
+      if (receipt) *receipt = restored;
+      return {};
+    }
     if (existing.Text(0) == hash) {
       ++stats_.submaps_duplicate;
       if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0};
@@ -949,12 +966,16 @@ MapStore::HotTile* MapStore::Hot(int64_t run_id,
               "iy = ?");
   q.Bind(1, run_id).Bind(2, key.level).Bind(3, key.ix).Bind(4, key.iy);
   std::string error;
-  if (q.Step() && DecodeTile(q.Blob(1), &tile->points, &error, &tile->quantization)) {
+  const bool stored = q.Step();
+  if (stored && DecodeTile(q.Blob(1), &tile->points, &error, &tile->quantization)) {
     tile->version = q.Int(0);
     tile->voxels.Reserve(tile->points.points.size());
     for (const Eigen::Vector3f& p : tile->points.points)
       tile->voxels.Insert(TileVoxel(p, static_cast<float>(1.0 / grid.VoxelM(key.level))));
   } else {
+    // A stored tile that cannot be read (an I/O error, corrupt bytes) is not replaced by this
+    // one: see Flush.
+    tile->unreadable = stored || !q.error().empty();
     tile->points = TilePoints();
     // The reference height on the coarsest voxel's lattice, like the corners, so that the
     // levels' voxels nest.
@@ -1094,46 +1115,73 @@ Result MapStore::Flush(std::vector<TileUpdate>* updated) {
   for (const Pending& p : pending) {
     if (!p.ok) return undo("tile " + p.tile.ToString() + ": " + p.error);
   }
-  Transaction t(*writer_);
-  if (!t.ok()) return undo(writer_->Message());
-  Statement put(*writer_,
-                "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
-                "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  const int64_t now = NowNs();
+  // A tile that could not be read back when it was reopened is never written over: the
+  // submaps of this snapshot keep their payloads (a restart merges them again).
+  const bool poisoned =
+      std::any_of(hot_.begin(), hot_.end(), [](const auto& h) { return h.second->unreadable; });
   std::vector<TileUpdate> done;
-  for (const Pending& p : pending) {
-    const HotTile& tile = *hot_.at(p.key);
-    put.Reset();
-    put.Bind(1, std::get<0>(p.key))
-        .Bind(2, p.tile.level)
-        .Bind(3, p.tile.ix)
-        .Bind(4, p.tile.iy)
-        .Bind(5, tile.points.utm_zone)
-        .Bind(6, tile.points.origin.x())
-        .Bind(7, tile.points.origin.y())
-        .Bind(8, tile.points.origin.z())
-        .Bind(9, static_cast<int64_t>(tile.points.points.size()))
-        .Bind(10, p.quantization.MaxErrorM())
-        .Bind(11, p.version)
-        .Bind(12, "\"" + std::to_string(p.version) + "-" + Hex64(Fnv1a(p.bytes)) + "\"")
-        .Bind(13, now)
-        .BindBlob(14, p.bytes);
-    if (!put.Run()) return undo(put.error());
-    done.push_back({std::get<0>(p.key), p.tile, p.version});
-  }
-  // Every submap of the snapshot is in written tiles now: its payload can go.
-  Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
-  for (const auto& [run, sequence] : submaps) {
-    mark.Reset();
-    if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run()) return undo(mark.error());
-  }
-  std::string error;
-  if (!t.Commit(&error)) return undo(error);
+  const Result written = [&]() -> Result {
+    // Every statement lives and dies inside this block, under the lock: the writer
+    // connection is not thread-safe.
+    Transaction t(*writer_);
+    if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+    Statement put(*writer_,
+                  "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
+                  "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
+                  "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    const int64_t now = NowNs();
+    for (const Pending& p : pending) {
+      const HotTile& tile = *hot_.at(p.key);
+      if (tile.unreadable) continue;
+      put.Reset();
+      put.Bind(1, std::get<0>(p.key))
+          .Bind(2, p.tile.level)
+          .Bind(3, p.tile.ix)
+          .Bind(4, p.tile.iy)
+          .Bind(5, tile.points.utm_zone)
+          .Bind(6, tile.points.origin.x())
+          .Bind(7, tile.points.origin.y())
+          .Bind(8, tile.points.origin.z())
+          .Bind(9, static_cast<int64_t>(p.points_count))
+          .Bind(10, p.quantization.MaxErrorM())
+          .Bind(11, p.version)
+          .Bind(12, "\"" + std::to_string(p.version) + "-" + Hex64(Fnv1a(p.bytes)) + "\"")
+          .Bind(13, now)
+          .BindBlob(14, p.bytes);
+      if (!put.Run()) return Fail(Outcome::kError, put.error());
+      done.push_back({std::get<0>(p.key), p.tile, p.version});
+    }
+    if (!poisoned) {
+      // Every submap of the snapshot is in written tiles now: its payload can go.
+      Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
+      for (const auto& [run, sequence] : submaps) {
+        mark.Reset();
+        if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
+          return Fail(Outcome::kError, mark.error());
+      }
+    }
+    std::string error;
+    if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+    return {};
+  }();
+  if (!written) return undo(written.message);
   for (const Pending& p : pending) --hot_.at(p.key)->in_flight;
-  stats_.tiles_written += pending.size();
+  stats_.tiles_written += done.size();
   for (const Pending& p : pending) stats_.points_encoded += p.points_count;
   ++stats_.flushes;
+  if (poisoned) {
+    // Keep the payloads; let the unreadable tiles go, so the next touch tries to read them again.
+    unflushed_.insert(unflushed_.end(), submaps.begin(), submaps.end());
+    submaps.clear();
+    for (auto it = hot_.begin(); it != hot_.end();) {
+      if (it->second->unreadable && it->second->in_flight == 0) {
+        hot_points_ -= it->second->points.points.size();
+        it = hot_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
   if (updated) *updated = done;
   const auto listener = listener_;
   lock.unlock();
@@ -1193,16 +1241,23 @@ Result MapStore::TilesInBox(int64_t run_id,
   Result r = RunLocked(*db, run_id, nullptr);
   if (!r) return r;
   const double side = options_.grid.TileM(level);
+  // Within UTM's range: tile indices of a box far beyond it would overflow.
+  const Eigen::AlignedBox2d utm(Eigen::Vector2d(-1.0e6, -1.0e7), Eigen::Vector2d(2.0e6, 2.0e7));
+  if (!utm.intersects(box)) {
+    tiles->clear();
+    return {};
+  }
+  const Eigen::AlignedBox2d clamped = box.intersection(utm);
   Statement q(*db,
               "SELECT ix, iy, utm_zone, origin_x, origin_y, origin_z, points, length(bytes), "
               "version, updated_ns, max_error_m, etag FROM tiles WHERE run_id = ? AND level = ? "
               "AND ix BETWEEN ? AND ? AND iy BETWEEN ? AND ? ORDER BY ix, iy");
   q.Bind(1, run_id)
       .Bind(2, level)
-      .Bind(3, static_cast<int64_t>(std::floor(box.min().x() / side)))
-      .Bind(4, static_cast<int64_t>(std::floor(box.max().x() / side)))
-      .Bind(5, static_cast<int64_t>(std::floor(box.min().y() / side)))
-      .Bind(6, static_cast<int64_t>(std::floor(box.max().y() / side)));
+      .Bind(3, static_cast<int64_t>(std::floor(clamped.min().x() / side)))
+      .Bind(4, static_cast<int64_t>(std::floor(clamped.max().x() / side)))
+      .Bind(5, static_cast<int64_t>(std::floor(clamped.min().y() / side)))
+      .Bind(6, static_cast<int64_t>(std::floor(clamped.max().y() / side)));
   tiles->clear();
   while (q.Step()) {
     TileInfo t;
@@ -1260,8 +1315,11 @@ Result MapStore::Tile(int64_t run_id,
 
 Result MapStore::IngestPoses(int64_t run_id,
                              const std::vector<api::StreamPose>& poses,
-                             int* stored) {
+                             int* stored,
+                             std::vector<bool>* added_flags) {
   if (stored) *stored = 0;
+  if (added_flags) added_flags->assign(poses.size(), false);
+  std::vector<bool> fresh(poses.size(), false);
   std::string error;
   for (const api::StreamPose& p : poses) {
     if (!ValidPose(p, &error)) return Fail(Outcome::kInvalid, error);
@@ -1279,7 +1337,8 @@ Result MapStore::IngestPoses(int64_t run_id,
                 "INSERT INTO poses (run_id, sequence, stamp_ns, georeferenced, utm_zone, x, y, z, "
                 "qx, qy, qz, qw) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   int added = 0;
-  for (const api::StreamPose& p : poses) {
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const api::StreamPose& p = poses[k];
     get.Reset();
     get.Bind(1, run_id).Bind(2, static_cast<int64_t>(p.sequence));
     if (get.Step()) {
@@ -1312,12 +1371,14 @@ Result MapStore::IngestPoses(int64_t run_id,
         .Bind(12, p.q.w());
     if (!put.Run()) return Fail(Outcome::kError, put.error());
     ++added;
+    fresh[k] = true;
   }
   Statement count(*writer_, "UPDATE runs SET poses = poses + ? WHERE id = ?");
   if (!count.Bind(1, added).Bind(2, run_id).Run()) return Fail(Outcome::kError, count.error());
   if (!t.Commit(&error)) return Fail(Outcome::kError, error);
   stats_.poses_stored += added;
   if (stored) *stored = added;
+  if (added_flags) *added_flags = fresh;
   if (added == 0 && !poses.empty())
     return {Outcome::kDuplicate, "every pose of the batch was stored before"};
   return {};

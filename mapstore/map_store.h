@@ -203,7 +203,11 @@ class MapStore {
   Result IngestSubmap(int64_t run_id, const std::string& payload, IngestReceipt* receipt);
   /// Stores poses by sequence number: stored ones again are skipped, different values under a
   /// stored sequence are a conflict (and nothing of the batch is stored).
-  Result IngestPoses(int64_t run_id, const std::vector<api::StreamPose>& poses, int* stored);
+  /// `added` (if given) gets, per pose, whether this call stored it.
+  Result IngestPoses(int64_t run_id,
+                     const std::vector<api::StreamPose>& poses,
+                     int* stored,
+                     std::vector<bool>* added = nullptr);
 
   /// Encodes every changed tile and writes them in one transaction, ingest going on meanwhile;
   /// `updated` gets them. The background flusher calls it too.

@@ -129,7 +129,7 @@ Transaction::Transaction(Database& db) : db_(db) {
 }
 
 Transaction::~Transaction() {
-  if (ok_ && !done_) {
+  if (ok_ && !done_ && !sqlite3_get_autocommit(db_.handle())) {
     std::string error;
     db_.Exec("ROLLBACK", &error);
   }
@@ -140,8 +140,13 @@ bool Transaction::Commit(std::string* error) {
     *error = "no transaction: " + db_.Message();
     return false;
   }
+  if (!db_.Exec("COMMIT", error)) {
+    // A failed COMMIT (busy, disk full) may leave the transaction open: the destructor rolls
+    // it back, so no later write lands in it unseen.
+    return false;
+  }
   done_ = true;
-  return db_.Exec("COMMIT", error);
+  return true;
 }
 
 }  // namespace raillomer::mapstore

@@ -42,7 +42,9 @@ void SendError(httplib::Response& res,
                const std::string& code,
                const std::string& message) {
   res.status = status;
-  res.set_content(json{{"error", {{"code", code}, {"message", message}}}}.dump(),
+  // Messages may quote request data: bytes that are not UTF-8 are replaced, never thrown on.
+  res.set_content(json{{"error", {{"code", code}, {"message", message}}}}.dump(
+                      -1, ' ', false, json::error_handler_t::replace),
                   "application/json");
 }
 
@@ -203,6 +205,11 @@ bool ParsePose(const json& j, api::StreamPose* p, std::string* error) {
   }
   p->sequence = j["sequence"].get<uint64_t>();
   p->stamp_ns = j["stamp_ns"].get<int64_t>();
+  if ((j.contains("georeferenced") && !j["georeferenced"].is_boolean()) ||
+      (j.contains("utm_zone") && !j["utm_zone"].is_string())) {
+    *error = "a pose's georeferenced must be true or false and its utm_zone a string";
+    return false;
+  }
   p->georeferenced = j.value("georeferenced", false);
   p->utm_zone = j.value("utm_zone", std::string());
   p->p = Eigen::Vector3d(j["p"][0].get<double>(), j["p"][1].get<double>(), j["p"][2].get<double>());
@@ -336,7 +343,12 @@ class Server::Impl {
                   write ? "this needs the ingest token as 'Authorization: Bearer <token>'"
                         : "reads need a token as 'Authorization: Bearer <token>'");
       } else {
-        h(req, res);
+        try {
+          h(req, res);
+        } catch (const std::exception& e) {
+          // A handler's bug, not the client's: still an answer, counted like any other.
+          SendError(res, 500, "error", std::string("internal error: ") + e.what());
+        }
         if (res.status == -1) res.status = 200;  // httplib's default, set after the handler
       }
       metrics_.Observe(
@@ -559,16 +571,18 @@ void Server::Impl::Routes() {
           poses.push_back(pose);
         }
         int stored = 0;
-        const mapstore::Result r = store_->IngestPoses(id, poses, &stored);
+        std::vector<bool> added;
+        const mapstore::Result r = store_->IngestPoses(id, poses, &stored, &added);
         if (!r) return SendResult(res, r);
-        // Live: the poses this batch added, in order (a re-sent batch publishes nothing).
-        if (stored > 0) {
-          std::sort(poses.begin(), poses.end(), [](const auto& a, const auto& b) {
-            return a.sequence < b.sequence;
-          });
-          for (size_t i = poses.size() - static_cast<size_t>(stored); i < poses.size(); ++i)
-            hub_->PublishPose(id, poses[i]);
-        }
+        // Live: exactly the poses this batch added, in sequence order (a re-sent batch
+        // publishes nothing).
+        std::vector<const api::StreamPose*> live;
+        for (size_t i = 0; i < poses.size(); ++i)
+          if (added[i]) live.push_back(&poses[i]);
+        std::sort(live.begin(), live.end(), [](const auto* a, const auto* b) {
+          return a->sequence < b->sequence;
+        });
+        for (const api::StreamPose* p : live) hub_->PublishPose(id, *p);
         res.set_content(json{{"stored", stored}, {"received", poses.size()}}.dump(),
                         "application/json");
       }));
@@ -782,7 +796,8 @@ void Server::Impl::Routes() {
         mapstore::LineInfo line;
         const mapstore::Result r = store_->PinKmPost(
             req.matches[1],
-            body.value("label", std::string()),
+            (body.contains("label") && body["label"].is_string() ? body["label"].get<std::string>()
+                                                                 : std::string()),
             body["km"].get<double>() * 1000.0,
             Eigen::Vector2d(body["easting"].get<double>(), body["northing"].get<double>()),
             &line);

@@ -557,6 +557,39 @@ TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {
   EXPECT_EQ(store->DeletePoi(mast.id).outcome, Outcome::kNotFound);
 }
 
+TEST(MapStore, ASubmapWhosePayloadWasLostIsRestoredBySendingItAgain) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  const int64_t run = StoreRun(dir.path().string(), 1);
+  const std::string payload = api::EncodeSubmapPcd(CorridorSubmap(1));
+  // A child acknowledges submap 1 and dies before its tiles are written; then its payload is
+  // lost too (as a power cut could).
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    std::string e;
+    auto store = OpenStore(dir.path().string(), &e);
+    const bool ok = store && store->IngestSubmap(run, payload, nullptr).ok();
+    kill(getpid(), SIGKILL);
+    _exit(ok ? 0 : 1);
+  }
+  int status = 0;
+  waitpid(child, &status, 0);
+  std::filesystem::remove_all(dir.path() / "incoming");
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  EXPECT_EQ(store->stats().submaps_lost, 1u);
+  const size_t before = AllPoints(*store, run).size();
+  IngestReceipt receipt;
+  const Result r = store->IngestSubmap(run, payload, &receipt);
+  EXPECT_EQ(r.outcome, Outcome::kOk) << r.message;
+  ASSERT_TRUE(store->Flush());
+  EXPECT_EQ(AllPoints(*store, run).size(), before + receipt.points_new);
+  EXPECT_GT(receipt.points_new, 0u);
+  // Sent once more, it is an ordinary duplicate.
+  EXPECT_EQ(store->IngestSubmap(run, payload, nullptr).outcome, Outcome::kDuplicate);
+}
+
 TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   test::ScratchDir dir("raillomer_store_");
   const std::string path = (dir.path() / "index.sqlite").string();
