@@ -61,6 +61,13 @@ int main(int argc, char** argv) {
       app.add_option("--submaps",
                      submap_folder,
                      "score the sharpness of this run's submap folder (needs --scenario)");
+  std::string rail_csv_path;
+  app.add_option("--rail-csv",
+                 rail_csv_path,
+                 "with --submaps: write every rail-head segment seen by two or more submaps here "
+                 "(CSV: x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m), to find where "
+                 "they disagree")
+      ->needs(submaps_option);
   scenario_option->needs(submaps_option);
   submaps_option->needs(scenario_option);
   CLI11_PARSE(app, argc, argv);
@@ -117,6 +124,12 @@ int main(int argc, char** argv) {
     }
     const raillomer::eval::SharpnessResult map = sharpness.Result();
     std::cout << raillomer::eval::FormatSharpness(map) << std::flush;
+    if (!rail_csv_path.empty() &&
+        !raillomer::api::WriteFileAtomically(
+            rail_csv_path, raillomer::eval::RailSegmentsCsv(sharpness.RailSegments()), &error)) {
+      std::cerr << "raillomer-eval: error: " << error << "\n";
+      return kExitInputError;
+    }
     map_json = raillomer::eval::ToJson(map);
   }
 

@@ -54,9 +54,12 @@ struct PlanePatch {
 
 /// One submap's points on one rail-head segment: their heights along the head's normal.
 struct RailSample {
-  size_t submap = 0;
+  size_t submap = 0;   ///< the order it was added in
+  uint32_t index = 0;  ///< api::Submap::index
   size_t count = 0;
   double sum = 0.0;
+  double sum_squares = 0.0;
+  double truth_sum = 0.0;  ///< distances from the true head, after the truth alignment
 };
 
 struct RailSegment {
@@ -243,12 +246,15 @@ void MapSharpness::AddSubmap(const api::Submap& submap, const Eigen::Isometry3d&
       RailSegment& segment = m.rails[key];
       if (segment.samples.empty()) segment.where = mapped;
       if (segment.samples.empty() || segment.samples.back().submap != submap_index) {
-        segment.samples.push_back({submap_index, 0, 0.0});
+        segment.samples.push_back({submap_index, submap.index, 0, 0.0, 0.0, 0.0});
       }
       RailSample& sample = segment.samples.back();
       ++sample.count;
       // Heights relative to the segment's first point keep the sum exact at UTM magnitudes.
-      sample.sum += s.n.dot(mapped - segment.where);
+      const double height = s.n.dot(mapped - segment.where);
+      sample.sum += height;
+      sample.sum_squares += height * height;
+      sample.truth_sum += s.n.dot(aligned) - s.d;
     }
   }
 }
@@ -281,27 +287,63 @@ SharpnessResult MapSharpness::Result() const {
   r.plane_patch_p95_m = Percentile(patch_rms, 0.95);
 
   std::vector<double> spreads;
-  for (const auto& [key, segment] : m.rails) {
-    double lo = 1e9, hi = -1e9;
-    int seen = 0;
-    for (const RailSample& sample : segment.samples) {
-      if (sample.count < static_cast<size_t>(m.options.min_rail_points)) continue;
-      const double height = sample.sum / static_cast<double>(sample.count);
-      lo = std::min(lo, height);
-      hi = std::max(hi, height);
-      ++seen;
-    }
-    if (seen < 2) continue;
-    spreads.push_back(hi - lo);
-    if (spreads.back() > r.rail_spread_max_m) {
-      r.rail_spread_max_m = spreads.back();
-      r.worst_rail_utm = segment.where;
+  for (const RailSegmentReport& segment : RailSegments()) {
+    spreads.push_back(segment.spread_m);
+    if (segment.spread_m > r.rail_spread_max_m) {
+      r.rail_spread_max_m = segment.spread_m;
+      r.worst_rail_utm = segment.utm;
     }
   }
   r.rail_segments = spreads.size();
   r.rail_spread_median_m = Percentile(spreads, 0.5);
   r.rail_spread_p95_m = Percentile(spreads, 0.95);
   return r;
+}
+
+std::vector<RailSegmentReport> MapSharpness::RailSegments() const {
+  const Impl& m = *impl_;
+  std::vector<RailSegmentReport> out;
+  for (const auto& [key, segment] : m.rails) {
+    RailSegmentReport report;
+    report.utm = segment.where;
+    double lo = 1e9, hi = -1e9;
+    for (const RailSample& sample : segment.samples) {
+      if (sample.count < static_cast<size_t>(m.options.min_rail_points)) continue;
+      const double n = static_cast<double>(sample.count);
+      const double mean = sample.sum / n;
+      const double rms = std::sqrt(std::max(0.0, sample.sum_squares / n - mean * mean));
+      report.samples.push_back({sample.index, sample.count, mean, rms, sample.truth_sum / n});
+      lo = std::min(lo, mean);
+      hi = std::max(hi, mean);
+    }
+    if (report.samples.size() < 2) continue;
+    report.spread_m = hi - lo;
+    out.push_back(std::move(report));
+  }
+  return out;
+}
+
+std::string RailSegmentsCsv(const std::vector<RailSegmentReport>& segments) {
+  std::string out = "x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m\n";
+  char line[192];
+  for (const RailSegmentReport& segment : segments) {
+    for (const RailSegmentReport::Sample& sample : segment.samples) {
+      std::snprintf(line,
+                    sizeof(line),
+                    "%.3f,%.3f,%.3f,%.4f,%u,%zu,%.4f,%.4f,%.4f\n",
+                    segment.utm.x(),
+                    segment.utm.y(),
+                    segment.utm.z(),
+                    segment.spread_m,
+                    sample.submap,
+                    sample.points,
+                    sample.height_m,
+                    sample.rms_m,
+                    sample.truth_offset_m);
+      out += line;
+    }
+  }
+  return out;
 }
 
 bool ScoreSubmapFolder(const std::string& folder,

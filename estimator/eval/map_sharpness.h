@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -71,6 +72,22 @@ struct SharpnessResult {
   Eigen::Vector3d worst_rail_utm = Eigen::Vector3d::Zero();
 };
 
+/// One rail-head segment seen by at least two submaps, for finding where a map disagrees.
+struct RailSegmentReport {
+  Eigen::Vector3d utm = Eigen::Vector3d::Zero();  ///< the segment's first mapped point
+  double spread_m = 0.0;  ///< largest difference between two submaps' mean heights
+  struct Sample {
+    uint32_t submap = 0;  ///< api::Submap::index
+    size_t points = 0;
+    double height_m = 0.0;  ///< mean height along the head's normal, relative to `utm`
+    double rms_m = 0.0;     ///< the points' spread about that mean
+    /// Mean distance from the true head top once the submap is aligned to the truth at its
+    /// middle keyframe: the submap's own error there, its placement taken out.
+    double truth_offset_m = 0.0;
+  };
+  std::vector<Sample> samples;  ///< submaps with at least min_rail_points points on it
+};
+
 /// Scores a map submap by submap; memory grows with the number of surface patches, not points.
 class MapSharpness {
  public:
@@ -85,6 +102,8 @@ class MapSharpness {
   void AddSubmap(const api::Submap& submap, const Eigen::Isometry3d& T_truth_est);
 
   SharpnessResult Result() const;
+  /// Every rail-head segment that Result() scores, in no particular order.
+  std::vector<RailSegmentReport> RailSegments() const;
 
  private:
   struct Impl;
@@ -99,6 +118,10 @@ bool ScoreSubmapFolder(const std::string& folder,
                        MapSharpness* sharpness,
                        size_t* skipped,
                        std::string* error);
+
+/// The segments as CSV, one row per submap's sample:
+/// x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m.
+std::string RailSegmentsCsv(const std::vector<RailSegmentReport>& segments);
 
 /// The figures as text lines for a terminal, and as JSON (units in the keys).
 std::string FormatSharpness(const SharpnessResult& result);

@@ -19,9 +19,12 @@ std::vector<Eigen::Vector3f> Thinned(const std::vector<Eigen::Vector3f>& points,
   return out;
 }
 
-bool Within(const Registration& r, const Eigen::Isometry3d& guess, double max_m, double max_deg) {
+bool Within(const Eigen::Isometry3d& guess,
+            const Eigen::Isometry3d& result,
+            double max_m,
+            double max_deg) {
   double translation_m = 0.0, rotation_rad = 0.0;
-  CorrectionSize(guess, r.T_target_source, &translation_m, &rotation_rad);
+  CorrectionSize(guess, result, &translation_m, &rotation_rad);
   return translation_m <= max_m && rotation_rad <= max_deg * M_PI / 180.0;
 }
 
@@ -60,7 +63,10 @@ void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
     });
     auto accept = [&](const Registration& r, const Eigen::Isometry3d& guess) {
       return r.converged && r.fitness_m2 <= options_.icp_max_fitness_m2 &&
-             Within(r, guess, options_.icp_max_correction_m, options_.icp_max_correction_deg);
+             Within(guess,
+                    r.T_target_source,
+                    options_.icp_max_correction_m,
+                    options_.icp_max_correction_deg);
     };
     const Eigen::Isometry3d odometry_guess = (*P)[k];
     const Registration r =
@@ -135,14 +141,12 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
   Pending p = std::move(*pending_);
   pending_.reset();
   const Registration r = p.ndt.get();
-  if (r.converged && Within(r,
-                            Eigen::Isometry3d::Identity(),
-                            options_.ndt_max_correction_m,
-                            options_.ndt_max_correction_deg)) {
-    ++stats_.ndt_applied;
-    // Along the track only where the registration sees it: on a corridor that repeats itself
-    // every mast spacing NDT slides, and the odometry (its scale corrected by GNSS) is better.
-    Eigen::Isometry3d delta = r.T_target_source;
+  // Along the track only where the registration sees it: on a corridor that repeats itself
+  // every mast spacing NDT slides, and the odometry (its scale corrected by GNSS) is better.
+  // The slide is taken out before the trust region is checked, so that it does not throw
+  // away the height and the turn that NDT did see.
+  Eigen::Isometry3d delta = r.T_target_source;
+  if (r.converged) {
     const Eigen::Vector3d a = p.P[p.anchor].translation();
     Eigen::Vector3d along = p.P[p.anchor].linear().col(0);
     along.z() = 0.0;
@@ -155,6 +159,12 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
         delta.translation() -= along * along.dot(delta * a - a);
       }
     }
+  }
+  if (r.converged && Within(Eigen::Isometry3d::Identity(),
+                            delta,
+                            options_.ndt_max_correction_m,
+                            options_.ndt_max_correction_deg)) {
+    ++stats_.ndt_applied;
     for (Eigen::Vector3f& q : p.submap.points) q = (delta * q.cast<double>()).cast<float>();
     for (Eigen::Isometry3d& T : p.P) T = delta * T;
   } else {
@@ -199,6 +209,7 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
     next.T_world_anchor = p.P[p.anchor];
     next.T_world_anchor.translation() += s.origin;
     next.T_odom_anchor = p.T_odom_anchor;
+    next.R_level_anchor = p.T_gnss_anchor.linear();
     previous_ = std::move(next);
   } else {
     previous_.reset();
@@ -207,27 +218,69 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
   return std::move(s);
 }
 
-Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor, bool* chained) {
+Eigen::Matrix3d SubmapBuilder::Tilt(const Eigen::Matrix3d& R_world_body) const {
+  Eigen::Vector3d heading = R_world_body.col(0);
+  heading.z() = 0.0;
+  if (slope_rad_ == 0.0 || heading.norm() < 1e-6) return Eigen::Matrix3d::Identity();
+  const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(heading.normalized());
+  return Eigen::AngleAxisd(-slope_rad_, left).toRotationMatrix();  // about left: nose up
+}
+
+void SubmapBuilder::UpdateHeightLoop(double below_gnss_m, double travel_m) {
+  const double length = options_.gnss_height_length_m;
+  if (!(length > 0.0)) return;
+  // e'' = -kp e' - ki e for the height difference e along the path: critically damped with
+  // natural length L when kp = 2 / L and ki = 1 / L^2.
+  const double kp = 2.0 / length, ki = 1.0 / (length * length);
+  const double max_tilt = options_.gnss_max_tilt_rad;
+  height_integral_m2_ =
+      std::clamp(height_integral_m2_ + below_gnss_m * travel_m, -max_tilt / ki, max_tilt / ki);
+  const double wanted =
+      std::clamp(kp * below_gnss_m + ki * height_integral_m2_, -max_tilt, max_tilt);
+  const double turn = options_.gnss_max_tilt_rate_rad_per_m * travel_m;
+  slope_rad_ += std::clamp(wanted - slope_rad_, -turn, turn);
+}
+
+Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
+                                             bool* chained,
+                                             Eigen::Matrix3d* tilt) {
   *chained = false;
+  *tilt = Eigen::Matrix3d::Identity();
   const Eigen::Isometry3d& gnss = anchor.T_world_body;
   if (!anchor.georeferenced || !previous_ || previous_->utm_zone != anchor.utm_zone) return gnss;
   // The previous submap's position carried by the odometry's motion since its anchor, turned
   // into the world by the current GNSS correction and with the odometry's scale error taken
   // out; the orientation is the GNSS-corrected one. Carrying the orientation along the chain
   // too would carry an early heading error (the alignment's, before the graph has settled)
-  // into every later submap, which then walks sideways off the track.
-  const Eigen::Matrix3d R_correction = gnss.linear() * anchor.T_odom_body.linear().transpose();
+  // into every later submap, which then walks sideways off the track. Path and orientation
+  // are both tilted by the height loop, and by the roll and pitch that NDT and the pull left
+  // the previous submap with against its own GNSS orientation: NDT then only has this
+  // submap's own difference to take out, and one that stops early (PCL's sometimes stops at
+  // its first step) leaves no step in roll or pitch at the seam. The pull takes that carried
+  // tilt out again, a share per submap.
+  *tilt = Tilt(gnss.linear());
+  const Eigen::AngleAxisd left_over(previous_->T_world_anchor.linear() *
+                                    previous_->R_level_anchor.transpose());
+  Eigen::Vector3d carried = left_over.angle() * left_over.axis();
+  carried.z() = 0.0;  // heading stays the GNSS correction's (see above)
+  Eigen::Matrix3d R_tilt = *tilt;
+  if (carried.norm() > 1e-12) {
+    R_tilt = Eigen::AngleAxisd(carried.norm(), carried.normalized()).toRotationMatrix() * R_tilt;
+  }
+  const Eigen::Matrix3d R_correction =
+      R_tilt * gnss.linear() * anchor.T_odom_body.linear().transpose();
+  const Eigen::Vector3d motion = anchor.odometry_scale * (anchor.T_odom_body.translation() -
+                                                          previous_->T_odom_anchor.translation());
   Eigen::Isometry3d chain = gnss;
-  chain.translation() =
-      previous_->T_world_anchor.translation() +
-      R_correction * (anchor.odometry_scale *
-                      (anchor.T_odom_body.translation() - previous_->T_odom_anchor.translation()));
+  chain.linear() = R_tilt * gnss.linear();
+  chain.translation() = previous_->T_world_anchor.translation() + R_correction * motion;
+  UpdateHeightLoop(gnss.translation().z() - chain.translation().z(), motion.norm());
   if ((gnss.translation() - chain.translation()).head<2>().norm() > options_.chain_reset_m) {
     // GNSS places it across and along the track; the height stays the chain's: a single-point
     // receiver's height wanders by metres, and taking it would tear the map by as much.
     ++stats_.chain_resets;
-    Eigen::Isometry3d T = gnss;
-    T.translation().z() = chain.translation().z();
+    Eigen::Isometry3d T = chain;
+    T.translation().head<2>() = gnss.translation().head<2>();
     return T;
   }
   ++stats_.chained;
@@ -255,7 +308,9 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   p.T_gnss_anchor = open_[p.anchor].T_world_body;
   p.travel_anchor_m = open_travel_m_[p.anchor];
   bool chained = false;
-  Eigen::Isometry3d A = PlaceAnchor(open_[p.anchor], &chained);
+  Eigen::Matrix3d tilt;
+  Eigen::Isometry3d A = PlaceAnchor(open_[p.anchor], &chained, &tilt);
+  p.T_gnss_anchor.linear() = tilt * p.T_gnss_anchor.linear();  // the pull keeps the tilt
   p.chained = chained;
   A.translation() -= s.origin;
   const Eigen::Isometry3d odom_anchor_inv = p.T_odom_anchor.inverse();

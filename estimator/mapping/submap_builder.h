@@ -38,12 +38,24 @@ struct SubmapOptions {
   /// was re-solved), GNSS places it horizontally instead. NDT then registers it onto every
   /// earlier submap it overlaps: the previous ones and, where the train runs the same track
   /// again, those of the earlier pass (along the track only where that is observable); last it
-  /// moves `gnss_pull`
-  /// of the way towards its GNSS pose, so the chain follows GNSS without a step at any seam.
+  /// moves `gnss_pull` of the way towards its GNSS pose horizontally, so the chain follows
+  /// GNSS without a large step at any seam.
   double gnss_pull = 0.05;
-  /// Vertically the pull is weaker: a single-point receiver's height wanders by metres, the
-  /// odometry's by far less.
-  double gnss_pull_vertical = 0.01;
+  /// The same pull in height; 0 by default. A height step at a seam shows as a step in the rail
+  /// heads that both submaps see: 1 % of a single-point receiver's 2 m height error was 2 cm at
+  /// every seam.
+  double gnss_pull_vertical = 0.0;
+  /// Instead the chain's height follows GNSS through its slope: the chain is tilted (its path
+  /// and its orientation together, so each submap stays rigid and consecutive ones meet) by a
+  /// critically damped loop on the anchor's height below its GNSS height, with this natural
+  /// length (m). The tilt changes by hundredths of a milliradian from one submap to the next;
+  /// an odometry that climbs too steeply is levelled out over a few kilometres. 0 leaves the
+  /// height to the odometry (and gnss_pull_vertical).
+  double gnss_height_length_m = 2000.0;
+  double gnss_max_tilt_rad = 0.005;  ///< the loop's tilt is held within this...
+  /// ...and turns by at most this per metre of path (0.07 mrad over a 33 m submap, a
+  /// millimetre at its seam), even when the GNSS height jumps.
+  double gnss_max_tilt_rate_rad_per_m = 2e-6;
   double chain_reset_m = 2.0;
   bool ndt = true;
   NdtOptions ndt_options;
@@ -119,7 +131,8 @@ class SubmapBuilder {
     api::Submap submap;
     std::vector<Eigen::Isometry3d> P;  ///< keyframe poses, local (world minus origin)
     Eigen::Isometry3d T_odom_anchor = Eigen::Isometry3d::Identity();
-    Eigen::Isometry3d T_gnss_anchor = Eigen::Isometry3d::Identity();  ///< absolute
+    /// Absolute; its orientation tilted by the height loop (where the pull takes the submap).
+    Eigen::Isometry3d T_gnss_anchor = Eigen::Isometry3d::Identity();
     bool chained = false;
     size_t anchor = 0;
     double travel_anchor_m = 0.0;  ///< the odometry's path length at the anchor
@@ -137,7 +150,16 @@ class SubmapBuilder {
   void RegisterKeyframes(const Eigen::Vector3d& origin, std::vector<Eigen::Isometry3d>* P);
   /// Stage 2: where the middle keyframe goes (absolute), by the chain or by GNSS; `chained`
   /// tells which.
-  Eigen::Isometry3d PlaceAnchor(const SubmapKeyframe& anchor, bool* chained);
+  /// `tilt` is the height loop's rotation (where the GNSS pull takes the orientation); the
+  /// chain's path and orientation are tilted by it and by the previous submap's roll and pitch
+  /// against its own.
+  Eigen::Isometry3d PlaceAnchor(const SubmapKeyframe& anchor, bool* chained, Eigen::Matrix3d* tilt);
+  /// The rotation about the horizontal axis across `R_world_body`'s heading that raises the
+  /// nose by the height loop's slope.
+  Eigen::Matrix3d Tilt(const Eigen::Matrix3d& R_world_body) const;
+  /// Feeds the height loop: the anchor lies `below_gnss_m` under its GNSS height, `travel_m`
+  /// after the previous anchor.
+  void UpdateHeightLoop(double below_gnss_m, double travel_m);
   /// Stage 2: starts the NDT of the submap onto the earlier submaps it overlaps; false if
   /// there is no overlap to register.
   bool StartNdt(Pending* p, bool chained);
@@ -150,11 +172,17 @@ class SubmapBuilder {
   double travel_m_ = 0.0;
   std::optional<Eigen::Vector3d> last_odom_;
   std::optional<Pending> pending_;
+  /// The height loop: the chain's slope (rad, nose up) and the integral of the height
+  /// difference over the path (m^2).
+  double slope_rad_ = 0.0;
+  double height_integral_m2_ = 0.0;
   /// The previous georeferenced submap's placement, for the chain.
   struct Previous {
     std::string utm_zone;
     Eigen::Isometry3d T_world_anchor = Eigen::Isometry3d::Identity();  ///< absolute, final
     Eigen::Isometry3d T_odom_anchor = Eigen::Isometry3d::Identity();
+    /// Its GNSS orientation tilted by the height loop: where the pull took its orientation.
+    Eigen::Matrix3d R_level_anchor = Eigen::Matrix3d::Identity();
   };
   std::optional<Previous> previous_;
   /// Every finished georeferenced submap, thinned: NDT's targets. By submap index, where its

@@ -32,7 +32,11 @@ struct NdtOptions {
   bool coarse_pass = true;
   int max_iterations = 35;
   double step_size_m = 0.1;
-  double transformation_epsilon = 1e-5;  ///< squared step (m^2) below which NDT stops
+  /// NDT stops when a step moves the translation by less than this squared (m^2). PCL checks
+  /// the translation only: at 1e-5 (3 mm) a guess off by a rotation about the cloud's origin
+  /// stopped after a step or two with most of a milliradian of pitch left in place. At 1e-6
+  /// (1 mm) it goes on; 1e-8 made the maps no sharper and cost a fifth of the speed.
+  double transformation_epsilon = 1e-6;
   double source_voxel_m = 0.5;
   /// ...and then cut to at most this many by an even stride: NDT's cost grows with the source.
   size_t max_source_points = 5000;

@@ -124,8 +124,9 @@ struct EstimatorOptions {
   /// Two-stage submap mapping (paper IV.E): `submap_keyframes` (10) keyframes per submap,
   /// thinned to one point per voxel of `submap_voxel_m` (0.1); `submap_icp` and `submap_ndt`
   /// switch the scan-to-submap ICP and the submap-to-submap NDT; `submap_gnss_pull` (0.05) and
-  /// `submap_gnss_pull_vertical` (0.01) are the share of the way each submap moves from the
-  /// odometry chain towards its GNSS pose.
+  /// `submap_gnss_pull_vertical` (0) are the share of the way each submap moves from the
+  /// odometry chain towards its GNSS pose; `submap_gnss_height_length_m` (2000) is the natural
+  /// length of the loop that tilts the chain to follow GNSS in height (0: off).
   SubmapOptions submap;
   /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
   /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that

@@ -1,5 +1,6 @@
 // The map sharpness check on constructed maps with known answers: the spread normal to a plane,
 // the height difference of a rail head between two submaps, and which corridor surfaces count.
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -69,19 +70,44 @@ TEST(MapSharpness, RailHeadHeightsAreComparedBetweenSubmaps) {
                           {ReferenceTriangle::Kind::kRailHead, a, c, d}});
   for (int k = 0; k < 3; ++k) {
     api::Submap s;
+    s.index = static_cast<uint32_t>(10 + k);
     s.origin = kOrigin;
     const double lift = k == 2 ? 0.025 : 0.0;  // the third submap sees the rail 25 mm higher
     for (double x = 0.05; x < 4.0; x += 0.1) {
       s.points.emplace_back(Eigen::Vector3f(static_cast<float>(x), 0.0f, static_cast<float>(lift)));
     }
     s.points.emplace_back(Eigen::Vector3f(1.0f, 0.3f, 0.0f));  // beside the rail: not counted
-    sharpness.AddSubmap(s, Eigen::Isometry3d::Identity());
+    // The truth alignment of the third takes its lift out: its own error is zero there.
+    Eigen::Isometry3d T_truth_est = Eigen::Isometry3d::Identity();
+    T_truth_est.translation().z() = -lift;
+    sharpness.AddSubmap(s, T_truth_est);
   }
   const SharpnessResult r = sharpness.Result();
   EXPECT_EQ(r.rail_points, 120u);
   EXPECT_EQ(r.rail_segments, 2u);  // 2 m segments
   EXPECT_NEAR(r.rail_spread_max_m, 0.025, 1e-4);
   EXPECT_NEAR(r.rail_spread_median_m, 0.025, 1e-4);
+
+  // Segment by segment: which submaps saw it, how many points, at what height.
+  const std::vector<RailSegmentReport> segments = sharpness.RailSegments();
+  ASSERT_EQ(segments.size(), 2u);
+  for (const RailSegmentReport& segment : segments) {
+    EXPECT_NEAR(segment.spread_m, 0.025, 1e-4);
+    ASSERT_EQ(segment.samples.size(), 3u);
+    for (size_t k = 0; k < 3; ++k) {
+      const RailSegmentReport::Sample& sample = segment.samples[k];
+      EXPECT_EQ(sample.submap, 10 + k);
+      EXPECT_EQ(sample.points, 20u);
+      EXPECT_NEAR(sample.height_m, k == 2 ? 0.025 : 0.0, 1e-5);
+      EXPECT_NEAR(sample.rms_m, 0.0, 1e-5);
+      EXPECT_NEAR(sample.truth_offset_m, 0.0, 1e-5);
+    }
+  }
+  const std::string csv = RailSegmentsCsv(segments);
+  EXPECT_EQ(csv.substr(0, csv.find('\n')),
+            "x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m");
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 6);
+  EXPECT_NE(csv.find(",0.0250,12,20,0.0250,0.0000,0.0000\n"), std::string::npos) << csv;
 }
 
 TEST(MapSharpness, ReferenceSurfacesArePlatformTopsWallsAndRailHeads) {
