@@ -87,6 +87,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_gnss_pull", &o->submap.gnss_pull);
   r.Read("submap_gnss_pull_vertical", &o->submap.gnss_pull_vertical);
   r.Read("submap_gnss_height_length_m", &o->submap.gnss_height_length_m);
+  r.Read("submap_chain_reset_m", &o->submap.chain_reset_m);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
   if (r.Has("gnss")) {
@@ -171,6 +172,7 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(submap.gnss_pull >= 0.0 && submap.gnss_pull <= 1.0) ||
       !(submap.gnss_pull_vertical >= 0.0 && submap.gnss_pull_vertical <= 1.0))
     return fail("submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]");
+  if (!(submap.chain_reset_m > 0.0)) return fail("submap_chain_reset_m must be > 0 m");
   if (!(submap.gnss_height_length_m >= 0.0))
     return fail("submap_gnss_height_length_m must be 0 (off) or a length in metres");
   if (submap.keyframes < 1 || submap.keyframes > 1000)

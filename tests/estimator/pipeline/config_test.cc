@@ -94,6 +94,17 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
   EXPECT_FALSE(ParseEstimatorConfig(
       DemoRigYaml() + "estimator:\n  map_insert_lag: -1\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("map_insert_lag must be >= 0"), std::string::npos) << error;
+  EXPECT_FALSE(
+      ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  submap_gnss_height_length_m: -1\n",
+                           "rig.yaml",
+                           &config,
+                           &error));
+  EXPECT_NE(error.find("submap_gnss_height_length_m must be 0 (off) or a length"),
+            std::string::npos)
+      << error;
+  EXPECT_FALSE(ParseEstimatorConfig(
+      DemoRigYaml() + "estimator:\n  submap_chain_reset_m: 0\n", "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("submap_chain_reset_m must be > 0 m"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
@@ -106,13 +117,16 @@ TEST(EstimatorConfig, OverridesTunables) {
   const std::string yaml =
       DemoRigYaml() +
       "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
-      "  edge_max_spread_m: 0.2\n  preprocess:\n"
+      "  edge_max_spread_m: 0.2\n  submap_gnss_height_length_m: 0\n  submap_chain_reset_m: 5\n"
+      "  preprocess:\n"
       "    min_range_m: 3.5\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
   EXPECT_EQ(config.options.window_size, 8);
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
   EXPECT_EQ(config.options.map_insert_lag, 0);
   EXPECT_DOUBLE_EQ(config.options.edge_max_spread_m, 0.2);
+  EXPECT_DOUBLE_EQ(config.options.submap.gnss_height_length_m, 0.0);
+  EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
 }
 
