@@ -74,8 +74,15 @@ EvalResult Evaluate(const api::Trajectory& estimate,
   RpeOptions rpe_options;
   rpe_options.segment_length_m = options.segment_length_m;
   rpe_options.start_step_m = options.rpe_start_step_m;
+  rpe_options.position_only = EstimateIsPositionOnly(pairs);
+  rpe_options.R_truth_est = result.alignment.T_truth_est.linear();
+  if (rpe_options.position_only) {
+    result.warnings.push_back(
+        "the estimate has positions only (every orientation is the identity): its relative "
+        "error compares displacements in the world frame, and no rotation error is reported");
+  }
   result.rpe = ComputeRpe(pairs, rpe_options);
-  result.drift = ComputeEndDrift(pairs, options.align);
+  result.drift = ComputeEndDrift(pairs, options.align, rpe_options.position_only);
 
   result.first_stamp_ns = pairs.front().stamp_ns;
   result.last_stamp_ns = pairs.back().stamp_ns;

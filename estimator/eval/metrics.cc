@@ -77,13 +77,22 @@ RpeStats ComputeRpe(const std::vector<PosePair>& pairs, const RpeOptions& option
     j = std::max(j, i + 1);
     while (j < pairs.size() && pairs[j].distance_m < target_m - kDistanceTolerance_m) ++j;
     if (j >= pairs.size()) break;  // Later starts cannot complete a segment either.
-    const Eigen::Isometry3d delta_est = pairs[i].T_world_est.inverse() * pairs[j].T_world_est;
-    const Eigen::Isometry3d delta_truth = pairs[i].T_world_truth.inverse() * pairs[j].T_world_truth;
-    const double trans_m = (delta_est.translation() - delta_truth.translation()).norm();
+    double trans_m = 0.0, deg = 0.0;
+    if (options.position_only) {
+      const Eigen::Vector3d d_est = options.R_truth_est * (pairs[j].T_world_est.translation() -
+                                                           pairs[i].T_world_est.translation());
+      const Eigen::Vector3d d_truth =
+          pairs[j].T_world_truth.translation() - pairs[i].T_world_truth.translation();
+      trans_m = (d_est - d_truth).norm();
+    } else {
+      const Eigen::Isometry3d delta_est = pairs[i].T_world_est.inverse() * pairs[j].T_world_est;
+      const Eigen::Isometry3d delta_truth =
+          pairs[i].T_world_truth.inverse() * pairs[j].T_world_truth;
+      trans_m = (delta_est.translation() - delta_truth.translation()).norm();
+      deg = RotationAngle(delta_est.linear().transpose() * delta_truth.linear()) * kRadToDeg;
+    }
     const double length_m = pairs[j].distance_m - pairs[i].distance_m;
     const double pct = trans_m / length_m * 100.0;
-    const double deg =
-        RotationAngle(delta_est.linear().transpose() * delta_truth.linear()) * kRadToDeg;
     sum_m += trans_m;
     sum_sq_m += trans_m * trans_m;
     sum_pct += pct;
@@ -95,6 +104,7 @@ RpeStats ComputeRpe(const std::vector<PosePair>& pairs, const RpeOptions& option
   if (stats.num_segments == 0) return stats;
   const double n = static_cast<double>(stats.num_segments);
   stats.valid = true;
+  stats.has_rotation = !options.position_only;
   stats.trans_mean_m = sum_m / n;
   stats.trans_rmse_m = std::sqrt(sum_sq_m / n);
   stats.trans_mean_pct = sum_pct / n;
@@ -104,17 +114,32 @@ RpeStats ComputeRpe(const std::vector<PosePair>& pairs, const RpeOptions& option
   return stats;
 }
 
-DriftStats ComputeEndDrift(const std::vector<PosePair>& pairs, AlignmentMode mode) {
+DriftStats ComputeEndDrift(const std::vector<PosePair>& pairs,
+                           AlignmentMode mode,
+                           bool position_only) {
   DriftStats stats;
   if (pairs.size() < 2) return stats;
   stats.valid = true;
   stats.T_truth_est = AlignByPose(pairs.front().T_world_est, pairs.front().T_world_truth, mode);
+  if (position_only) {
+    stats.T_truth_est = Eigen::Isometry3d::Identity();
+    if (mode != AlignmentMode::kNone) {
+      stats.T_truth_est.translation() =
+          pairs.front().T_world_truth.translation() - pairs.front().T_world_est.translation();
+    }
+  }
   const Eigen::Vector3d p_end = stats.T_truth_est * pairs.back().T_world_est.translation();
   stats.end_error_m = (p_end - pairs.back().T_world_truth.translation()).norm();
   stats.distance_m = pairs.back().distance_m - pairs.front().distance_m;
   stats.has_drift_pct = stats.distance_m > 0.0;
   if (stats.has_drift_pct) stats.end_drift_pct = stats.end_error_m / stats.distance_m * 100.0;
   return stats;
+}
+
+bool EstimateIsPositionOnly(const std::vector<PosePair>& pairs) {
+  return !pairs.empty() && std::all_of(pairs.begin(), pairs.end(), [](const PosePair& pair) {
+    return pair.T_world_est.linear() == Eigen::Matrix3d::Identity();
+  });
 }
 
 }  // namespace raillomer::eval

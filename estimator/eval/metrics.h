@@ -38,6 +38,11 @@ struct RpeOptions {
   /// Along-track spacing of segment start poses (m); keeps long runs fast and stops a standing
   /// train from weighting one place many times.
   double start_step_m = 1.0;
+  /// The estimate has positions only (every orientation the identity, as in a receiver's
+  /// fixes): the segments' displacements are compared in the world frame, the estimate's
+  /// turned by this rotation (the alignment's), and no rotation error is reported.
+  bool position_only = false;
+  Eigen::Matrix3d R_truth_est = Eigen::Matrix3d::Identity();
 
   /// True when the options are usable; otherwise false with a message.
   bool IsValid(std::string* error) const;
@@ -54,7 +59,8 @@ struct RpeStats {
   double trans_rmse_m = 0.0;
   double trans_mean_pct = 0.0;
   double trans_rmse_pct = 0.0;
-  /// Rotation error angle per segment (deg).
+  /// Rotation error angle per segment (deg); not measured for a position-only estimate.
+  bool has_rotation = true;
   double rot_mean_deg = 0.0;
   double rot_rmse_deg = 0.0;
 };
@@ -79,6 +85,14 @@ struct DriftStats {
 };
 
 /// End-point drift with the estimate aligned by its first pair in the given degrees of freedom.
-DriftStats ComputeEndDrift(const std::vector<PosePair>& pairs, AlignmentMode mode);
+/// `position_only`: the estimate has no orientation, so the first pose aligns by its
+/// position alone.
+DriftStats ComputeEndDrift(const std::vector<PosePair>& pairs,
+                           AlignmentMode mode,
+                           bool position_only = false);
+
+/// True when every estimate orientation is exactly the identity: a trajectory of positions
+/// only (a receiver's fixes), whose relative poses mean nothing.
+bool EstimateIsPositionOnly(const std::vector<PosePair>& pairs);
 
 }  // namespace raillomer::eval

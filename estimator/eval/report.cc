@@ -91,8 +91,8 @@ nlohmann::json ToJson(const EvalResult& result) {
   j["rpe_trans_rmse_m"] = OrNull(rpe.valid, rpe.trans_rmse_m);
   j["rpe_trans_mean_pct"] = OrNull(rpe.valid, rpe.trans_mean_pct);
   j["rpe_trans_rmse_pct"] = OrNull(rpe.valid, rpe.trans_rmse_pct);
-  j["rpe_rot_mean_deg"] = OrNull(rpe.valid, rpe.rot_mean_deg);
-  j["rpe_rot_rmse_deg"] = OrNull(rpe.valid, rpe.rot_rmse_deg);
+  j["rpe_rot_mean_deg"] = OrNull(rpe.valid && rpe.has_rotation, rpe.rot_mean_deg);
+  j["rpe_rot_rmse_deg"] = OrNull(rpe.valid && rpe.has_rotation, rpe.rot_rmse_deg);
 
   const DriftStats& drift = result.drift;
   j["end_error_m"] = OrNull(drift.valid, drift.end_error_m);
@@ -128,8 +128,12 @@ std::string FormatTable(const EvalResult& result) {
     out += Line("RPE trans RMSE " + per, Fixed(rpe.trans_rmse_m, 4), "m");
     out += Line("RPE trans mean / segment length", Fixed(rpe.trans_mean_pct, 4), "%");
     out += Line("RPE trans RMSE / segment length", Fixed(rpe.trans_rmse_pct, 4), "%");
-    out += Line("RPE rot mean " + per, Fixed(rpe.rot_mean_deg, 4), "deg");
-    out += Line("RPE rot RMSE " + per, Fixed(rpe.rot_rmse_deg, 4), "deg");
+    if (rpe.has_rotation) {
+      out += Line("RPE rot mean " + per, Fixed(rpe.rot_mean_deg, 4), "deg");
+      out += Line("RPE rot RMSE " + per, Fixed(rpe.rot_rmse_deg, 4), "deg");
+    } else {
+      out += Line("RPE rot " + per, "n/a", "(positions only)");
+    }
     out += Line("RPE segments", std::to_string(rpe.num_segments), "");
   } else {
     out += Line("RPE " + per, "n/a", "(run shorter than one segment)");

@@ -96,6 +96,40 @@ TEST(EvalRpe, ConstantYawDriftGivesKnownDegreesPerSegment) {
   EXPECT_NEAR(rpe.rot_rmse_deg, 1.0, 1e-9);
 }
 
+// A receiver's fixes have no orientation (identity quaternions). Relative poses would express
+// each displacement in that fixed frame while the truth's turns with the track: on a curve the
+// error came out near the segment length itself. Displacements are compared in the world frame.
+TEST(EvalRpe, PositionOnlyEstimateComparesWorldDisplacements) {
+  const api::Trajectory truth = testing::CurvedTruth();
+  api::Trajectory estimate = truth;
+  for (api::StampedPose& pose : estimate.poses) {
+    pose.q_world_body = Eigen::Quaterniond::Identity();
+    pose.p_world.x() += 0.5;  // a constant offset: no relative error at all
+  }
+  const std::vector<PosePair> pairs = Pairs(estimate, truth);
+  ASSERT_TRUE(EstimateIsPositionOnly(pairs));
+  ASSERT_FALSE(EstimateIsPositionOnly(Pairs(truth, truth)));
+  RpeOptions options;
+  const RpeStats wrong = ComputeRpe(pairs, options);
+  ASSERT_TRUE(wrong.valid);
+  EXPECT_GT(wrong.trans_mean_pct, 5.0);  // what relative poses make of it
+  options.position_only = true;
+  const RpeStats rpe = ComputeRpe(pairs, options);
+  ASSERT_TRUE(rpe.valid);
+  EXPECT_FALSE(rpe.has_rotation);
+  EXPECT_NEAR(rpe.trans_mean_m, 0.0, 1e-6);
+
+  EvalOptions eval_options;
+  eval_options.align = AlignmentMode::kSe3;
+  const EvalResult result = Evaluate(estimate, truth, eval_options);
+  ASSERT_TRUE(result.ok) << result.error;
+  EXPECT_FALSE(result.rpe.has_rotation);
+  EXPECT_NEAR(result.rpe.trans_mean_m, 0.0, 1e-6);
+  EXPECT_NEAR(result.drift.end_error_m, 0.0, 1e-6);  // aligned by the first position only
+  ASSERT_FALSE(result.warnings.empty());
+  EXPECT_NE(result.warnings.back().find("positions only"), std::string::npos);
+}
+
 TEST(EvalRpe, ShorterThanASegmentIsInvalidNotACrash) {
   const api::Trajectory truth = StraightTruth(50, 1.0, Eigen::Vector3d(0, 0, 0), 0.0);
   const RpeStats rpe = ComputeRpe(Pairs(truth, truth), RpeOptions{});
