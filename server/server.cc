@@ -366,6 +366,21 @@ class Server::Impl {
     }
   }
 
+  /// Answers a GET of one stored record by the path's id: `get(id, &record)`, sent as JSON by
+  /// `to_json`, or the store's error.
+  template <typename Record, typename Get, typename ToJson>
+  static void SendOne(const httplib::Request& req,
+                      httplib::Response& res,
+                      Get get,
+                      ToJson to_json) {
+    int64_t id = 0;
+    if (!RunId(req, res, &id)) return;
+    Record record;
+    const mapstore::Result r = get(id, &record);
+    if (!r) return SendResult(res, r);
+    res.set_content(to_json(record).dump(), "application/json");
+  }
+
   void Routes();
 
   ServerConfig config_;
@@ -510,12 +525,11 @@ void Server::Impl::Routes() {
 
   http_.Get(R"(/api/v1/runs/(\d+))",
             Route("runs.get", false, [this](const httplib::Request& req, httplib::Response& res) {
-              int64_t id = 0;
-              if (!RunId(req, res, &id)) return;
-              mapstore::RunInfo info;
-              const mapstore::Result r = store_->GetRun(id, &info);
-              if (!r) return SendResult(res, r);
-              res.set_content(RunJson(info).dump(), "application/json");
+              SendOne<mapstore::RunInfo>(
+                  req,
+                  res,
+                  [this](int64_t id, mapstore::RunInfo* info) { return store_->GetRun(id, info); },
+                  RunJson);
             }));
 
   http_.Post(
@@ -850,12 +864,11 @@ void Server::Impl::Routes() {
 
   http_.Get(R"(/api/v1/pois/(\d+))",
             Route("pois.get", false, [this](const httplib::Request& req, httplib::Response& res) {
-              int64_t id = 0;
-              if (!RunId(req, res, &id)) return;
-              mapstore::Poi poi;
-              const mapstore::Result r = store_->GetPoi(id, &poi);
-              if (!r) return SendResult(res, r);
-              res.set_content(PoiJson(poi).dump(), "application/json");
+              SendOne<mapstore::Poi>(
+                  req,
+                  res,
+                  [this](int64_t id, mapstore::Poi* poi) { return store_->GetPoi(id, poi); },
+                  PoiJson);
             }));
 
   http_.Put(R"(/api/v1/pois/(\d+))",
