@@ -1,5 +1,8 @@
 #include "estimator/backend/scan_matching.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <Eigen/Eigenvalues>
 
 #include "estimator/factors/pose_manifold.h"
@@ -35,7 +38,8 @@ bool FitLine(const Eigen::Vector3d* pts,
              double min_ratio,
              double max_spread,
              Eigen::Vector3d* point,
-             Eigen::Vector3d* direction) {
+             Eigen::Vector3d* direction,
+             double* spread) {
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (int i = 0; i < n; ++i) centroid += pts[i];
   centroid /= n;
@@ -51,6 +55,7 @@ bool FitLine(const Eigen::Vector3d* pts,
   if (max_spread > 0.0 && spread_sq > max_spread * max_spread) return false;
   *point = centroid;
   *direction = eig.eigenvectors().col(2);
+  *spread = std::sqrt(std::max(0.0, spread_sq));
   return true;
 }
 
@@ -80,9 +85,17 @@ LidarMatches MatchFeatures(const MatchOptions& options,
     const Eigen::Vector3d p_world = T_world_body * p_body;
     if (edge_map.KNearest(p_world, k, options.max_distance_m, nn) < k) continue;
     LineMatch m;
-    if (!FitLine(nn, k, options.line_min_ratio, options.line_max_spread_m, &m.point, &m.direction))
+    double spread = 0.0;
+    if (!FitLine(nn,
+                 k,
+                 options.line_min_ratio,
+                 options.line_max_spread_m,
+                 &m.point,
+                 &m.direction,
+                 &spread))
       continue;
     m.p_body = p_body;
+    m.soft = options.line_soft_spread_m > 0.0 && spread > options.line_soft_spread_m;
     matches.lines.push_back(m);
   }
   return matches;

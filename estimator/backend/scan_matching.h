@@ -22,6 +22,8 @@ struct LineMatch {
   Eigen::Vector3d p_body;
   Eigen::Vector3d point;
   Eigen::Vector3d direction;
+  /// Its map neighbours spread more than MatchOptions::line_soft_spread_m about their line.
+  bool soft = false;
 };
 
 /// Correspondences of one LiDAR frame against the local map (eq. 20-21).
@@ -38,6 +40,8 @@ struct MatchOptions {
   double plane_max_residual_m = 0.2;  ///< every neighbour within this of its fitted plane
   double line_min_ratio = 3.0;        ///< largest / second eigenvalue of an edge's neighbours
   double line_max_spread_m = 0.0;     ///< > 0: RMS distance of an edge's neighbours from their line
+  /// > 0: an edge whose neighbours spread more than this about their line is marked soft.
+  double line_soft_spread_m = 0.0;
 };
 
 /// Finds plane and line correspondences for the features moved to the world by T_world_body.

@@ -68,6 +68,13 @@ int main(int argc, char** argv) {
                  "(CSV: x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m), to find where "
                  "they disagree")
       ->needs(submaps_option);
+  std::string plane_csv_path;
+  app.add_option("--plane-csv",
+                 plane_csv_path,
+                 "with --submaps: write every scored plane patch here, one row per submap on it "
+                 "(CSV: x,y,z,patch_rms_m,patch_points,submap,points,offset_m,rms_m), to tell "
+                 "submaps that disagree from blur within one")
+      ->needs(submaps_option);
   scenario_option->needs(submaps_option);
   submaps_option->needs(scenario_option);
   CLI11_PARSE(app, argc, argv);
@@ -127,6 +134,12 @@ int main(int argc, char** argv) {
     if (!rail_csv_path.empty() &&
         !raillomer::api::WriteFileAtomically(
             rail_csv_path, raillomer::eval::RailSegmentsCsv(sharpness.RailSegments()), &error)) {
+      std::cerr << "raillomer-eval: error: " << error << "\n";
+      return kExitInputError;
+    }
+    if (!plane_csv_path.empty() &&
+        !raillomer::api::WriteFileAtomically(
+            plane_csv_path, raillomer::eval::PlanePatchesCsv(sharpness.PlanePatches()), &error)) {
       std::cerr << "raillomer-eval: error: " << error << "\n";
       return kExitInputError;
     }

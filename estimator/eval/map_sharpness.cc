@@ -45,11 +45,33 @@ struct Surface {
 };
 
 /// Sums for a plane fit, relative to the patch's first point (UTM is too large for raw sums).
-struct PlanePatch {
-  Vec3 reference = Vec3::Zero();
+struct PlaneSums {
   size_t count = 0;
   Vec3 sum = Vec3::Zero();
   Eigen::Matrix3d outer = Eigen::Matrix3d::Zero();
+
+  void Add(const Vec3& r) {
+    ++count;
+    sum += r;
+    outer += r * r.transpose();
+  }
+  Vec3 Mean() const { return sum / static_cast<double>(count); }
+  Eigen::Matrix3d Covariance() const {
+    const Vec3 mean = Mean();
+    return outer / static_cast<double>(count) - mean * mean.transpose();
+  }
+};
+
+/// One plane patch: its points' sums, pooled and per submap.
+struct PlanePatch {
+  Vec3 reference = Vec3::Zero();
+  PlaneSums all;
+  struct Sample {
+    size_t submap = 0;   ///< the order it was added in
+    uint32_t index = 0;  ///< api::Submap::index
+    PlaneSums sums;
+  };
+  std::vector<Sample> by_submap;
 };
 
 /// One submap's points on one rail-head segment: their heights along the head's normal.
@@ -228,11 +250,13 @@ void MapSharpness::AddSubmap(const api::Submap& submap, const Eigen::Isometry3d&
                          0,
                          0};
       PlanePatch& patch = m.planes[key];
-      if (patch.count == 0) patch.reference = mapped;
+      if (patch.all.count == 0) patch.reference = mapped;
       const Vec3 r = mapped - patch.reference;
-      ++patch.count;
-      patch.sum += r;
-      patch.outer += r * r.transpose();
+      patch.all.Add(r);
+      if (patch.by_submap.empty() || patch.by_submap.back().submap != submap_index) {
+        patch.by_submap.push_back({submap_index, submap.index, PlaneSums{}});
+      }
+      patch.by_submap.back().sums.Add(r);
     } else {
       ++m.rail_points;
       const double cell = m.options.rail_segment_m;
@@ -267,19 +291,13 @@ SharpnessResult MapSharpness::Result() const {
   r.rail_points = m.rail_points;
   double weighted = 0.0;
   std::vector<double> patch_rms;
-  for (const auto& [key, patch] : m.planes) {
-    if (patch.count < static_cast<size_t>(m.options.min_plane_points)) continue;
-    const double n = static_cast<double>(patch.count);
-    const Vec3 mean = patch.sum / n;
-    const Eigen::Matrix3d covariance = patch.outer / n - mean * mean.transpose();
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(covariance);
-    const double variance = std::max(0.0, eig.eigenvalues()(0));
-    weighted += variance * n;
-    r.plane_points += patch.count;
-    patch_rms.push_back(std::sqrt(variance));
-    if (patch_rms.back() > r.plane_patch_max_m) {
-      r.plane_patch_max_m = patch_rms.back();
-      r.worst_patch_utm = patch.reference + mean;
+  for (const PlanePatchReport& patch : PlanePatches()) {
+    weighted += patch.rms_m * patch.rms_m * static_cast<double>(patch.points);
+    r.plane_points += patch.points;
+    patch_rms.push_back(patch.rms_m);
+    if (patch.rms_m > r.plane_patch_max_m) {
+      r.plane_patch_max_m = patch.rms_m;
+      r.worst_patch_utm = patch.utm;
     }
   }
   r.plane_patches = patch_rms.size();
@@ -298,6 +316,52 @@ SharpnessResult MapSharpness::Result() const {
   r.rail_spread_median_m = Percentile(spreads, 0.5);
   r.rail_spread_p95_m = Percentile(spreads, 0.95);
   return r;
+}
+
+std::vector<PlanePatchReport> MapSharpness::PlanePatches() const {
+  const Impl& m = *impl_;
+  std::vector<PlanePatchReport> out;
+  for (const auto& [key, patch] : m.planes) {
+    if (patch.all.count < static_cast<size_t>(m.options.min_plane_points)) continue;
+    const Vec3 mean = patch.all.Mean();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(patch.all.Covariance());
+    const Vec3 normal = eig.eigenvectors().col(0);
+    PlanePatchReport report;
+    report.utm = patch.reference + mean;
+    report.points = patch.all.count;
+    report.rms_m = std::sqrt(std::max(0.0, eig.eigenvalues()(0)));
+    for (const PlanePatch::Sample& sample : patch.by_submap) {
+      const PlaneSums& sums = sample.sums;
+      const double spread = std::max(0.0, normal.dot(sums.Covariance() * normal));
+      report.samples.push_back(
+          {sample.index, sums.count, normal.dot(sums.Mean() - mean), std::sqrt(spread)});
+    }
+    out.push_back(std::move(report));
+  }
+  return out;
+}
+
+std::string PlanePatchesCsv(const std::vector<PlanePatchReport>& patches) {
+  std::string out = "x,y,z,patch_rms_m,patch_points,submap,points,offset_m,rms_m\n";
+  char line[192];
+  for (const PlanePatchReport& patch : patches) {
+    for (const PlanePatchReport::Sample& sample : patch.samples) {
+      std::snprintf(line,
+                    sizeof(line),
+                    "%.3f,%.3f,%.3f,%.4f,%zu,%u,%zu,%.4f,%.4f\n",
+                    patch.utm.x(),
+                    patch.utm.y(),
+                    patch.utm.z(),
+                    patch.rms_m,
+                    patch.points,
+                    sample.submap,
+                    sample.points,
+                    sample.offset_m,
+                    sample.rms_m);
+      out += line;
+    }
+  }
+  return out;
 }
 
 std::vector<RailSegmentReport> MapSharpness::RailSegments() const {

@@ -72,6 +72,21 @@ struct SharpnessResult {
   Eigen::Vector3d worst_rail_utm = Eigen::Vector3d::Zero();
 };
 
+/// One scored plane patch, for finding where a map is blurred and whether by submaps that
+/// disagree or within one.
+struct PlanePatchReport {
+  Eigen::Vector3d utm = Eigen::Vector3d::Zero();  ///< the centroid of the patch's points
+  size_t points = 0;
+  double rms_m = 0.0;  ///< spread normal to the patch's fitted plane
+  struct Sample {
+    uint32_t submap = 0;  ///< api::Submap::index
+    size_t points = 0;
+    double offset_m = 0.0;  ///< the submap's mean distance from the fitted plane
+    double rms_m = 0.0;     ///< its points' spread about that mean, normal to the plane
+  };
+  std::vector<Sample> samples;  ///< every submap with points on the patch
+};
+
 /// One rail-head segment seen by at least two submaps, for finding where a map disagrees.
 struct RailSegmentReport {
   Eigen::Vector3d utm = Eigen::Vector3d::Zero();  ///< the segment's first mapped point
@@ -102,6 +117,8 @@ class MapSharpness {
   void AddSubmap(const api::Submap& submap, const Eigen::Isometry3d& T_truth_est);
 
   SharpnessResult Result() const;
+  /// Every plane patch that Result() scores, in no particular order.
+  std::vector<PlanePatchReport> PlanePatches() const;
   /// Every rail-head segment that Result() scores, in no particular order.
   std::vector<RailSegmentReport> RailSegments() const;
 
@@ -122,6 +139,10 @@ bool ScoreSubmapFolder(const std::string& folder,
 /// The segments as CSV, one row per submap's sample:
 /// x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m.
 std::string RailSegmentsCsv(const std::vector<RailSegmentReport>& segments);
+
+/// The patches as CSV, one row per submap's sample:
+/// x,y,z,patch_rms_m,patch_points,submap,points,offset_m,rms_m.
+std::string PlanePatchesCsv(const std::vector<PlanePatchReport>& patches);
 
 /// The figures as text lines for a terminal, and as JSON (units in the keys).
 std::string FormatSharpness(const SharpnessResult& result);

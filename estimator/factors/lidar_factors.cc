@@ -67,6 +67,10 @@ LineTerm::LineTerm(const Eigen::Vector3d& p_body_in,
   projector = Eigen::Matrix3d::Identity() - u * u.transpose();
 }
 
+void LineTerm::Ignore(const Eigen::Vector3d& axis) {
+  projector = (Eigen::Matrix3d::Identity() - axis * axis.transpose()) * projector;
+}
+
 PointToPlaneFactor::PointToPlaneFactor(const Eigen::Vector3d& p_body,
                                        const Eigen::Vector3d& normal_world,
                                        double d,

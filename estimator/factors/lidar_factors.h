@@ -26,6 +26,9 @@ struct LineTerm {
            const Eigen::Vector3d& point_world,
            const Eigen::Vector3d& direction_world,
            double weight);
+  /// Leaves the residual's component along the unit `axis` (world) out: the term then says
+  /// nothing along it.
+  void Ignore(const Eigen::Vector3d& axis);
   Eigen::Vector3d p_body;
   Eigen::Vector3d point;
   Eigen::Matrix3d projector;

@@ -177,7 +177,7 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
   api::Submap& s = p.submap;
   if (p.chained && (options_.gnss_pull > 0.0 || options_.gnss_pull_vertical > 0.0)) {
     // Move the submap rigidly so that its anchor goes gnss_pull of the way to its GNSS pose
-    // (gnss_pull_vertical of the way in height).
+    // (gnss_pull_vertical of the way in height; along the track only with the heading loop).
     Eigen::Isometry3d anchor = p.P[p.anchor];
     anchor.translation() += s.origin;
     const Eigen::Isometry3d& gnss = p.T_gnss_anchor;
@@ -189,6 +189,14 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
                           .toRotationMatrix();
     Eigen::Vector3d step = k * (gnss.translation() - anchor.translation());
     step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
+    Eigen::Vector3d along = anchor.linear().col(0);
+    along.z() = 0.0;
+    if (options_.gnss_heading_length_m > 0.0 && along.norm() > 1e-6) {
+      // Sideways the heading loop follows GNSS: only the along-track share of the step.
+      along.normalize();
+      const Eigen::Vector3d sideways = step - along * along.dot(step);
+      step -= Eigen::Vector3d(sideways.x(), sideways.y(), 0.0);
+    }
     target.translation() = anchor.translation() + step - s.origin;
     const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame
     for (Eigen::Vector3f& q : s.points) q = (delta * q.cast<double>()).cast<float>();
@@ -221,24 +229,25 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
 Eigen::Matrix3d SubmapBuilder::Tilt(const Eigen::Matrix3d& R_world_body) const {
   Eigen::Vector3d heading = R_world_body.col(0);
   heading.z() = 0.0;
-  if (slope_rad_ == 0.0 || heading.norm() < 1e-6) return Eigen::Matrix3d::Identity();
+  if (heading.norm() < 1e-6) return Eigen::Matrix3d::Identity();
   const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(heading.normalized());
-  return Eigen::AngleAxisd(-slope_rad_, left).toRotationMatrix();  // about left: nose up
+  // About left: nose up; about up: a turn to the left.
+  return Eigen::AngleAxisd(heading_.angle_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+         Eigen::AngleAxisd(-height_.angle_rad, left).toRotationMatrix();
 }
 
-void SubmapBuilder::UpdateHeightLoop(double below_gnss_m, double travel_m) {
-  const double length = options_.gnss_height_length_m;
-  if (!(length > 0.0)) return;
-  // e'' = -kp e' - ki e for the height difference e along the path: critically damped with
-  // natural length L when kp = 2 / L and ki = 1 / L^2.
-  const double kp = 2.0 / length, ki = 1.0 / (length * length);
-  const double max_tilt = options_.gnss_max_tilt_rad;
-  height_integral_m2_ =
-      std::clamp(height_integral_m2_ + below_gnss_m * travel_m, -max_tilt / ki, max_tilt / ki);
-  const double wanted =
-      std::clamp(kp * below_gnss_m + ki * height_integral_m2_, -max_tilt, max_tilt);
-  const double turn = options_.gnss_max_tilt_rate_rad_per_m * travel_m;
-  slope_rad_ += std::clamp(wanted - slope_rad_, -turn, turn);
+void SubmapBuilder::Steer(
+    Loop* loop, double length_m, double rate_rad_per_m, double error_m, double travel_m) const {
+  if (!(length_m > 0.0)) return;
+  // e'' = -kp e' - ki e for the distance e along the path: critically damped with natural
+  // length L when kp = 2 / L and ki = 1 / L^2.
+  const double kp = 2.0 / length_m, ki = 1.0 / (length_m * length_m);
+  const double max_angle = options_.gnss_max_tilt_rad;
+  loop->integral_m2 =
+      std::clamp(loop->integral_m2 + error_m * travel_m, -max_angle / ki, max_angle / ki);
+  const double wanted = std::clamp(kp * error_m + ki * loop->integral_m2, -max_angle, max_angle);
+  const double turn = rate_rad_per_m * travel_m;
+  loop->angle_rad += std::clamp(wanted - loop->angle_rad, -turn, turn);
 }
 
 Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
@@ -253,8 +262,8 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
   // out; the orientation is the GNSS-corrected one. Carrying the orientation along the chain
   // too would carry an early heading error (the alignment's, before the graph has settled)
   // into every later submap, which then walks sideways off the track. Path and orientation
-  // are both tilted by the height loop, and by the roll and pitch that NDT and the pull left
-  // the previous submap with against its own GNSS orientation: NDT then only has this
+  // are both tilted by the height and heading loops, and by the roll and pitch that NDT and the
+  // pull left the previous submap with against its own GNSS orientation: NDT then only has this
   // submap's own difference to take out, and one that stops early (PCL's sometimes stops at
   // its first step) leaves no step in roll or pitch at the seam. The pull takes that carried
   // tilt out again, a share per submap.
@@ -274,7 +283,22 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
   Eigen::Isometry3d chain = gnss;
   chain.linear() = R_tilt * gnss.linear();
   chain.translation() = previous_->T_world_anchor.translation() + R_correction * motion;
-  UpdateHeightLoop(gnss.translation().z() - chain.translation().z(), motion.norm());
+  const Eigen::Vector3d off = gnss.translation() - chain.translation();
+  Steer(&height_,
+        options_.gnss_height_length_m,
+        options_.gnss_max_tilt_rate_rad_per_m,
+        off.z(),
+        motion.norm());
+  Eigen::Vector3d heading = gnss.linear().col(0);
+  heading.z() = 0.0;
+  if (heading.norm() > 1e-6) {
+    const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(heading.normalized());
+    Steer(&heading_,
+          options_.gnss_heading_length_m,
+          options_.gnss_max_turn_rate_rad_per_m,
+          left.dot(off),
+          motion.norm());
+  }
   if ((gnss.translation() - chain.translation()).head<2>().norm() > options_.chain_reset_m) {
     // GNSS places it across and along the track; the height stays the chain's: a single-point
     // receiver's height wanders by metres, and taking it would tear the map by as much.

@@ -52,9 +52,20 @@ struct SubmapOptions {
   /// an odometry that climbs too steeply is levelled out over a few kilometres. 0 leaves the
   /// height to the odometry (and gnss_pull_vertical).
   double gnss_height_length_m = 2000.0;
-  double gnss_max_tilt_rad = 0.005;  ///< the loop's tilt is held within this...
+  /// The chain follows GNSS sideways the same way, through its heading: a critically damped
+  /// loop on the anchor's offset to the right of its GNSS position turns the chain (path and
+  /// orientation together) with this natural length (m), and gnss_pull then acts along the
+  /// track only. A sideways pull moved each submap by a share of the GNSS error at its seam:
+  /// 2-5 cm between submaps that see the same wall, a third of reverse_running's plane spread.
+  /// 0 leaves the sideways correction to gnss_pull.
+  double gnss_heading_length_m = 1000.0;
+  /// The heading loop's angle turns by at most this per metre of path: faster than the height
+  /// loop's, since the chain strays sideways by the GNSS graph's heading error and is torn
+  /// back to GNSS (a chain reset) beyond chain_reset_m.
+  double gnss_max_turn_rate_rad_per_m = 1e-5;
+  double gnss_max_tilt_rad = 0.005;  ///< each loop's angle is held within this...
   /// ...and turns by at most this per metre of path (0.07 mrad over a 33 m submap, a
-  /// millimetre at its seam), even when the GNSS height jumps.
+  /// millimetre at its seam), even when the GNSS position jumps.
   double gnss_max_tilt_rate_rad_per_m = 2e-6;
   double chain_reset_m = 2.0;
   bool ndt = true;
@@ -150,16 +161,22 @@ class SubmapBuilder {
   void RegisterKeyframes(const Eigen::Vector3d& origin, std::vector<Eigen::Isometry3d>* P);
   /// Stage 2: where the middle keyframe goes (absolute), by the chain or by GNSS; `chained`
   /// tells which.
-  /// `tilt` is the height loop's rotation (where the GNSS pull takes the orientation); the
-  /// chain's path and orientation are tilted by it and by the previous submap's roll and pitch
-  /// against its own.
+  /// `tilt` is the height and heading loops' rotation (where the GNSS pull takes the
+  /// orientation); the chain's path and orientation are tilted by it and by the previous
+  /// submap's roll and pitch against its own.
   Eigen::Isometry3d PlaceAnchor(const SubmapKeyframe& anchor, bool* chained, Eigen::Matrix3d* tilt);
-  /// The rotation about the horizontal axis across `R_world_body`'s heading that raises the
-  /// nose by the height loop's slope.
+  /// The rotation that raises the nose of `R_world_body` by the height loop's slope and turns
+  /// its heading left by the heading loop's angle.
   Eigen::Matrix3d Tilt(const Eigen::Matrix3d& R_world_body) const;
-  /// Feeds the height loop: the anchor lies `below_gnss_m` under its GNSS height, `travel_m`
-  /// after the previous anchor.
-  void UpdateHeightLoop(double below_gnss_m, double travel_m);
+  /// A critically damped loop of natural length `length_m` on a distance along the path.
+  struct Loop {
+    double angle_rad = 0.0;
+    double integral_m2 = 0.0;  ///< of the distance over the path
+  };
+  /// Feeds `loop` the distance `error_m` (positive: the angle should grow) `travel_m` after
+  /// the previous anchor; its angle turns by at most `rate_rad_per_m` per metre.
+  void Steer(
+      Loop* loop, double length_m, double rate_rad_per_m, double error_m, double travel_m) const;
   /// Stage 2: starts the NDT of the submap onto the earlier submaps it overlaps; false if
   /// there is no overlap to register.
   bool StartNdt(Pending* p, bool chained);
@@ -172,10 +189,10 @@ class SubmapBuilder {
   double travel_m_ = 0.0;
   std::optional<Eigen::Vector3d> last_odom_;
   std::optional<Pending> pending_;
-  /// The height loop: the chain's slope (rad, nose up) and the integral of the height
-  /// difference over the path (m^2).
-  double slope_rad_ = 0.0;
-  double height_integral_m2_ = 0.0;
+  /// The height loop (the chain's slope, nose up, on its height below GNSS) and the heading
+  /// loop (its turn to the left, on its offset to the right of GNSS).
+  Loop height_;
+  Loop heading_;
   /// The previous georeferenced submap's placement, for the chain.
   struct Previous {
     std::string utm_zone;

@@ -66,6 +66,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("edge_sigma_m", &o->edge_sigma_m);
   r.Read("max_correspondence_m", &o->max_correspondence_m);
   r.Read("edge_max_spread_m", &o->edge_max_spread_m);
+  r.Read("down_edge_soft_spread_m", &o->down_edge_soft_spread_m);
   r.Read("map_insert_lag", &o->map_insert_lag);
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
@@ -87,6 +88,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_gnss_pull", &o->submap.gnss_pull);
   r.Read("submap_gnss_pull_vertical", &o->submap.gnss_pull_vertical);
   r.Read("submap_gnss_height_length_m", &o->submap.gnss_height_length_m);
+  r.Read("submap_gnss_heading_length_m", &o->submap.gnss_heading_length_m);
+  r.Read("submap_gnss_turn_rate_rad_per_m", &o->submap.gnss_max_turn_rate_rad_per_m);
   r.Read("submap_chain_reset_m", &o->submap.chain_reset_m);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
@@ -175,6 +178,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(submap.chain_reset_m > 0.0)) return fail("submap_chain_reset_m must be > 0 m");
   if (!(submap.gnss_height_length_m >= 0.0))
     return fail("submap_gnss_height_length_m must be 0 (off) or a length in metres");
+  if (!(submap.gnss_heading_length_m >= 0.0))
+    return fail("submap_gnss_heading_length_m must be 0 (off) or a length in metres");
+  if (!(submap.gnss_max_turn_rate_rad_per_m > 0.0))
+    return fail("submap_gnss_turn_rate_rad_per_m must be > 0");
   if (submap.keyframes < 1 || submap.keyframes > 1000)
     return fail("submap_keyframes must be in [1, 1000]");
   if (!(submap.voxel_m >= 0.0 && submap.voxel_m <= 5.0))
@@ -185,6 +192,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(plane_sigma_m > 0.0) || !(edge_sigma_m > 0.0)) return fail("LiDAR sigmas must be > 0");
   if (!(max_correspondence_m > 0.0)) return fail("max_correspondence_m must be > 0");
   if (!(edge_max_spread_m >= 0.0)) return fail("edge_max_spread_m must be >= 0 (0 = no check)");
+  if (!(down_edge_soft_spread_m >= 0.0))
+    return fail("down_edge_soft_spread_m must be >= 0 (0 = off)");
   if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
@@ -237,10 +246,15 @@ std::string EstimatorConfig::Describe() const {
   s << "lidar sigmas: plane " << o.plane_sigma_m << " m, edge " << o.edge_sigma_m
     << " m, correspondences within " << o.max_correspondence_m << " m, edge neighbours' spread ";
   if (o.edge_max_spread_m > 0.0) {
-    s << "within " << o.edge_max_spread_m << " m RMS\n";
+    s << "within " << o.edge_max_spread_m << " m RMS";
   } else {
-    s << "not checked\n";
+    s << "not checked";
   }
+  if (o.down_edge_soft_spread_m > 0.0) {
+    s << "; the down LiDAR's edges beyond " << o.down_edge_soft_spread_m
+      << " m RMS hold nothing sideways";
+  }
+  s << "\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m\n";
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "

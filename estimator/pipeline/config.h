@@ -97,6 +97,13 @@ struct EstimatorOptions {
   /// scattered far points of the map they turn each frame (0.041 deg of yaw per frame at true
   /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see the README.
   double edge_max_spread_m = 0.0;
+  /// When > 0, an edge of the LiDAR looking down at the track whose map neighbours lie further
+  /// than this RMS from their line (a soft crease of ballast or embankment, not a corner) keeps
+  /// only the part of its residual across the body's lateral axis: it still holds pitch,
+  /// height and position along the track, but no longer turns the frame. Not the default: it
+  /// helps the embankment and costs other runs about as much (README, "Where the estimator
+  /// stands"); 0.05 m is the value measured there.
+  double down_edge_soft_spread_m = 0.0;
   double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
   double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
   /// Failure detection (eq. 24): feature counts below these fail a LiDAR.
@@ -125,8 +132,10 @@ struct EstimatorOptions {
   /// thinned to one point per voxel of `submap_voxel_m` (0.1); `submap_icp` and `submap_ndt`
   /// switch the scan-to-submap ICP and the submap-to-submap NDT; `submap_gnss_pull` (0.05) and
   /// `submap_gnss_pull_vertical` (0) are the share of the way each submap moves from the
-  /// odometry chain towards its GNSS pose; `submap_gnss_height_length_m` (2000) is the natural
-  /// length of the loop that tilts the chain to follow GNSS in height (0: off).
+  /// odometry chain towards its GNSS pose; `submap_gnss_height_length_m` (2000) and
+  /// `submap_gnss_heading_length_m` (1000) are the natural lengths of the loops that tilt and
+  /// turn the chain to follow GNSS in height and sideways (0: off; without the heading loop the
+  /// pull acts sideways too).
   SubmapOptions submap;
   /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
   /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that

@@ -518,6 +518,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
+      // The down LiDAR's soft edges (creases, not corners): see down_edge_soft_spread_m.
+      match.line_soft_spread_m = rig.lidars[i].looks_down() ? o.down_edge_soft_spread_m : 0.0;
       const LidarMatches matches =
           MatchFeatures(match, fronts[i].features, T_current, *edge_map_, *plane_map_);
       const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
@@ -545,8 +547,13 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       for (const PlaneMatch& m : matches.planes) {
         plane_terms.push_back({m.p_body, m.normal, m.d, w_plane});
       }
+      // Soft edges say nothing sideways.
+      Eigen::Vector3d lateral = T_current.linear().col(1);
+      lateral.z() = 0.0;
+      lateral.normalize();
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
+        if (m.soft) line_terms.back().Ignore(lateral);
       }
     }
     // Solution remapping: what neither LiDAR observes is left to the other factors.

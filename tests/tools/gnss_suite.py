@@ -2,8 +2,9 @@
 """Runs raillomer-estimator with GNSS on simulated scenarios and scores each run in UTM against
 the truth with no post-alignment (raillomer-eval --align none): ATE RMSE and MAX, the largest
 error inside GNSS outages, and beside them the GNSS bound of the run. It also scores each run's
-map (raillomer-eval --scenario --submaps): the spread normal to the corridor's known planes and
-the rail-head height difference between submaps (every segment by submap in <run>/rails.csv).
+map (raillomer-eval --scenario --submaps): the spread normal to the corridor's known planes
+(every patch by submap in <run>/planes.csv) and the rail-head height difference between
+submaps (every segment by submap in <run>/rails.csv).
 
 The GNSS bound is what an estimator with perfect odometry would reach: the truth moved by the
 4-DoF transform (yaw and offset) that best fits the receiver's fixes, multipath excluded, scored
@@ -151,7 +152,8 @@ def run_one(build, out_root, scenario, seed, duration):
                          "--truth", os.path.join(out, "truth.tum"), "--align", "none",
                          "--json", os.path.join(out, "eval.json"), "--plot", os.path.join(out, "eval.svg"),
                          "--scenario", scenario, "--submaps", os.path.join(out, "submaps"),
-                         "--rail-csv", os.path.join(out, "rails.csv")],
+                         "--rail-csv", os.path.join(out, "rails.csv"),
+                         "--plane-csv", os.path.join(out, "planes.csv")],
                         capture_output=True, text=True)
     if ev.returncode != 0:
         row["error"] = [ev.stderr.strip()]

@@ -112,6 +112,12 @@ TEST(ScanMatching, AnEdgeOnScatteredNeighboursIsNotMatched) {
   ASSERT_EQ(m.lines.size(), 1u);
   EXPECT_NEAR(m.lines[0].p_body.y(), 2.0, 1e-6);
   EXPECT_GT(std::abs(m.lines[0].direction.x()), 0.99);
+  // With the soft check instead both are matched, and the crease is marked soft.
+  MatchOptions soft;
+  soft.line_soft_spread_m = 0.05;
+  const LidarMatches both = MatchFeatures(soft, scan, I, edges, planes);
+  ASSERT_EQ(both.lines.size(), 2u);
+  for (const LineMatch& line : both.lines) EXPECT_EQ(line.soft, line.p_body.y() < 0.0);
 }
 
 TEST(ScanMatching, NoMatchesAgainstAnEmptyMap) {

@@ -60,6 +60,20 @@ TEST(MapSharpness, TwoSubmapsOffsetFromEachOtherBlurThePlane) {
   T_truth_est.translation() = Vec3(0.0, 0.0, -0.06);
   sharpness.AddSubmap(FloorSubmap(0.0, 0.06, 2), T_truth_est);
   EXPECT_NEAR(sharpness.Result().plane_rms_m, 0.03, 0.001);  // +-3 cm about the fitted plane
+  // Each patch tells the two submaps apart: 3 cm below and above the fitted plane (its normal
+  // may point either way), each as sharp as its points.
+  const std::vector<PlanePatchReport> patches = sharpness.PlanePatches();
+  ASSERT_EQ(patches.size(), 4u);
+  for (const PlanePatchReport& patch : patches) {
+    EXPECT_NEAR(patch.rms_m, 0.03, 0.001);
+    ASSERT_EQ(patch.samples.size(), 2u);
+    EXPECT_NEAR(std::fabs(patch.samples[0].offset_m), 0.03, 0.001);
+    EXPECT_NEAR(patch.samples[0].offset_m, -patch.samples[1].offset_m, 0.001);
+    EXPECT_LT(patch.samples[0].rms_m, 0.001);
+  }
+  const std::string csv = PlanePatchesCsv(patches);
+  EXPECT_EQ(csv.rfind("x,y,z,patch_rms_m,patch_points,submap,points,offset_m,rms_m\n", 0), 0u);
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 9);  // a header and 2 rows per patch
 }
 
 TEST(MapSharpness, RailHeadHeightsAreComparedBetweenSubmaps) {

@@ -499,6 +499,28 @@ TEST(LidarFrameCost, CostWithoutJacobiansIsTheSame) {
   EXPECT_EQ(cost.size(), terms.planes.size() + terms.lines.size());
 }
 
+// A soft edge's term that ignores one axis: its cost is the offset across that axis alone, and
+// moving the pose along the axis costs nothing.
+TEST(LidarFrameCost, ALineTermIgnoresTheAxisItIsTold) {
+  const Eigen::Vector3d a(1.0, 2.0, 3.0), u = Eigen::Vector3d::UnitX();
+  const Eigen::Vector3d y = Eigen::Vector3d::UnitY(), z = Eigen::Vector3d::UnitZ();
+  Pose pose = kTruePose;
+  const Eigen::Vector3d p_body = ToBody(pose, a + 4.0 * u + 0.2 * y + 0.1 * z);
+  LineTerm full(p_body, a, u, 1.0);
+  LineTerm blind = full;
+  blind.Ignore(y);
+  const auto cost_at = [](const LineTerm& term, Pose at) {
+    const LidarFrameCost cost({}, {term}, 10.0);  // the quadratic part of the Huber loss
+    return EvaluateVector(cost, {at.data()}).squaredNorm();
+  };
+  EXPECT_NEAR(cost_at(full, pose), 0.05, 1e-9);
+  EXPECT_NEAR(cost_at(blind, pose), 0.01, 1e-9);
+  Pose moved = pose;
+  moved[1] += 0.3;  // along world y
+  EXPECT_NEAR(cost_at(blind, moved), 0.01, 1e-9);
+  EXPECT_GT(cost_at(full, moved), 0.2);
+}
+
 TEST(LidarFrameCost, SolvesToTheSamePoseAsOneBlockPerTerm) {
   const FrameTerms terms = MakeFrameTerms(false, 13);
   Pose folded_pose = kPerturbedStart, blocks_pose = kPerturbedStart;

@@ -206,8 +206,8 @@ std::vector<api::Submap> TwoSubmaps(const SubmapOptions& options,
   return done;
 }
 
-Vec3 Sideways(double lateral_m, double up_m) {
-  return CorridorRun(0.0).T_utm_corridor.linear() * Vec3(0.0, lateral_m, up_m);
+Vec3 Sideways(double lateral_m, double up_m, double along_m = 0.0) {
+  return CorridorRun(0.0).T_utm_corridor.linear() * Vec3(along_m, lateral_m, up_m);
 }
 
 TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
@@ -215,22 +215,28 @@ TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
   options.icp = false;
   options.ndt = false;
   SubmapStats stats;
-  // The second submap's GNSS poses are 0.4 m off sideways and 0.2 m up: the chain keeps it on
-  // the first, moved only the pull's share of the way (in height not at all: the height
-  // follows GNSS through the chain's slope, and that has only begun to turn).
-  const Vec3 offset = Sideways(0.4, 0.2);
+  // The second submap's GNSS poses are 0.4 m off sideways, 0.2 m up and 0.6 m ahead: the
+  // chain keeps it on the first, moved only the pull's share of the way along the track
+  // (sideways and in height not at all: there the chain follows GNSS through its heading and
+  // slope, and those have only begun to turn).
+  const Vec3 offset = Sideways(0.4, 0.2, 0.6);
   const std::vector<api::Submap> done = TwoSubmaps(options, offset, Vec3::Zero(), &stats);
   ASSERT_EQ(done.size(), 2u);
   EXPECT_EQ(stats.chained, 1u);
   EXPECT_EQ(stats.chain_resets, 0u);
   const CorridorRun run(0.0);
-  const Vec3 pulled(options.gnss_pull * offset.x(),
-                    options.gnss_pull * offset.y(),
-                    options.gnss_pull_vertical * offset.z());
+  const Vec3 pulled = options.gnss_pull * Sideways(0.0, 0.0, 0.6);
   for (int k = 0; k < 10; ++k) {
     const Vec3 left = done[1].keyframes[k].p_world - run.Truth(10 + k).translation();
     EXPECT_LT((left - pulled).norm(), 0.005) << left.transpose();
   }
+  // Without the heading loop the pull acts sideways too.
+  SubmapOptions sideways_pull = options;
+  sideways_pull.gnss_heading_length_m = 0.0;
+  const std::vector<api::Submap> old = TwoSubmaps(sideways_pull, offset, Vec3::Zero(), &stats);
+  ASSERT_EQ(old.size(), 2u);
+  const Vec3 both = options.gnss_pull * Sideways(0.4, 0.0, 0.6);
+  EXPECT_LT((old[1].keyframes[5].p_world - run.Truth(15).translation() - both).norm(), 0.005);
   // 3 m off is beyond chain_reset_m: GNSS places the submap.
   const Vec3 far = Sideways(3.0, 0.0);
   const std::vector<api::Submap> reset = TwoSubmaps(options, far, Vec3::Zero(), &stats);
@@ -238,42 +244,81 @@ TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
   EXPECT_LT((reset[1].keyframes[5].p_world - run.Truth(15).translation() - far).norm(), 0.005);
 }
 
+/// 150 submaps of 20 m whose GNSS poses lie `gnss_offset` (UTM) from the truth from the second
+/// submap on, placed by the chain alone (no registration, no points), with the loops faster
+/// than the defaults for a short run: 0.4 mrad a 20 m submap, 4 mm at a seam.
+std::vector<api::Submap> ChainTowards(const Vec3& gnss_offset) {
+  SubmapOptions options;
+  options.icp = false;
+  options.ndt = false;
+  options.gnss_height_length_m = 400.0;
+  options.gnss_heading_length_m = 400.0;
+  options.gnss_max_tilt_rate_rad_per_m = 2e-5;
+  options.gnss_max_turn_rate_rad_per_m = 2e-5;
+  const CorridorRun run(0.0);
+  SubmapBuilder builder(options);
+  std::vector<api::Submap> done;
+  const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), 0.4);
+  for (int k = 0; k < 1500; ++k) {
+    const SubmapKeyframe kf =
+        run.Keyframe(k, T_odom_utm * run.Truth(k), k < 10 ? Vec3::Zero() : gnss_offset);
+    for (api::Submap& s : builder.Add(kf)) done.push_back(s);
+  }
+  for (api::Submap& s : builder.Flush()) done.push_back(s);
+  return done;
+}
+
+/// How far the chain climbs to GNSS (or turns to it), and its largest step at a seam in that
+/// direction: beyond the slope across the last two keyframes of the earlier submap (2 m
+/// apart), any difference between it and the next submap's first keyframe is the seam's.
+struct Approach {
+  double largest_step_m = 0.0;
+  double at_fifth_m = 0.0;  ///< the offset reached 600 m in
+  double at_end_m = 0.0;
+};
+Approach Follow(const std::vector<api::Submap>& done, const Vec3& direction) {
+  const CorridorRun run(0.0);
+  const auto offset = [&](size_t s, int k) {
+    return direction.dot(done[s].keyframes[static_cast<size_t>(k)].p_world -
+                         run.Truth(10 * static_cast<int>(s) + k).translation());
+  };
+  Approach a;
+  for (size_t s = 1; s < done.size(); ++s) {
+    const double within = offset(s - 1, 9) - offset(s - 1, 8);
+    a.largest_step_m =
+        std::max(a.largest_step_m, std::fabs(offset(s, 0) - offset(s - 1, 9) - within));
+  }
+  a.at_fifth_m = offset(done.size() / 5, 5);
+  a.at_end_m = offset(done.size() - 1, 5);
+  return a;
+}
+
 // From the second submap on GNSS says the track lies 1 m higher than the odometry has it. A
 // height pull would step each submap up at its seam (a rail-head step in the map: 5 cm at a
 // 5 % pull); the height loop tilts the chain instead, so consecutive submaps still meet, and
 // within a few natural lengths the chain reaches the GNSS height.
 TEST(SubmapBuilder, TheChainClimbsToTheGnssHeightWithoutAStepAtAnySeam) {
-  SubmapOptions options;
-  options.icp = false;
-  options.ndt = false;
-  // Faster than the defaults, for a short run: 0.4 mrad a 20 m submap, 4 mm at a seam.
-  options.gnss_height_length_m = 400.0;
-  options.gnss_max_tilt_rate_rad_per_m = 2e-5;
-  const CorridorRun run(0.0);  // no points: only the placement matters here
-  SubmapBuilder builder(options);
-  std::vector<api::Submap> done;
-  const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), 0.4);
-  const int submaps = 150;  // of 20 m
-  for (int k = 0; k < 10 * submaps; ++k) {
-    const SubmapKeyframe kf =
-        run.Keyframe(k, T_odom_utm * run.Truth(k), Vec3(0.0, 0.0, k < 10 ? 0.0 : 1.0));
-    for (api::Submap& s : builder.Add(kf)) done.push_back(s);
-  }
-  for (api::Submap& s : builder.Flush()) done.push_back(s);
-  ASSERT_EQ(done.size(), static_cast<size_t>(submaps));
-  const auto above = [&](size_t s, int k) {
-    return done[s].keyframes[static_cast<size_t>(k)].p_world.z() -
-           run.Truth(10 * static_cast<int>(s) + k).translation().z();
-  };
-  double largest_step = 0.0;
-  for (size_t s = 1; s < done.size(); ++s) {
-    // Keyframes 2 m apart: beyond the slope across those 2 m, any difference is the seam's.
-    const double within = above(s - 1, 9) - above(s - 1, 8);
-    largest_step = std::max(largest_step, std::fabs(above(s, 0) - above(s - 1, 9) - within));
-  }
-  EXPECT_LT(largest_step, 0.005);
-  EXPECT_NEAR(above(done.size() - 1, 5), 1.0, 0.1);
-  EXPECT_GT(above(done.size() / 5, 5), 0.3);  // climbing by 600 m, not still level
+  const std::vector<api::Submap> done = ChainTowards(Vec3(0.0, 0.0, 1.0));
+  ASSERT_EQ(done.size(), 150u);
+  const Approach a = Follow(done, Vec3::UnitZ());
+  EXPECT_LT(a.largest_step_m, 0.005);
+  EXPECT_NEAR(a.at_end_m, 1.0, 0.1);
+  EXPECT_GT(a.at_fifth_m, 0.3);  // climbing by 600 m, not still level
+}
+
+// The same sideways: GNSS says the track lies 1 m to the left. A sideways pull would step each
+// submap across at its seam (2-5 cm between submaps that see the same wall, on the simulator's
+// runs); the heading loop turns the chain instead.
+TEST(SubmapBuilder, TheChainTurnsToTheGnssTrackWithoutAStepAtAnySeam) {
+  const Vec3 left = Sideways(1.0, 0.0);
+  const std::vector<api::Submap> done = ChainTowards(left);
+  ASSERT_EQ(done.size(), 150u);
+  const Approach a = Follow(done, left);
+  EXPECT_LT(a.largest_step_m, 0.005);
+  EXPECT_NEAR(a.at_end_m, 1.0, 0.1);
+  EXPECT_GT(a.at_fifth_m, 0.3);
+  // Along the track and in height it stays on the truth.
+  EXPECT_LT(std::fabs(Follow(done, Vec3::UnitZ()).at_end_m), 0.02);
 }
 
 TEST(SubmapBuilder, SubmapToSubmapNdtMovesAMisplacedSubmapOntoItsPredecessor) {

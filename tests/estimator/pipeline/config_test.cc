@@ -1,5 +1,8 @@
 #include "estimator/pipeline/config.h"
 
+#include <string>
+#include <utility>
+
 #include <gtest/gtest.h>
 
 #include "estimator/sim/scenario.h"
@@ -72,39 +75,31 @@ TEST(EstimatorConfig, RejectsUnknownKeysWithTheirLine) {
 }
 
 TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
+  // Each bad `estimator:` line and what its message must name.
+  const std::pair<const char*, const char*> cases[] = {
+      {"window_size: 1", "window_size"},
+      {"map_voxel_m: big", "wrong type"},
+      // A zero across-axis odometer noise would pin the attitude to the car body's sway again.
+      {"odometer_lateral_density: 0", "estimator.odometer_lateral_density must be > 0"},
+      {"degeneracy_projection: -1", "degeneracy_projection must be in [0, 1)"},
+      {"edge_max_spread_m: -0.1", "edge_max_spread_m must be >= 0"},
+      {"down_edge_soft_spread_m: -1", "down_edge_soft_spread_m must be >= 0"},
+      {"map_insert_lag: -1", "map_insert_lag must be >= 0"},
+      {"submap_gnss_height_length_m: -1",
+       "submap_gnss_height_length_m must be 0 (off) or a length"},
+      {"submap_gnss_heading_length_m: -1",
+       "submap_gnss_heading_length_m must be 0 (off) or a length"},
+      {"submap_gnss_turn_rate_rad_per_m: 0", "submap_gnss_turn_rate_rad_per_m must be > 0"},
+      {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
+  };
   EstimatorConfig config;
   std::string error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  window_size: 1\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("window_size"), std::string::npos) << error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  map_voxel_m: big\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("wrong type"), std::string::npos) << error;
-  // A zero across-axis odometer noise would pin the attitude to the car body's sway again.
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  odometer_lateral_density: 0\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("estimator.odometer_lateral_density must be > 0"), std::string::npos)
-      << error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  degeneracy_projection: -1\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("degeneracy_projection must be in [0, 1)"), std::string::npos) << error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  edge_max_spread_m: -0.1\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("edge_max_spread_m must be >= 0"), std::string::npos) << error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  map_insert_lag: -1\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("map_insert_lag must be >= 0"), std::string::npos) << error;
-  EXPECT_FALSE(
-      ParseEstimatorConfig(DemoRigYaml() + "estimator:\n  submap_gnss_height_length_m: -1\n",
-                           "rig.yaml",
-                           &config,
-                           &error));
-  EXPECT_NE(error.find("submap_gnss_height_length_m must be 0 (off) or a length"),
-            std::string::npos)
-      << error;
-  EXPECT_FALSE(ParseEstimatorConfig(
-      DemoRigYaml() + "estimator:\n  submap_chain_reset_m: 0\n", "rig.yaml", &config, &error));
-  EXPECT_NE(error.find("submap_chain_reset_m must be > 0 m"), std::string::npos) << error;
+  for (const auto& [line, message] : cases) {
+    EXPECT_FALSE(ParseEstimatorConfig(
+        DemoRigYaml() + "estimator:\n  " + line + "\n", "rig.yaml", &config, &error))
+        << line;
+    EXPECT_NE(error.find(message), std::string::npos) << line << ": " << error;
+  }
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
@@ -117,7 +112,9 @@ TEST(EstimatorConfig, OverridesTunables) {
   const std::string yaml =
       DemoRigYaml() +
       "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
-      "  edge_max_spread_m: 0.2\n  submap_gnss_height_length_m: 0\n  submap_chain_reset_m: 5\n"
+      "  edge_max_spread_m: 0.2\n  down_edge_soft_spread_m: 0.05\n  submap_gnss_height_length_m: "
+      "0\n"
+      "  submap_gnss_heading_length_m: 250\n  submap_chain_reset_m: 5\n"
       "  preprocess:\n"
       "    min_range_m: 3.5\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
@@ -125,7 +122,9 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
   EXPECT_EQ(config.options.map_insert_lag, 0);
   EXPECT_DOUBLE_EQ(config.options.edge_max_spread_m, 0.2);
+  EXPECT_DOUBLE_EQ(config.options.down_edge_soft_spread_m, 0.05);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_height_length_m, 0.0);
+  EXPECT_DOUBLE_EQ(config.options.submap.gnss_heading_length_m, 250.0);
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
 }
