@@ -192,10 +192,16 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
     Eigen::Vector3d along = anchor.linear().col(0);
     along.z() = 0.0;
     if (options_.gnss_heading_length_m > 0.0 && along.norm() > 1e-6) {
-      // Sideways the heading loop follows GNSS: only the along-track share of the step.
+      // Sideways the heading loop follows GNSS: only the along-track share of the step, and
+      // sideways gnss_pull_excess of the gap beyond 3/4 of chain_reset_m, so that a chain the
+      // loop has not kept up with comes back before a reset would tear the map.
       along.normalize();
+      const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(along);
+      const double gap = left.dot(gnss.translation() - anchor.translation());
+      const double barrier = 0.75 * options_.chain_reset_m;
       const Eigen::Vector3d sideways = step - along * along.dot(step);
       step -= Eigen::Vector3d(sideways.x(), sideways.y(), 0.0);
+      step += options_.gnss_pull_excess * (gap - std::clamp(gap, -barrier, barrier)) * left;
     }
     target.translation() = anchor.translation() + step - s.origin;
     const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame

@@ -63,6 +63,14 @@ struct SubmapOptions {
   /// loop's, since the chain strays sideways by the GNSS graph's heading error and is torn
   /// back to GNSS (a chain reset) beyond chain_reset_m.
   double gnss_max_turn_rate_rad_per_m = 1e-5;
+  /// With the heading loop the pull can still act sideways on the gap beyond 3/4 of
+  /// chain_reset_m, taking this share of that excess each submap, so that where the GNSS
+  /// graph's heading is off by more than the loop turns the chain comes back in centimetre
+  /// steps instead of being torn back by metres at a reset. Off by default: at 0.2 it kept
+  /// poor_high_open_a's rails within 2.6 cm (9.7 cm without), but long_20km still had 5 resets
+  /// and one tore through a building wall (planes 4.35 cm against 2.4), and reverse_running's
+  /// planes went from 2.0 to 2.7 cm.
+  double gnss_pull_excess = 0.0;
   double gnss_max_tilt_rad = 0.005;  ///< each loop's angle is held within this...
   /// ...and turns by at most this per metre of path (0.07 mrad over a 33 m submap, a
   /// millimetre at its seam), even when the GNSS position jumps.

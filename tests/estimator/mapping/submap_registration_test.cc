@@ -237,6 +237,16 @@ TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
   ASSERT_EQ(old.size(), 2u);
   const Vec3 both = options.gnss_pull * Sideways(0.4, 0.0, 0.6);
   EXPECT_LT((old[1].keyframes[5].p_world - run.Truth(15).translation() - both).norm(), 0.005);
+  // 1.9 m off sideways is 0.4 m beyond 3/4 of chain_reset_m: with gnss_pull_excess the pull
+  // takes its share of that.
+  SubmapOptions with_excess = options;
+  with_excess.gnss_pull_excess = 0.2;
+  const std::vector<api::Submap> excess =
+      TwoSubmaps(with_excess, Sideways(1.9, 0.0), Vec3::Zero(), &stats);
+  ASSERT_EQ(excess.size(), 2u);
+  EXPECT_EQ(stats.chain_resets, 0u);
+  const Vec3 back = 0.2 * Sideways(1.9 - 0.75 * options.chain_reset_m, 0.0);
+  EXPECT_LT((excess[1].keyframes[5].p_world - run.Truth(15).translation() - back).norm(), 0.005);
   // 3 m off is beyond chain_reset_m: GNSS places the submap.
   const Vec3 far = Sideways(3.0, 0.0);
   const std::vector<api::Submap> reset = TwoSubmaps(options, far, Vec3::Zero(), &stats);

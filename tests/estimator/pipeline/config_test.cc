@@ -90,6 +90,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"submap_gnss_heading_length_m: -1",
        "submap_gnss_heading_length_m must be 0 (off) or a length"},
       {"submap_gnss_turn_rate_rad_per_m: 0", "submap_gnss_turn_rate_rad_per_m must be > 0"},
+      {"submap_gnss_pull_excess: 2", "submap_gnss_pull_excess must be in [0, 1]"},
       {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
   };
   EstimatorConfig config;
@@ -114,7 +115,8 @@ TEST(EstimatorConfig, OverridesTunables) {
       "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
       "  edge_max_spread_m: 0.2\n  down_edge_soft_spread_m: 0.05\n  submap_gnss_height_length_m: "
       "0\n"
-      "  submap_gnss_heading_length_m: 250\n  submap_chain_reset_m: 5\n"
+      "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n  "
+      "submap_chain_reset_m: 5\n"
       "  preprocess:\n"
       "    min_range_m: 3.5\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
@@ -125,6 +127,7 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.down_edge_soft_spread_m, 0.05);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_height_length_m, 0.0);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_heading_length_m, 250.0);
+  EXPECT_DOUBLE_EQ(config.options.submap.gnss_pull_excess, 0.5);
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
 }
