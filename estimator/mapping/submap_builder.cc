@@ -19,6 +19,19 @@ std::vector<Eigen::Vector3f> Thinned(const std::vector<Eigen::Vector3f>& points,
   return out;
 }
 
+/// The horizontal unit vectors ahead of and to the left of `R_world_body`'s heading; false
+/// when it points straight up or down.
+bool Horizontal(const Eigen::Matrix3d& R_world_body,
+                Eigen::Vector3d* ahead,
+                Eigen::Vector3d* left) {
+  Eigen::Vector3d heading = R_world_body.col(0);
+  heading.z() = 0.0;
+  if (heading.norm() < 1e-6) return false;
+  *ahead = heading.normalized();
+  *left = Eigen::Vector3d::UnitZ().cross(*ahead);
+  return true;
+}
+
 bool Within(const Eigen::Isometry3d& guess,
             const Eigen::Isometry3d& result,
             double max_m,
@@ -189,19 +202,16 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
                           .toRotationMatrix();
     Eigen::Vector3d step = k * (gnss.translation() - anchor.translation());
     step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
-    Eigen::Vector3d along = anchor.linear().col(0);
-    along.z() = 0.0;
-    if (options_.gnss_heading_length_m > 0.0 && along.norm() > 1e-6) {
+    Eigen::Vector3d ahead, left;
+    if (options_.gnss_heading_length_m > 0.0 && Horizontal(anchor.linear(), &ahead, &left)) {
       // Sideways the heading loop follows GNSS: only the along-track share of the step, and
       // sideways gnss_pull_excess of the gap beyond 3/4 of chain_reset_m, so that a chain the
       // loop has not kept up with comes back before a reset would tear the map.
-      along.normalize();
-      const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(along);
       const double gap = left.dot(gnss.translation() - anchor.translation());
       const double barrier = 0.75 * options_.chain_reset_m;
-      const Eigen::Vector3d sideways = step - along * along.dot(step);
-      step -= Eigen::Vector3d(sideways.x(), sideways.y(), 0.0);
-      step += options_.gnss_pull_excess * (gap - std::clamp(gap, -barrier, barrier)) * left;
+      const double excess = gap - std::clamp(gap, -barrier, barrier);
+      step.head<2>() =
+          (ahead.dot(step) * ahead + options_.gnss_pull_excess * excess * left).head<2>();
     }
     target.translation() = anchor.translation() + step - s.origin;
     const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame
@@ -233,10 +243,8 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
 }
 
 Eigen::Matrix3d SubmapBuilder::Tilt(const Eigen::Matrix3d& R_world_body) const {
-  Eigen::Vector3d heading = R_world_body.col(0);
-  heading.z() = 0.0;
-  if (heading.norm() < 1e-6) return Eigen::Matrix3d::Identity();
-  const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(heading.normalized());
+  Eigen::Vector3d ahead, left;
+  if (!Horizontal(R_world_body, &ahead, &left)) return Eigen::Matrix3d::Identity();
   // About left: nose up; about up: a turn to the left.
   return Eigen::AngleAxisd(heading_.angle_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
          Eigen::AngleAxisd(-height_.angle_rad, left).toRotationMatrix();
@@ -295,10 +303,8 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
         options_.gnss_max_tilt_rate_rad_per_m,
         off.z(),
         motion.norm());
-  Eigen::Vector3d heading = gnss.linear().col(0);
-  heading.z() = 0.0;
-  if (heading.norm() > 1e-6) {
-    const Eigen::Vector3d left = Eigen::Vector3d::UnitZ().cross(heading.normalized());
+  Eigen::Vector3d ahead, left;
+  if (Horizontal(gnss.linear(), &ahead, &left)) {
     Steer(&heading_,
           options_.gnss_heading_length_m,
           options_.gnss_max_turn_rate_rad_per_m,

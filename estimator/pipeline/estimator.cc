@@ -515,6 +515,10 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     std::vector<PlaneTerm> plane_terms;
     std::vector<LineTerm> line_terms;
     LidarMatches all;
+    // Soft edges (down_edge_soft_spread_m) say nothing along the body's horizontal lateral axis.
+    Eigen::Vector3d lateral = T_current.linear().col(1);
+    lateral.z() = 0.0;
+    lateral.normalize();
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
@@ -547,10 +551,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       for (const PlaneMatch& m : matches.planes) {
         plane_terms.push_back({m.p_body, m.normal, m.d, w_plane});
       }
-      // Soft edges say nothing sideways.
-      Eigen::Vector3d lateral = T_current.linear().col(1);
-      lateral.z() = 0.0;
-      lateral.normalize();
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
         if (m.soft) line_terms.back().Ignore(lateral);
