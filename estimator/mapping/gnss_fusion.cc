@@ -20,6 +20,22 @@ Eigen::Matrix3d Rz(double yaw) {
   return Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
 }
 
+/// Turns and stretches the position `p` horizontally about `from` so that a position carried
+/// the same way to `reached` would land on `to`; leaves it for a span under 10 m or one the
+/// odometry would have to stretch by more than 10 %.
+void SpanFit(const Eigen::Vector3d& from,
+             const Eigen::Vector3d& to,
+             const Eigen::Vector3d& reached,
+             Eigen::Vector3d* p) {
+  const Eigen::Vector2d want = (to - from).head<2>(), got = (reached - from).head<2>();
+  if (want.norm() < 10.0 || got.norm() < 10.0) return;
+  const double stretch = want.norm() / got.norm();
+  if (std::fabs(stretch - 1.0) > 0.1) return;
+  const double turn = std::atan2(got.x() * want.y() - got.y() * want.x(), got.dot(want));
+  const Eigen::Matrix2d R = stretch * Eigen::Rotation2Dd(turn).toRotationMatrix();
+  p->head<2>() = from.head<2>() + R * (*p - from).head<2>();
+}
+
 }  // namespace
 
 double GnssFusion::Correction::SignedLength(const Eigen::Vector3d& p_odom) const {
@@ -392,18 +408,31 @@ Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double
   if (t_s <= nodes_.front().t_s) return NodeCorrection(nodes_.front()).Apply(T_odom_body);
   size_t k = 1;
   while (nodes_[k].t_s < t_s) ++k;
-  // Between two nodes: each carries the pose with the drift-corrected odometry, and the two
-  // are blended by time, so the trajectory runs smoothly from one node to the next.
+  // Between two nodes: each carries the pose with the scale-corrected odometry, and the two
+  // are blended by time, so the trajectory runs smoothly from one node to the next. The
+  // window's heading drift rate is left out here: the two nodes already hold the heading at
+  // either end, and the rate, an average over the window fitted to wandering fixes, only bends
+  // the path between them (by the rate times the span squared over 8: 0.4 m through a 1.5 km
+  // tunnel, where it made the run's largest error 1.68 m instead of 1.53 m).
   const Node& a = nodes_[k - 1];
   const Node& b = nodes_[k];
-  const Correction ca = NodeCorrection(a), cb = NodeCorrection(b);
+  Correction ca = NodeCorrection(a), cb = NodeCorrection(b);
+  ca.yaw_rate = cb.yaw_rate = 0.0;
   const Eigen::Isometry3d A = ca.Apply(T_odom_body), B = cb.Apply(T_odom_body);
+  // The two node headings need not agree with the odometry's turn between them (each rests on
+  // the fixes around its node): carried from one node the path misses the other sideways, and
+  // the blend of the two would bow out between them by a quarter of the heading difference
+  // times the span. So each carried position is turned and stretched about its own node until
+  // it meets the other node; the orientations keep the nodes' headings, blended.
+  Eigen::Vector3d pa = A.translation(), pb = B.translation();
+  SpanFit(ca.anchor_enu, cb.anchor_enu, ca.Apply(b.p_odom), &pa);
+  SpanFit(cb.anchor_enu, ca.anchor_enu, cb.Apply(a.p_odom), &pb);
   const double w = (t_s - a.t_s) / (b.t_s - a.t_s);
   const double yaw_a = YawOf(A.linear() * T_odom_body.linear().transpose());
   const double yaw_b = YawOf(B.linear() * T_odom_body.linear().transpose());
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = Rz(yaw_a + w * WrapAngle(yaw_b - yaw_a)) * T_odom_body.linear();
-  T.translation() = (1.0 - w) * A.translation() + w * B.translation();
+  T.translation() = (1.0 - w) * pa + w * pb;
   return T;
 }
 

@@ -207,11 +207,19 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
       // Sideways the heading loop follows GNSS: only the along-track share of the step, and
       // sideways gnss_pull_excess of the gap beyond 3/4 of chain_reset_m, so that a chain the
       // loop has not kept up with comes back before a reset would tear the map.
-      const double gap = left.dot(gnss.translation() - anchor.translation());
-      const double barrier = 0.75 * options_.chain_reset_m;
-      const double excess = gap - std::clamp(gap, -barrier, barrier);
-      step.head<2>() =
-          (ahead.dot(step) * ahead + options_.gnss_pull_excess * excess * left).head<2>();
+      // Along the track the pull also takes gnss_pull_along_excess of the gap beyond 1/4 of
+      // chain_reset_m: where the odometry runs long or short for a while, the chain comes back
+      // a few decimetres a submap instead of being torn back by metres at a reset.
+      const Eigen::Vector3d gap = gnss.translation() - anchor.translation();
+      const auto excess = [](double g, double barrier) {
+        return g - std::clamp(g, -barrier, barrier);
+      };
+      const double along =
+          ahead.dot(step) +
+          options_.gnss_pull_along_excess * excess(ahead.dot(gap), 0.25 * options_.chain_reset_m);
+      const double across =
+          options_.gnss_pull_excess * excess(left.dot(gap), 0.75 * options_.chain_reset_m);
+      step.head<2>() = (along * ahead + across * left).head<2>();
     }
     target.translation() = anchor.translation() + step - s.origin;
     const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame
@@ -311,7 +319,13 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
           left.dot(off),
           motion.norm());
   }
-  if ((gnss.translation() - chain.translation()).head<2>().norm() > options_.chain_reset_m) {
+  // Across the track a gap of chain_reset_m tears the map; along it the chain may lag or lead
+  // twice as far (a step along the track moves nothing on the rails or the side walls).
+  const bool far = Horizontal(gnss.linear(), &ahead, &left)
+                       ? std::fabs(left.dot(off)) > options_.chain_reset_m ||
+                             std::fabs(ahead.dot(off)) > 2.0 * options_.chain_reset_m
+                       : off.head<2>().norm() > options_.chain_reset_m;
+  if (far) {
     // GNSS places it across and along the track; the height stays the chain's: a single-point
     // receiver's height wanders by metres, and taking it would tear the map by as much.
     ++stats_.chain_resets;

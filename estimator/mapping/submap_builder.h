@@ -34,12 +34,12 @@ struct SubmapOptions {
   /// Stage 2, submap-to-submap. A georeferenced submap is placed at the previous submap's
   /// position plus the odometry's motion since (turned into the world by the GNSS correction,
   /// its scale error taken out), with its GNSS-corrected orientation. If that lies more than
-  /// `chain_reset_m` from its GNSS pose horizontally (a GNSS outage ended, or the alignment
-  /// was re-solved), GNSS places it horizontally instead. NDT then registers it onto every
-  /// earlier submap it overlaps: the previous ones and, where the train runs the same track
-  /// again, those of the earlier pass (along the track only where that is observable); last it
-  /// moves `gnss_pull` of the way towards its GNSS pose horizontally, so the chain follows
-  /// GNSS without a large step at any seam.
+  /// `chain_reset_m` from its GNSS pose across the track, or twice that along it (a GNSS
+  /// outage ended, or the alignment was re-solved), GNSS places it horizontally instead. NDT then
+  /// registers it onto every earlier submap it overlaps: the previous ones and, where the train
+  /// runs the same track again, those of the earlier pass (along the track only where that is
+  /// observable); last it moves `gnss_pull` of the way towards its GNSS pose horizontally, so the
+  /// chain follows GNSS without a large step at any seam.
   double gnss_pull = 0.05;
   /// The same pull in height; 0 by default. A height step at a seam shows as a step in the rail
   /// heads that both submaps see: 1 % of a single-point receiver's 2 m height error was 2 cm at
@@ -71,10 +71,18 @@ struct SubmapOptions {
   /// and one tore through a building wall (planes 4.35 cm against 2.4), and reverse_running's
   /// planes went from 2.0 to 2.7 cm.
   double gnss_pull_excess = 0.0;
+  /// Along the track the pull also takes this share of the gap beyond 1/4 of chain_reset_m
+  /// each submap. Where the odometry runs long for a while (1 % over 1.2 km in long_20km's
+  /// feature-poor curve, the LiDAR blind along the track), the chain otherwise left GNSS by
+  /// 0.3 m a submap and was reset every few submaps, each reset tearing the map by 2 m along
+  /// the track (a building's walls 1 m apart). 0 leaves it to gnss_pull.
+  double gnss_pull_along_excess = 0.5;
   double gnss_max_tilt_rad = 0.005;  ///< each loop's angle is held within this...
   /// ...and turns by at most this per metre of path (0.07 mrad over a 33 m submap, a
   /// millimetre at its seam), even when the GNSS position jumps.
   double gnss_max_tilt_rate_rad_per_m = 2e-6;
+  /// A chained submap further than this from its GNSS pose across the track, or twice this
+  /// along it, is placed by GNSS instead (a chain reset).
   double chain_reset_m = 2.0;
   bool ndt = true;
   NdtOptions ndt_options;

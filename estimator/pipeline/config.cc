@@ -91,6 +91,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_gnss_heading_length_m", &o->submap.gnss_heading_length_m);
   r.Read("submap_gnss_turn_rate_rad_per_m", &o->submap.gnss_max_turn_rate_rad_per_m);
   r.Read("submap_gnss_pull_excess", &o->submap.gnss_pull_excess);
+  r.Read("submap_gnss_pull_along_excess", &o->submap.gnss_pull_along_excess);
   r.Read("submap_chain_reset_m", &o->submap.chain_reset_m);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
@@ -178,6 +179,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]");
   if (!(submap.gnss_pull_excess >= 0.0 && submap.gnss_pull_excess <= 1.0))
     return fail("submap_gnss_pull_excess must be in [0, 1]");
+  if (!(submap.gnss_pull_along_excess >= 0.0 && submap.gnss_pull_along_excess <= 1.0))
+    return fail("submap_gnss_pull_along_excess must be in [0, 1]");
   if (!(submap.chain_reset_m > 0.0)) return fail("submap_chain_reset_m must be > 0 m");
   if (!(submap.gnss_height_length_m >= 0.0))
     return fail("submap_gnss_height_length_m must be 0 (off) or a length in metres");

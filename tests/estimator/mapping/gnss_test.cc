@@ -1,4 +1,5 @@
 // GNSS georeferencing on generated data with known answers.
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -307,6 +308,71 @@ TEST(GnssFusion, MultipathJumpsLeaveTheTrajectoryAlone) {
   EXPECT_LT(worst, 0.5);
   EXPECT_LT(MaxError(jumpy.estimate, jumpy.truth), 1.0);
   EXPECT_LT(MaxError(jumpy.smoothed, jumpy.smoothed_truth), 0.5);
+}
+
+TEST(GnssFusion, ThroughAnOutageThePathIsTheOdometrysFittedToBothEnds) {
+  // A straight line at 30 m/s with 1 Hz fixes on the track except for a 60 s outage (1.8 km).
+  // Before the outage the odometry turns 2e-6 rad per metre too much (which the graph takes as
+  // a heading drift of the run); inside it, it turns 2 mrad to the left and back. Between the
+  // two nodes around the outage the path must be the odometry's, turned and stretched to meet
+  // both: the window's drift rate, an average that need not describe this span, bent it by the
+  // rate times the span squared over 8, and the two nodes' headings, which disagree with the
+  // odometry's turn between them, bowed it out by a quarter of their difference times the span.
+  GnssFusionOptions options;
+  options.zone.zone = 50;
+  options.zone.north = true;
+  GnssFusion fusion(options, nullptr, nullptr);
+  const Eigen::Vector3d origin(432000.0, 3585000.0, 30.0);
+  const double speed = 30.0, heading = 0.6;
+  const Eigen::Vector3d ahead(std::cos(heading), std::sin(heading), 0.0);
+  const double outage_from_s = 100.0, outage_to_s = 160.0;
+  const double turn_rad_per_m = 2e-3 / (0.5 * speed * (outage_to_s - outage_from_s));
+  std::vector<std::pair<double, Eigen::Isometry3d>> odometry;
+  Eigen::Isometry3d odom = Eigen::Isometry3d::Identity();
+  for (int k = 0; k <= 2400; ++k) {  // 240 s at 10 Hz
+    const double t = 0.1 * k;
+    const int64_t stamp = static_cast<int64_t>(std::llround(t * 1e9));
+    if (k > 0) {
+      double yaw_rad_per_m = 0.0;
+      if (t <= outage_from_s)
+        yaw_rad_per_m = 2e-6;
+      else if (t <= 0.5 * (outage_from_s + outage_to_s))
+        yaw_rad_per_m = turn_rad_per_m;
+      else if (t <= outage_to_s)
+        yaw_rad_per_m = -turn_rad_per_m;
+      Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+      step.translation().x() = 0.1 * speed;
+      step.linear() = Eigen::AngleAxisd(yaw_rad_per_m * 0.1 * speed, Eigen::Vector3d::UnitZ())
+                          .toRotationMatrix();
+      odom = odom * step;
+    }
+    if (k % 10 == 0 && (t < outage_from_s || t >= outage_to_s))
+      fusion.AddFix(FixAt(options.zone, origin + speed * t * ahead, stamp));
+    fusion.AddOdometry(stamp, odom);
+    odometry.emplace_back(t, odom);
+  }
+  fusion.Finish();
+  ASSERT_TRUE(fusion.aligned());
+  ASSERT_GT(fusion.settled_until_s(), outage_to_s);
+  const size_t from = static_cast<size_t>(outage_from_s * 10);
+  const size_t to = static_cast<size_t>(outage_to_s * 10);
+  auto at = [&](size_t i) -> Eigen::Vector3d {
+    return fusion.ToEnu(odometry[i].second, odometry[i].first).translation();
+  };
+  auto odom_at = [&](size_t i) -> Eigen::Vector3d { return odometry[i].second.translation(); };
+  // The odometry's path through the outage, turned and stretched onto the estimate's ends.
+  const Eigen::Vector2d want = (at(to) - at(from)).head<2>();
+  const Eigen::Vector2d got = (odom_at(to) - odom_at(from)).head<2>();
+  const double turn = std::atan2(got.x() * want.y() - got.y() * want.x(), got.dot(want));
+  const Eigen::Matrix2d fit =
+      want.norm() / got.norm() * Eigen::Rotation2Dd(turn).toRotationMatrix();
+  double off = 0.0;
+  for (size_t i = from; i <= to; ++i) {
+    const Eigen::Vector2d expected =
+        at(from).head<2>() + fit * (odom_at(i) - odom_at(from)).head<2>();
+    off = std::max(off, (at(i).head<2>() - expected).norm());
+  }
+  EXPECT_LT(off, 0.01);
 }
 
 }  // namespace

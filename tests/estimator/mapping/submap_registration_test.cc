@@ -216,16 +216,19 @@ TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
   options.ndt = false;
   SubmapStats stats;
   // The second submap's GNSS poses are 0.4 m off sideways, 0.2 m up and 0.6 m ahead: the
-  // chain keeps it on the first, moved only the pull's share of the way along the track
-  // (sideways and in height not at all: there the chain follows GNSS through its heading and
-  // slope, and those have only begun to turn).
+  // chain keeps it on the first, moved only the pull's share of the way along the track and
+  // gnss_pull_along_excess of the 0.1 m beyond 1/4 of chain_reset_m (sideways and in height
+  // not at all: there the chain follows GNSS through its heading and slope, and those have
+  // only begun to turn).
   const Vec3 offset = Sideways(0.4, 0.2, 0.6);
   const std::vector<api::Submap> done = TwoSubmaps(options, offset, Vec3::Zero(), &stats);
   ASSERT_EQ(done.size(), 2u);
   EXPECT_EQ(stats.chained, 1u);
   EXPECT_EQ(stats.chain_resets, 0u);
   const CorridorRun run(0.0);
-  const Vec3 pulled = options.gnss_pull * Sideways(0.0, 0.0, 0.6);
+  const double barrier = 0.25 * options.chain_reset_m;
+  const Vec3 pulled = Sideways(
+      0.0, 0.0, options.gnss_pull * 0.6 + options.gnss_pull_along_excess * (0.6 - barrier));
   for (int k = 0; k < 10; ++k) {
     const Vec3 left = done[1].keyframes[k].p_world - run.Truth(10 + k).translation();
     EXPECT_LT((left - pulled).norm(), 0.005) << left.transpose();
@@ -252,6 +255,18 @@ TEST(SubmapBuilder, TheChainPlacesASubmapByTheOdometryPulledTowardsGnss) {
   const std::vector<api::Submap> reset = TwoSubmaps(options, far, Vec3::Zero(), &stats);
   EXPECT_EQ(stats.chain_resets, 1u);
   EXPECT_LT((reset[1].keyframes[5].p_world - run.Truth(15).translation() - far).norm(), 0.005);
+  // Along the track the chain may be twice as far off: 3 m ahead it is pulled, 5 m ahead
+  // GNSS places it.
+  const std::vector<api::Submap> ahead =
+      TwoSubmaps(options, Sideways(0.0, 0.0, 3.0), Vec3::Zero(), &stats);
+  EXPECT_EQ(stats.chain_resets, 0u);
+  const Vec3 forward = Sideways(
+      0.0, 0.0, options.gnss_pull * 3.0 + options.gnss_pull_along_excess * (3.0 - barrier));
+  EXPECT_LT((ahead[1].keyframes[5].p_world - run.Truth(15).translation() - forward).norm(), 0.005);
+  const Vec3 farther = Sideways(0.0, 0.0, 5.0);
+  const std::vector<api::Submap> leap = TwoSubmaps(options, farther, Vec3::Zero(), &stats);
+  EXPECT_EQ(stats.chain_resets, 1u);
+  EXPECT_LT((leap[1].keyframes[5].p_world - run.Truth(15).translation() - farther).norm(), 0.005);
 }
 
 /// 150 submaps of 20 m whose GNSS poses lie `gnss_offset` (UTM) from the truth from the second

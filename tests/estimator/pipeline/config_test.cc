@@ -91,6 +91,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
        "submap_gnss_heading_length_m must be 0 (off) or a length"},
       {"submap_gnss_turn_rate_rad_per_m: 0", "submap_gnss_turn_rate_rad_per_m must be > 0"},
       {"submap_gnss_pull_excess: 2", "submap_gnss_pull_excess must be in [0, 1]"},
+      {"submap_gnss_pull_along_excess: -0.5", "submap_gnss_pull_along_excess must be in [0, 1]"},
       {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
   };
   EstimatorConfig config;
