@@ -204,12 +204,12 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
     step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
     Eigen::Vector3d ahead, left;
     if (options_.gnss_heading_length_m > 0.0 && Horizontal(anchor.linear(), &ahead, &left)) {
-      // Sideways the heading loop follows GNSS: only the along-track share of the step, and
-      // sideways gnss_pull_excess of the gap beyond 3/4 of chain_reset_m, so that a chain the
-      // loop has not kept up with comes back before a reset would tear the map.
-      // Along the track the pull also takes gnss_pull_along_excess of the gap beyond 1/4 of
-      // chain_reset_m: where the odometry runs long or short for a while, the chain comes back
-      // a few decimetres a submap instead of being torn back by metres at a reset.
+      // Sideways the heading loop follows GNSS, so the step keeps only its along-track share.
+      // Beyond that, each way takes a share of the gap past a barrier, so that a chain that has
+      // strayed comes back a little each submap instead of being torn back by metres at a
+      // reset: along the track gnss_pull_along_excess past 1/4 of chain_reset_m (where the
+      // odometry runs long or short for a while), sideways gnss_pull_excess past 3/4 of it
+      // (where the loop has not kept up).
       const Eigen::Vector3d gap = gnss.translation() - anchor.translation();
       const auto excess = [](double g, double barrier) {
         return g - std::clamp(g, -barrier, barrier);
@@ -312,7 +312,8 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
         off.z(),
         motion.norm());
   Eigen::Vector3d ahead, left;
-  if (Horizontal(gnss.linear(), &ahead, &left)) {
+  const bool level = Horizontal(gnss.linear(), &ahead, &left);
+  if (level) {
     Steer(&heading_,
           options_.gnss_heading_length_m,
           options_.gnss_max_turn_rate_rad_per_m,
@@ -321,10 +322,9 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
   }
   // Across the track a gap of chain_reset_m tears the map; along it the chain may lag or lead
   // twice as far (a step along the track moves nothing on the rails or the side walls).
-  const bool far = Horizontal(gnss.linear(), &ahead, &left)
-                       ? std::fabs(left.dot(off)) > options_.chain_reset_m ||
-                             std::fabs(ahead.dot(off)) > 2.0 * options_.chain_reset_m
-                       : off.head<2>().norm() > options_.chain_reset_m;
+  const bool far = level ? std::fabs(left.dot(off)) > options_.chain_reset_m ||
+                               std::fabs(ahead.dot(off)) > 2.0 * options_.chain_reset_m
+                         : off.head<2>().norm() > options_.chain_reset_m;
   if (far) {
     // GNSS places it across and along the track; the height stays the chain's: a single-point
     // receiver's height wanders by metres, and taking it would tear the map by as much.

@@ -98,8 +98,8 @@ struct EstimatorOptions {
   /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see the README.
   double edge_max_spread_m = 0.0;
   /// When > 0, an edge of the LiDAR looking down at the track whose map neighbours lie further
-  /// than this RMS from their line (a soft crease of ballast or embankment, not a corner) keeps
-  /// only the part of its residual across the body's lateral axis: it still holds pitch,
+  /// than this RMS from their line (a soft crease of ballast or embankment, not a corner) drops
+  /// the part of its residual along the body's lateral axis: it still holds pitch,
   /// height and position along the track, but no longer turns the frame. Not the default: it
   /// helps the embankment and costs other runs about as much (README, "Where the estimator
   /// stands"); 0.05 m is the value measured there.
