@@ -70,7 +70,6 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("map_insert_lag", &o->map_insert_lag);
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
-  r.Read("rail_line_sigma_m", &o->rail_line_sigma_m);
   r.Read("failure_min_edges", &o->failure_min_edges);
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
@@ -202,7 +201,6 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(down_edge_soft_spread_m >= 0.0))
     return fail("down_edge_soft_spread_m must be >= 0 (0 = off)");
   if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
-  if (!(rail_line_sigma_m >= 0.0)) return fail("rail_line_sigma_m must be >= 0 (0 = off)");
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
   }
@@ -264,12 +262,7 @@ std::string EstimatorConfig::Describe() const {
   }
   s << "\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
-    << o.rail_distance_sigma_m << " m; rail-head lines ";
-  if (o.rail_line_sigma_m > 0.0) {
-    s << "matched sideways, sigma " << o.rail_line_sigma_m << " m\n";
-  } else {
-    s << "not matched\n";
-  }
+    << o.rail_distance_sigma_m << " m\n";
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
     << o.initial_accel_bias_sigma << " m/s^2, gyro bias " << o.initial_gyro_bias_sigma
     << " rad/s, odometer scale " << o.initial_scale_sigma << "\n";

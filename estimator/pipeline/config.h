@@ -106,13 +106,6 @@ struct EstimatorOptions {
   double down_edge_soft_spread_m = 0.0;
   double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
   double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
-  /// When > 0, the rail-head points the rail extraction grows (down LiDAR) are matched as lines
-  /// to a map of earlier rail heads, with this noise, across the track only (their along-track
-  /// and vertical parts left out): they hold the frame sideways and in heading. Not the
-  /// default: on poor_low_embankment_b the lateral error falls fourfold but the error along the
-  /// track, which only the odometer holds there, grows more (README, "Where the estimator
-  /// stands"); 0.1 m is the value measured there.
-  double rail_line_sigma_m = 0.0;
   /// Failure detection (eq. 24): feature counts below these fail a LiDAR.
   int failure_min_edges = 20;
   int failure_min_planes = 100;

@@ -108,8 +108,6 @@ struct Estimator::NodeExtras {
   NavState final_state;
   /// Both LiDARs' feature points (body frame) waiting to go into the local map.
   FeatureSet map_features;
-  /// Rail-head points of the down LiDAR (body frame), for the rail map.
-  std::vector<Eigen::Vector3f> rail_points;
   bool in_map = false;
 };
 
@@ -133,8 +131,6 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
-  rail_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
-  empty_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   // Re-levelling needs the trajectory's velocities; without the odometer they carry the very
   // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
   gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
@@ -464,11 +460,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         extras->has_rail = true;
         extras->rail_normal = rails.normal;
         extras->rail_distance = rails.distance;
-        if (o.rail_line_sigma_m > 0.0) {
-          extras->rail_points = rails.left_points;
-          extras->rail_points.insert(
-              extras->rail_points.end(), rails.right_points.begin(), rails.right_points.end());
-        }
       }
     }
     if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links &&
@@ -525,9 +516,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     std::vector<LineTerm> line_terms;
     LidarMatches all;
     // Soft edges (down_edge_soft_spread_m) say nothing along the body's horizontal lateral axis.
-    Eigen::Vector3d forward = T_current.linear().col(0);
-    forward.z() = 0.0;
-    forward.normalize();
     Eigen::Vector3d lateral = T_current.linear().col(1);
     lateral.z() = 0.0;
     lateral.normalize();
@@ -566,18 +554,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
         if (m.soft) line_terms.back().Ignore(lateral);
-      }
-    }
-    // Rail heads against the rail map: lines along the track that hold the frame sideways and
-    // in heading where the LiDARs' other features are soft or few.
-    if (!extras->rail_points.empty() && !rail_map_->empty()) {
-      FeatureSet rail;
-      rail.edges = extras->rail_points;
-      const LidarMatches matches = MatchFeatures(match, rail, T_current, *rail_map_, *empty_map_);
-      for (const LineMatch& m : matches.lines) {
-        line_terms.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
-        line_terms.back().Ignore(forward);
-        line_terms.back().Ignore(Eigen::Vector3d::UnitZ());
       }
     }
     // Solution remapping: what neither LiDAR observes is left to the other factors.
@@ -626,7 +602,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   if (stats_.frames % 10 == 0) {
     edge_map_->RemoveFar(newest.p, o.map_radius_m);
     plane_map_->RemoveFar(newest.p, o.map_radius_m);
-    rail_map_->RemoveFar(newest.p, o.map_radius_m);
   }
   last_node_t_ = t_end;
   ++stats_.frames;
@@ -655,8 +630,6 @@ void Estimator::AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body
   };
   edge_map_->Add(to_world(node->map_features.edges));
   plane_map_->Add(to_world(node->map_features.planes));
-  if (!node->rail_points.empty()) rail_map_->Add(to_world(node->rail_points));
-  node->rail_points = {};
   node->in_map = true;
   node->map_features = FeatureSet();
 }
@@ -839,7 +812,6 @@ void Estimator::AlignGravity(bool last_chance) {
       window_->RotateWorld(R);
       edge_map_->Rotate(R);
       plane_map_->Rotate(R);
-      rail_map_->Rotate(R);
       for (auto& h : held_) {
         h->result.T_world_body.linear() = R * h->result.T_world_body.linear();
         h->result.T_world_body.translation() = R * h->result.T_world_body.translation();

@@ -167,8 +167,6 @@ class Estimator {
 
   std::unique_ptr<SlidingWindow> window_;
   std::unique_ptr<LocalMap> edge_map_, plane_map_;
-  /// Rail-head points, and a map with nothing in it (rail heads are matched as lines only).
-  std::unique_ptr<LocalMap> rail_map_, empty_map_;
   std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
   bool gravity_pending_ = false;                    ///< re-levelling still to come
   double next_gravity_try_s_ = 0.0;

@@ -85,7 +85,6 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"edge_max_spread_m: -0.1", "edge_max_spread_m must be >= 0"},
       {"down_edge_soft_spread_m: -1", "down_edge_soft_spread_m must be >= 0"},
       {"map_insert_lag: -1", "map_insert_lag must be >= 0"},
-      {"rail_line_sigma_m: -0.1", "rail_line_sigma_m must be >= 0"},
       {"submap_gnss_height_length_m: -1",
        "submap_gnss_height_length_m must be 0 (off) or a length"},
       {"submap_gnss_heading_length_m: -1",
@@ -115,8 +114,7 @@ TEST(EstimatorConfig, OverridesTunables) {
   const std::string yaml =
       DemoRigYaml() +
       "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
-      "  edge_max_spread_m: 0.2\n  down_edge_soft_spread_m: 0.05\n  rail_line_sigma_m: 0.1\n"
-      "  submap_gnss_height_length_m: "
+      "  edge_max_spread_m: 0.2\n  down_edge_soft_spread_m: 0.05\n  submap_gnss_height_length_m: "
       "0\n"
       "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n  "
       "submap_chain_reset_m: 5\n"
@@ -128,7 +126,6 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_EQ(config.options.map_insert_lag, 0);
   EXPECT_DOUBLE_EQ(config.options.edge_max_spread_m, 0.2);
   EXPECT_DOUBLE_EQ(config.options.down_edge_soft_spread_m, 0.05);
-  EXPECT_DOUBLE_EQ(config.options.rail_line_sigma_m, 0.1);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_height_length_m, 0.0);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_heading_length_m, 250.0);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_pull_excess, 0.5);
