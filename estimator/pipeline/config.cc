@@ -285,6 +285,15 @@ std::string EstimatorConfig::Describe() const {
     << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, aligned after "
     << o.gnss.alignment.min_extent_m << " m, poses held up to " << o.gnss_max_latency_s
     << " s for smoothing\n";
+  const SubmapOptions& m = o.submap;
+  s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, icp "
+    << (m.icp ? "on" : "off") << ", ndt " << (m.ndt ? "on" : "off") << "; gnss pull " << m.gnss_pull
+    << " (vertical " << m.gnss_pull_vertical << ", along beyond " << 0.25 * m.chain_reset_m << " m "
+    << m.gnss_pull_along_excess << ", sideways beyond " << 0.75 * m.chain_reset_m << " m "
+    << m.gnss_pull_excess << "), height loop " << m.gnss_height_length_m << " m, heading loop "
+    << m.gnss_heading_length_m << " m at up to " << m.gnss_max_turn_rate_rad_per_m
+    << " rad/m, chain reset beyond " << m.chain_reset_m << " m across / " << 2.0 * m.chain_reset_m
+    << " m along\n";
   return s.str();
 }
 

@@ -135,7 +135,10 @@ struct EstimatorOptions {
   /// odometry chain towards its GNSS pose; `submap_gnss_height_length_m` (2000) and
   /// `submap_gnss_heading_length_m` (1000) are the natural lengths of the loops that tilt and
   /// turn the chain to follow GNSS in height and sideways (0: off; without the heading loop the
-  /// pull acts sideways too).
+  /// pull acts sideways too); `submap_gnss_pull_along_excess` (0.5) and
+  /// `submap_gnss_pull_excess` (0) pull on the gap beyond 1/4 and 3/4 of
+  /// `submap_chain_reset_m` (2), beyond which across the track (twice it along) GNSS places
+  /// the submap.
   SubmapOptions submap;
   /// GNSS fusion (zone and antenna come from the rig). Poses are held back until the alignment
   /// to UTM, at most gnss_max_hold_s (30 s when no usable fix has arrived at all); a run that

@@ -116,7 +116,8 @@ TEST(EstimatorConfig, OverridesTunables) {
       "estimator:\n  window_size: 8\n  plane_sigma_m: 0.05\n  map_insert_lag: 0\n"
       "  edge_max_spread_m: 0.2\n  down_edge_soft_spread_m: 0.05\n  submap_gnss_height_length_m: "
       "0\n"
-      "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n  "
+      "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n"
+      "  submap_gnss_pull_along_excess: 0.25\n  "
       "submap_chain_reset_m: 5\n"
       "  preprocess:\n"
       "    min_range_m: 3.5\n";
@@ -129,6 +130,10 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_height_length_m, 0.0);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_heading_length_m, 250.0);
   EXPECT_DOUBLE_EQ(config.options.submap.gnss_pull_excess, 0.5);
+  EXPECT_DOUBLE_EQ(config.options.submap.gnss_pull_along_excess, 0.25);
+  // The start-up log names the submap settings in effect.
+  EXPECT_NE(config.Describe().find("chain reset beyond 5 m across / 10 m along"), std::string::npos)
+      << config.Describe();
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
 }
