@@ -19,6 +19,16 @@
 namespace raillomer::test {
 namespace {
 
+/// Joins a thread that runs a child process when a failed assertion returns early, so that the
+/// failure is reported instead of std::terminate aborting the test binary without a word (the
+/// child must stop by itself).
+struct JoinOnExit {
+  std::thread& thread;
+  ~JoinOnExit() {
+    if (thread.joinable()) thread.join();
+  }
+};
+
 using nlohmann::json;
 namespace fs = std::filesystem;
 
@@ -433,6 +443,7 @@ TEST(Server, LiveHubStreamsPosesToPythonWebsocketClients) {
                               " --clients 3 --slow 1 --expect " + std::to_string(kPoses) +
                               " --timeout 60 > " + ShellQuote((dir / "live.json").string());
   std::thread clients([&] { std::system(command.c_str()); });
+  const JoinOnExit join_on_exit{clients};  // they stop by themselves after --timeout
   for (int i = 0; i < 200 && !fs::exists(dir / "live.json.ready"); ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   ASSERT_TRUE(fs::exists(dir / "live.json.ready")) << "the clients did not connect";
@@ -569,6 +580,7 @@ TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
       ShellQuote((dir / "estimator.log").string()) + " 2>&1";
   int exit_code = -1;
   std::thread estimator([&] { exit_code = WEXITSTATUS(std::system(command.c_str())); });
+  const JoinOnExit join_on_exit{estimator};  // it gives up on the server after --server-wait
   // Once poses flow (GNSS aligned), the server is killed mid-run.
   for (int i = 0; i < 1200; ++i) {
     const CurlResult r = Curl(ShellQuote(server->Url("/api/v1/runs/1")), dir);
