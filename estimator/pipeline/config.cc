@@ -70,6 +70,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("map_insert_lag", &o->map_insert_lag);
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
+  r.Read("rail_line_sigma_m", &o->rail_line_sigma_m);
   r.Read("failure_min_edges", &o->failure_min_edges);
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
@@ -128,6 +129,23 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     h.Read("max_shift_search_m", &o->height.max_shift_search_m);
     h.Read("min_score", &o->height.min_score);
     h.Finish();
+  }
+  if (r.Has("track_bed")) {
+    MapReader b(r.Node("track_bed"), r.Path("track_bed"), root.source());
+    b.Read("sigma_m", &o->track_bed.sigma_m);
+    b.Read("min_forward_m", &o->track_bed.min_forward_m);
+    b.Read("max_forward_m", &o->track_bed.max_forward_m);
+    b.Read("half_width_m", &o->track_bed.half_width_m);
+    b.Read("min_depth_m", &o->track_bed.min_depth_m);
+    b.Read("max_depth_m", &o->track_bed.max_depth_m);
+    b.Read("bin_m", &o->track_bed.bin_m);
+    b.Read("depth_bin_m", &o->track_bed.depth_bin_m);
+    b.Read("blur_m", &o->track_bed.blur_m);
+    b.Read("max_search_m", &o->track_bed.max_search_m);
+    b.Read("history_frames", &o->track_bed.history_frames);
+    b.Read("min_points", &o->track_bed.min_points);
+    b.Read("min_gain", &o->track_bed.min_gain);
+    b.Finish();
   }
   r.Finish();
 }
@@ -201,6 +219,7 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(down_edge_soft_spread_m >= 0.0))
     return fail("down_edge_soft_spread_m must be >= 0 (0 = off)");
   if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
+  if (!(rail_line_sigma_m >= 0.0)) return fail("rail_line_sigma_m must be >= 0 (0 = off)");
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
   }
@@ -220,6 +239,7 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
   if (!rail.IsValid(&stage)) return fail("rail: " + stage);
   if (!height.IsValid(&stage)) return fail("height_descriptor: " + stage);
+  if (!track_bed.IsValid(&stage)) return fail("track_bed: " + stage);
   return true;
 }
 
@@ -262,7 +282,12 @@ std::string EstimatorConfig::Describe() const {
   }
   s << "\n";
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
-    << o.rail_distance_sigma_m << " m\n";
+    << o.rail_distance_sigma_m << " m; rail-head lines ";
+  if (o.rail_line_sigma_m > 0.0) {
+    s << "matched sideways, sigma " << o.rail_line_sigma_m << " m\n";
+  } else {
+    s << "not matched\n";
+  }
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
     << o.initial_accel_bias_sigma << " m/s^2, gyro bias " << o.initial_gyro_bias_sigma
     << " rad/s, odometer scale " << o.initial_scale_sigma << "\n";
@@ -276,6 +301,15 @@ std::string EstimatorConfig::Describe() const {
     << " m\n";
   s << "height descriptor: x [" << o.height.x_min_m << ", " << o.height.x_max_m << "] y ["
     << o.height.y_min_m << ", " << o.height.y_max_m << "] bin " << o.height.bin_m << " m\n";
+  s << "track bed (sleepers): ";
+  if (o.track_bed.sigma_m > 0.0) {
+    s << "sigma " << o.track_bed.sigma_m << " m, x [" << o.track_bed.min_forward_m << ", "
+      << o.track_bed.max_forward_m << "] m, within " << o.track_bed.half_width_m
+      << " m of the centre, " << o.track_bed.min_depth_m << "-" << o.track_bed.max_depth_m
+      << " m below the rails, against " << o.track_bed.history_frames << " frames\n";
+  } else {
+    s << "off\n";
+  }
   s << "keyframes: every " << o.keyframe_distance_m << " m or " << o.keyframe_angle_deg
     << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
   s << "initial levelling: " << o.init_gravity_s << " s of IMU data, re-levelled after "

@@ -16,6 +16,7 @@
 #include "estimator/factors/preintegration.h"
 #include "estimator/features/loam_features.h"
 #include "estimator/features/rail_extraction.h"
+#include "estimator/features/track_bed.h"
 #include "estimator/preprocess/filters.h"
 
 namespace raillomer {
@@ -101,6 +102,7 @@ struct Estimator::NodeExtras {
   double rail_distance = 0.0;
   bool has_descriptor = false;
   HeightDescriptor descriptor;
+  std::vector<Eigen::Vector3f> bed;  ///< track-bed points between the rails (body frame)
   std::vector<Eigen::Vector3f> cloud;
   std::vector<float> intensities;
   /// Until the world is re-levelled: the link from the previous state, and the final state.
@@ -108,6 +110,8 @@ struct Estimator::NodeExtras {
   NavState final_state;
   /// Both LiDARs' feature points (body frame) waiting to go into the local map.
   FeatureSet map_features;
+  /// Rail-head points of the down LiDAR (body frame), for the rail map.
+  std::vector<Eigen::Vector3f> rail_points;
   bool in_map = false;
 };
 
@@ -131,6 +135,8 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
+  rail_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
+  empty_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   // Re-levelling needs the trajectory's velocities; without the odometer they carry the very
   // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
   gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
@@ -460,6 +466,14 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         extras->has_rail = true;
         extras->rail_normal = rails.normal;
         extras->rail_distance = rails.distance;
+        if (o.track_bed.sigma_m > 0.0) {
+          extras->bed = SelectTrackBed(o.track_bed, rails, fronts[i].points_body);
+        }
+        if (o.rail_line_sigma_m > 0.0) {
+          extras->rail_points = rails.left_points;
+          extras->rail_points.insert(
+              extras->rail_points.end(), rails.right_points.begin(), rails.right_points.end());
+        }
       }
     }
     if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links &&
@@ -503,6 +517,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         result.height_shift = true;
       }
     }
+    if (o.track_bed.sigma_m > 0.0 && !extras->bed.empty()) AddTrackBedFactor(*extras, &result);
   }
 
   MatchOptions match;
@@ -516,6 +531,9 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     std::vector<LineTerm> line_terms;
     LidarMatches all;
     // Soft edges (down_edge_soft_spread_m) say nothing along the body's horizontal lateral axis.
+    Eigen::Vector3d forward = T_current.linear().col(0);
+    forward.z() = 0.0;
+    forward.normalize();
     Eigen::Vector3d lateral = T_current.linear().col(1);
     lateral.z() = 0.0;
     lateral.normalize();
@@ -554,6 +572,18 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
         if (m.soft) line_terms.back().Ignore(lateral);
+      }
+    }
+    // Rail heads against the rail map: lines along the track that hold the frame sideways and
+    // in heading where the LiDARs' other features are soft or few.
+    if (!extras->rail_points.empty() && !rail_map_->empty()) {
+      FeatureSet rail;
+      rail.edges = extras->rail_points;
+      const LidarMatches matches = MatchFeatures(match, rail, T_current, *rail_map_, *empty_map_);
+      for (const LineMatch& m : matches.lines) {
+        line_terms.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
+        line_terms.back().Ignore(forward);
+        line_terms.back().Ignore(Eigen::Vector3d::UnitZ());
       }
     }
     // Solution remapping: what neither LiDAR observes is left to the other factors.
@@ -602,6 +632,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   if (stats_.frames % 10 == 0) {
     edge_map_->RemoveFar(newest.p, o.map_radius_m);
     plane_map_->RemoveFar(newest.p, o.map_radius_m);
+    rail_map_->RemoveFar(newest.p, o.map_radius_m);
   }
   last_node_t_ = t_end;
   ++stats_.frames;
@@ -620,6 +651,38 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   inertial_.Trim(last_node_t_ - 1.0);
 }
 
+void Estimator::AddTrackBedFactor(const NodeExtras& newest, FrameResult* result) {
+  const TrackBedOptions& b = config_.options.track_bed;
+  const int n = window_->size();
+  if (n < 2) return;
+  // The reference: the bed points of the window's earlier frames and of those that left it,
+  // in the body frame of the previous state.
+  const Eigen::Isometry3d T_prev_world = PoseOf(window_->State(n - 2)).inverse();
+  std::vector<Eigen::Vector3d> reference;
+  for (const std::vector<Eigen::Vector3d>& frame : bed_history_) {
+    for (const Eigen::Vector3d& p : frame) reference.push_back(T_prev_world * p);
+  }
+  for (int i = 0; i + 1 < n; ++i) {
+    const Eigen::Isometry3d T = T_prev_world * PoseOf(window_->State(i));
+    for (const Eigen::Vector3f& p : extras_[static_cast<size_t>(i)]->bed)
+      reference.push_back(T * p.cast<double>());
+  }
+  const Eigen::Isometry3d T_rel = T_prev_world * PoseOf(window_->Newest());
+  std::vector<Eigen::Vector3d> current;
+  current.reserve(newest.bed.size());
+  for (const Eigen::Vector3f& p : newest.bed) current.push_back(T_rel * p.cast<double>());
+  const Eigen::Vector3d normal = T_rel.linear() * newest.rail_normal;
+  const double distance = newest.rail_distance - normal.dot(T_rel.translation());
+  const TrackBedShift shift = EstimateTrackBedShift(b, reference, current, normal, distance);
+  if (!shift.ok) return;
+  window_->AddNewestPairFactor(
+      std::make_shared<LongitudinalShiftFactor>(T_rel.translation().x() + shift.shift_m,
+                                                std::max(shift.sigma_m, b.sigma_m)),
+      std::make_shared<ceres::HuberLoss>(2.0));
+  result->bed_shift_m = shift.shift_m;
+  ++stats_.bed_shifts;
+}
+
 void Estimator::AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body) {
   if (node->in_map) return;
   auto to_world = [&](const std::vector<Eigen::Vector3f>& body) {
@@ -630,6 +693,8 @@ void Estimator::AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body
   };
   edge_map_->Add(to_world(node->map_features.edges));
   plane_map_->Add(to_world(node->map_features.planes));
+  if (!node->rail_points.empty()) rail_map_->Add(to_world(node->rail_points));
+  node->rail_points = {};
   node->in_map = true;
   node->map_features = FeatureSet();
 }
@@ -641,6 +706,17 @@ void Estimator::EmitOldest() {
   extras_.pop_front();
   FrameResult& result = extras->result;
   AddToMap(extras.get(), PoseOf(s));
+  if (config_.options.track_bed.sigma_m > 0.0) {
+    std::vector<Eigen::Vector3d> bed;
+    bed.reserve(extras->bed.size());
+    const Eigen::Isometry3d T = PoseOf(s);
+    for (const Eigen::Vector3f& p : extras->bed) bed.push_back(T * p.cast<double>());
+    bed_history_.push_back(std::move(bed));
+    while (static_cast<int>(bed_history_.size()) > config_.options.track_bed.history_frames)
+      bed_history_.pop_front();
+  }
+  extras->bed.clear();
+  extras->bed.shrink_to_fit();
   result.T_world_body = PoseOf(s);
   result.v_world = s.v;
   result.odometer_scale = s.c;
@@ -812,6 +888,9 @@ void Estimator::AlignGravity(bool last_chance) {
       window_->RotateWorld(R);
       edge_map_->Rotate(R);
       plane_map_->Rotate(R);
+      rail_map_->Rotate(R);
+      for (std::vector<Eigen::Vector3d>& frame : bed_history_)
+        for (Eigen::Vector3d& p : frame) p = R * p;
       for (auto& h : held_) {
         h->result.T_world_body.linear() = R * h->result.T_world_body.linear();
         h->result.T_world_body.translation() = R * h->result.T_world_body.translation();

@@ -50,8 +50,10 @@ struct FrameResult {
   double frontend_ms = 0.0;  ///< preprocessing, deskewing, features, rails, descriptor
   double backend_ms = 0.0;   ///< matching, optimisation, marginalisation, map update
   std::vector<LidarDiagnostics> lidars;
-  bool rail_plane = false;     ///< a rail plane was extracted
-  bool height_shift = false;   ///< a height-descriptor displacement was used
+  bool rail_plane = false;    ///< a rail plane was extracted
+  bool height_shift = false;  ///< a height-descriptor displacement was used
+  /// The sleeper match's correction to the predicted along-track motion (m), when it was used.
+  std::optional<double> bed_shift_m;
   double degeneracy = 0.0;     ///< of both LiDARs' matches together (last registration round)
   bool projected = false;      ///< LiDAR factors blind to the weakest direction (remapping)
   bool odometer_used = false;  ///< the odometer entered this interval's factor
@@ -93,6 +95,7 @@ struct EstimatorStats {
   uint64_t imu_samples = 0, imu_rejected = 0, imu_gaps = 0;
   uint64_t odometer_samples = 0, odometer_rejected = 0, odometer_outliers = 0;
   uint64_t warnings = 0;
+  uint64_t bed_shifts = 0;  ///< frames whose along-track motion the sleepers measured
   double distance_m = 0.0;
   bool georeferenced = false;  ///< the output is in UTM
   GnssFusionStats gnss;
@@ -137,6 +140,9 @@ class Estimator {
   std::shared_ptr<Preintegration> Preintegrate(
       double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) const;
   void EmitOldest();
+  /// The sleeper match of the newest frame against the earlier ones (TrackBedOptions): a
+  /// factor on the along-track motion from the previous state.
+  void AddTrackBedFactor(const NodeExtras& newest, FrameResult* result);
   /// Puts a frame's features into the local map at the given pose, once.
   void AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body);
   /// Hands a final state to the sinks (and picks keyframes).
@@ -167,8 +173,13 @@ class Estimator {
 
   std::unique_ptr<SlidingWindow> window_;
   std::unique_ptr<LocalMap> edge_map_, plane_map_;
+  /// Rail-head points, and a map with nothing in it (rail heads are matched as lines only).
+  std::unique_ptr<LocalMap> rail_map_, empty_map_;
   std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
-  bool gravity_pending_ = false;                    ///< re-levelling still to come
+  /// Track-bed points (world frame, final poses) of the frames that have left the window,
+  /// newest last: with the window's own, the reference of the sleeper match.
+  std::deque<std::vector<Eigen::Vector3d>> bed_history_;
+  bool gravity_pending_ = false;  ///< re-levelling still to come
   double next_gravity_try_s_ = 0.0;
   std::deque<std::unique_ptr<NodeExtras>> held_;  ///< final states held until re-levelling
   bool initialized_ = false;

@@ -79,7 +79,7 @@ bool RunWriter::Open(const std::string& out_dir,
                  lidar,
                  lidar);
   }
-  std::fprintf(timing_, "\n");
+  std::fprintf(timing_, ",bed_shift_m\n");
   return true;
 }
 
@@ -194,7 +194,12 @@ void RunWriter::WriteFrame(const FrameResult& f) {
       std::fprintf(timing_, ",0,0,0,0,0,1,1,1");
     }
   }
-  std::fprintf(timing_, "\n");
+  // Empty when the sleepers gave no measurement.
+  if (f.bed_shift_m) {
+    std::fprintf(timing_, ",%.4f\n", *f.bed_shift_m);
+  } else {
+    std::fprintf(timing_, ",\n");
+  }
   if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
 }
 

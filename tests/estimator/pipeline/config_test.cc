@@ -93,6 +93,11 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"submap_gnss_pull_excess: 2", "submap_gnss_pull_excess must be in [0, 1]"},
       {"submap_gnss_pull_along_excess: -0.5", "submap_gnss_pull_along_excess must be in [0, 1]"},
       {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
+      {"rail_line_sigma_m: -0.1", "rail_line_sigma_m must be >= 0"},
+      // Half the sleeper spacing or more: the match could land on the next sleeper.
+      {"track_bed:\n    max_search_m: 0.3", "track_bed: max_search_m must be in"},
+      {"track_bed:\n    sigma_m: -1", "track_bed: sigma_m must be >= 0"},
+      {"track_bed:\n    sigma: 0.01", "unknown key 'estimator.track_bed.sigma'"},
   };
   EstimatorConfig config;
   std::string error;
@@ -119,8 +124,12 @@ TEST(EstimatorConfig, OverridesTunables) {
       "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n"
       "  submap_gnss_pull_along_excess: 0.25\n  "
       "submap_chain_reset_m: 5\n"
+      "  rail_line_sigma_m: 0.2\n"
       "  preprocess:\n"
-      "    min_range_m: 3.5\n";
+      "    min_range_m: 3.5\n"
+      "  track_bed:\n"
+      "    sigma_m: 0.02\n"
+      "    history_frames: 4\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
   EXPECT_EQ(config.options.window_size, 8);
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
@@ -136,6 +145,14 @@ TEST(EstimatorConfig, OverridesTunables) {
       << config.Describe();
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
+  EXPECT_DOUBLE_EQ(config.options.rail_line_sigma_m, 0.2);
+  EXPECT_DOUBLE_EQ(config.options.track_bed.sigma_m, 0.02);
+  EXPECT_EQ(config.options.track_bed.history_frames, 4);
+  EXPECT_NE(config.Describe().find("track bed (sleepers): sigma 0.02 m"), std::string::npos)
+      << config.Describe();
+  EXPECT_NE(config.Describe().find("rail-head lines matched sideways, sigma 0.2 m"),
+            std::string::npos)
+      << config.Describe();
 }
 
 TEST(AblationSwitches, NamesTheVariant) {

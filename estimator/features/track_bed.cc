@@ -1,0 +1,203 @@
+#include "estimator/features/track_bed.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "estimator/features/rail_extraction.h"
+
+namespace raillomer {
+
+bool TrackBedOptions::IsValid(std::string* error) const {
+  auto fail = [&](const char* what) {
+    if (error) *error = what;
+    return false;
+  };
+  if (!(sigma_m >= 0.0)) return fail("sigma_m must be >= 0 (0 = off)");
+  if (!(min_forward_m >= 0.0 && max_forward_m > min_forward_m + 1.0))
+    return fail("forward range must satisfy 0 <= min_forward_m < max_forward_m - 1");
+  if (!(half_width_m > 0.05)) return fail("half_width_m must be > 0.05");
+  if (!(min_depth_m >= 0.0 && max_depth_m > min_depth_m))
+    return fail("depth range must satisfy 0 <= min_depth_m < max_depth_m");
+  if (!(bin_m > 0.0 && bin_m <= 0.05)) return fail("bin_m must be in (0, 0.05]");
+  if (!(depth_bin_m > 0.0)) return fail("depth_bin_m must be > 0");
+  if (!(blur_m >= 0.0)) return fail("blur_m must be >= 0");
+  if (!(max_search_m >= 2.0 * bin_m && max_search_m < 0.3))
+    return fail("max_search_m must be in [2 bin_m, 0.3) (sleepers repeat every 0.6 m)");
+  if (history_frames < 1) return fail("history_frames must be >= 1");
+  if (min_points < 10) return fail("min_points must be >= 10");
+  if (!(min_gain > 0.0)) return fail("min_gain must be > 0");
+  return true;
+}
+
+std::vector<Eigen::Vector3f> SelectTrackBed(const TrackBedOptions& options,
+                                            const RailExtraction& rails,
+                                            const std::vector<Eigen::Vector3f>& points_body) {
+  std::vector<Eigen::Vector3f> out;
+  if (!rails.ok) return out;
+  Eigen::Vector3d along = rails.left_direction;
+  if (along.dot(rails.right_direction) < 0.0)
+    along -= rails.right_direction;
+  else
+    along += rails.right_direction;
+  if (along.x() < 0.0) along = -along;
+  along.z() = 0.0;
+  if (along.norm() < 1e-6) return out;
+  along.normalize();
+  const Eigen::Vector3d centre = 0.5 * (rails.left_point + rails.right_point);
+  for (const Eigen::Vector3f& q : points_body) {
+    const Eigen::Vector3d p = q.cast<double>();
+    if (p.x() < options.min_forward_m || p.x() > options.max_forward_m) continue;
+    const double depth = -(rails.normal.dot(p) + rails.distance);
+    if (depth < options.min_depth_m || depth > options.max_depth_m) continue;
+    Eigen::Vector3d off = p - centre;
+    off.z() = 0.0;
+    if ((off - along.dot(off) * along).norm() > options.half_width_m) continue;
+    out.push_back(q);
+  }
+  return out;
+}
+
+TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
+                                    const std::vector<Eigen::Vector3d>& reference,
+                                    const std::vector<Eigen::Vector3d>& current,
+                                    const Eigen::Vector3d& plane_normal,
+                                    double plane_distance) {
+  TrackBedShift out;
+  if (static_cast<int>(reference.size()) < options.min_points) {
+    out.failure = "reference has " + std::to_string(reference.size()) + " bed points";
+    return out;
+  }
+  auto depth_of = [&](const Eigen::Vector3d& p) { return -(plane_normal.dot(p) + plane_distance); };
+  double s_min = 1e9, s_max = -1e9;
+  for (const Eigen::Vector3d& p : reference) {
+    s_min = std::min(s_min, p.x());
+    s_max = std::max(s_max, p.x());
+  }
+  const double margin = options.max_search_m + 3.0 * options.blur_m + options.bin_m;
+  s_min -= margin;
+  s_max += margin;
+  const int ns = static_cast<int>(std::ceil((s_max - s_min) / options.bin_m)) + 1;
+  const int nd = static_cast<int>(
+                     std::ceil((options.max_depth_m - options.min_depth_m) / options.depth_bin_m)) +
+                 1;
+  if (ns > 100000) {
+    out.failure = "reference spans too far along the track";
+    return out;
+  }
+  // Point counts per (along, depth) cell, smoothed along the track with a Gaussian and across
+  // depth with [1 2 1] / 4, then taken relative to the densest cell.
+  std::vector<double> grid(static_cast<size_t>(ns) * nd, 0.0);
+  auto at = [&](int s, int d) -> double& { return grid[static_cast<size_t>(s) * nd + d]; };
+  for (const Eigen::Vector3d& p : reference) {
+    const double depth = depth_of(p);
+    if (depth < options.min_depth_m || depth > options.max_depth_m) continue;
+    const int s = static_cast<int>(std::lround((p.x() - s_min) / options.bin_m));
+    const int d =
+        static_cast<int>(std::lround((depth - options.min_depth_m) / options.depth_bin_m));
+    if (s >= 0 && s < ns && d >= 0 && d < nd) at(s, d) += 1.0;
+  }
+  const int radius = static_cast<int>(std::ceil(3.0 * options.blur_m / options.bin_m));
+  std::vector<double> kernel(static_cast<size_t>(2 * radius + 1), 0.0);
+  for (int k = -radius; k <= radius; ++k) {
+    const double x = k * options.bin_m / std::max(options.blur_m, 1e-9);
+    kernel[static_cast<size_t>(k + radius)] =
+        options.blur_m > 0.0 ? std::exp(-0.5 * x * x) : (k == 0 ? 1.0 : 0.0);
+  }
+  std::vector<double> smooth(grid.size(), 0.0);
+  for (int s = 0; s < ns; ++s) {
+    for (int d = 0; d < nd; ++d) {
+      double sum = 0.0;
+      for (int k = -radius; k <= radius; ++k) {
+        const int t = s + k;
+        if (t >= 0 && t < ns) sum += kernel[static_cast<size_t>(k + radius)] * at(t, d);
+      }
+      smooth[static_cast<size_t>(s) * nd + d] = sum;
+    }
+  }
+  double peak = 0.0;
+  for (int s = 0; s < ns; ++s) {
+    for (int d = 0; d < nd; ++d) {
+      const double up = d > 0 ? smooth[static_cast<size_t>(s) * nd + d - 1] : 0.0;
+      const double down = d + 1 < nd ? smooth[static_cast<size_t>(s) * nd + d + 1] : 0.0;
+      at(s, d) = 0.25 * up + 0.5 * smooth[static_cast<size_t>(s) * nd + d] + 0.25 * down;
+      peak = std::max(peak, at(s, d));
+    }
+  }
+  if (!(peak > 0.0)) {
+    out.failure = "reference has no points in the depth band";
+    return out;
+  }
+  for (double& v : grid) v = std::log(0.02 + v / peak);
+
+  // The current points over the reference's span, as (fractional along bin, depth bin).
+  struct Cell {
+    double s;
+    int d;
+  };
+  std::vector<Cell> cells;
+  const double lo = s_min + margin, hi = s_max - margin;
+  for (const Eigen::Vector3d& p : current) {
+    if (p.x() < lo || p.x() > hi) continue;
+    const double depth = depth_of(p);
+    if (depth < options.min_depth_m || depth > options.max_depth_m) continue;
+    cells.push_back(
+        {(p.x() - s_min) / options.bin_m,
+         static_cast<int>(std::lround((depth - options.min_depth_m) / options.depth_bin_m))});
+  }
+  out.points = static_cast<int>(cells.size());
+  if (out.points < options.min_points) {
+    out.failure = "frame has " + std::to_string(out.points) + " bed points over the reference";
+    return out;
+  }
+  auto score = [&](double shift_bins) {
+    double sum = 0.0;
+    for (const Cell& c : cells) {
+      const double s = c.s + shift_bins;
+      const int s0 = static_cast<int>(std::floor(s));
+      const double f = s - s0;
+      const int s1 = std::clamp(s0 + 1, 0, ns - 1);
+      const int sc = std::clamp(s0, 0, ns - 1);
+      const int d = std::clamp(c.d, 0, nd - 1);
+      sum += (1.0 - f) * at(sc, d) + f * at(s1, d);
+    }
+    return sum / static_cast<double>(cells.size());
+  };
+  const int steps = static_cast<int>(std::lround(options.max_search_m / options.bin_m));
+  std::vector<double> scores(static_cast<size_t>(2 * steps + 1));
+  int best = 0;
+  double mean = 0.0;
+  for (int k = -steps; k <= steps; ++k) {
+    const double v = score(k);
+    scores[static_cast<size_t>(k + steps)] = v;
+    mean += v;
+    if (v > scores[static_cast<size_t>(best)]) best = k + steps;
+  }
+  mean /= static_cast<double>(scores.size());
+  out.gain = scores[static_cast<size_t>(best)] - mean;
+  if (best == 0 || best == 2 * steps) {
+    out.failure = "best shift at the edge of the search";
+    return out;
+  }
+  if (out.gain < options.min_gain) {
+    out.failure = "score too flat (gain " + std::to_string(out.gain) + "): no sleepers in view";
+    return out;
+  }
+  // Parabola through the best bin and its neighbours.
+  const double a = scores[static_cast<size_t>(best - 1)], b = scores[static_cast<size_t>(best)],
+               c = scores[static_cast<size_t>(best + 1)];
+  const double curvature = a - 2.0 * b + c;  // per bin^2, negative at a maximum
+  if (!(curvature < 0.0)) {
+    out.failure = "no maximum";
+    return out;
+  }
+  const double offset = std::clamp(0.5 * (a - c) / curvature, -0.5, 0.5);
+  out.shift_m = (best - steps + offset) * options.bin_m;
+  // Each point's mean log-density as its log-likelihood: the information is N |L''|.
+  const double info =
+      static_cast<double>(cells.size()) * -curvature / (options.bin_m * options.bin_m);
+  out.sigma_m = 1.0 / std::sqrt(info);
+  out.ok = true;
+  return out;
+}
+
+}  // namespace raillomer
