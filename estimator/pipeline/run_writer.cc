@@ -296,7 +296,8 @@ bool RunWriter::Close(const EstimatorStats& s,
                 "  \"backend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
                 "  \"warnings\": %llu,\n  \"lidar_frames_dropped\": %llu,\n  \"imu_gaps\": %llu,\n"
                 "  \"imu_rejected\": %llu,\n  \"odometer_outliers\": %llu,\n  "
-                "\"odometer_rejected\": %llu,\n  \"georeferenced\": %s,\n  \"gnss\": {\"fixes\": "
+                "\"odometer_rejected\": %llu,\n  \"bed_shifts\": %llu,\n  \"georeferenced\": %s,\n "
+                " \"gnss\": {\"fixes\": "
                 "%llu, \"rejected\": %llu, \"outliers\": %llu, \"factors\": %llu, "
                 "\"realignments\": %llu},\n  %s%s%s\n}\n",
                 frame_ms_.size(),
@@ -318,6 +319,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                 static_cast<unsigned long long>(s.imu_rejected),
                 static_cast<unsigned long long>(s.odometer_outliers),
                 static_cast<unsigned long long>(s.odometer_rejected),
+                static_cast<unsigned long long>(s.bed_shifts),
                 s.georeferenced ? "true" : "false",
                 static_cast<unsigned long long>(s.gnss.fixes),
                 static_cast<unsigned long long>(s.gnss.rejected),

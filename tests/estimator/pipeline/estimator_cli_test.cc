@@ -293,6 +293,12 @@ TEST_F(EstimatorCli, TheSleepersHoldTheDistanceWhenTheWheelSizeIsWrong) {
       EmbankmentEndError(rig + "estimator:\n  track_bed:\n    sigma_m: 0\n", "big_wheel_no_bed")
           .x();
   const double with = EmbankmentEndError(rig, "big_wheel").x();
+  // The summary counts the frames the sleepers measured: nearly all of them, or none when off.
+  const nlohmann::json on = nlohmann::json::parse(ReadText(Dir() / "big_wheel" / "summary.json"));
+  const nlohmann::json off =
+      nlohmann::json::parse(ReadText(Dir() / "big_wheel_no_bed" / "summary.json"));
+  EXPECT_GT(on["bed_shifts"].get<double>(), 0.9 * on["frames"].get<double>());
+  EXPECT_EQ(off["bed_shifts"].get<int>(), 0);
   EXPECT_GT(without, 0.2) << "without the sleepers";
   EXPECT_LT(std::fabs(with), 0.25 * without) << with << " m with, " << without << " m without";
 }
