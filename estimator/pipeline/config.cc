@@ -71,6 +71,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
   r.Read("rail_line_sigma_m", &o->rail_line_sigma_m);
+  r.Read("rail_line_max_forward_m", &o->rail_line_max_forward_m);
   r.Read("failure_min_edges", &o->failure_min_edges);
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
@@ -220,6 +221,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("down_edge_soft_spread_m must be >= 0 (0 = off)");
   if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
   if (!(rail_line_sigma_m >= 0.0)) return fail("rail_line_sigma_m must be >= 0 (0 = off)");
+  if (!(rail_line_max_forward_m >= 0.0))
+    return fail("rail_line_max_forward_m must be >= 0 (0 = no limit)");
   if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
     return fail("rail-plane sigmas must be > 0");
   }
@@ -284,7 +287,10 @@ std::string EstimatorConfig::Describe() const {
   s << "rail plane sigmas: normal " << o.rail_normal_sigma_rad << " rad, distance "
     << o.rail_distance_sigma_m << " m; rail-head lines ";
   if (o.rail_line_sigma_m > 0.0) {
-    s << "matched sideways, sigma " << o.rail_line_sigma_m << " m\n";
+    s << "matched sideways, sigma " << o.rail_line_sigma_m << " m";
+    if (o.rail_line_max_forward_m > 0.0)
+      s << ", within " << o.rail_line_max_forward_m << " m ahead";
+    s << "\n";
   } else {
     s << "not matched\n";
   }

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <future>
+#include <limits>
 #include <sstream>
 #include <unordered_set>
 
@@ -470,9 +471,12 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
           extras->bed = SelectTrackBed(o.track_bed, rails, fronts[i].points_body);
         }
         if (o.rail_line_sigma_m > 0.0) {
-          extras->rail_points = rails.left_points;
-          extras->rail_points.insert(
-              extras->rail_points.end(), rails.right_points.begin(), rails.right_points.end());
+          const float reach = o.rail_line_max_forward_m > 0.0
+                                  ? static_cast<float>(o.rail_line_max_forward_m)
+                                  : std::numeric_limits<float>::infinity();
+          for (const std::vector<Eigen::Vector3f>* side : {&rails.left_points, &rails.right_points})
+            for (const Eigen::Vector3f& q : *side)
+              if (q.x() < reach) extras->rail_points.push_back(q);
         }
       }
     }

@@ -94,6 +94,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"submap_gnss_pull_along_excess: -0.5", "submap_gnss_pull_along_excess must be in [0, 1]"},
       {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
       {"rail_line_sigma_m: -0.1", "rail_line_sigma_m must be >= 0"},
+      {"rail_line_max_forward_m: -1", "rail_line_max_forward_m must be >= 0"},
       // Half the sleeper spacing or more: the match could land on the next sleeper.
       {"track_bed:\n    max_search_m: 0.3", "track_bed: max_search_m must be in"},
       {"track_bed:\n    sigma_m: -1", "track_bed: sigma_m must be >= 0"},
@@ -124,7 +125,7 @@ TEST(EstimatorConfig, OverridesTunables) {
       "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n"
       "  submap_gnss_pull_along_excess: 0.25\n  "
       "submap_chain_reset_m: 5\n"
-      "  rail_line_sigma_m: 0.2\n"
+      "  rail_line_sigma_m: 0.2\n  rail_line_max_forward_m: 12\n"
       "  preprocess:\n"
       "    min_range_m: 3.5\n"
       "  track_bed:\n"
@@ -146,12 +147,14 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
   EXPECT_DOUBLE_EQ(config.options.rail_line_sigma_m, 0.2);
+  EXPECT_DOUBLE_EQ(config.options.rail_line_max_forward_m, 12.0);
   EXPECT_DOUBLE_EQ(config.options.track_bed.sigma_m, 0.02);
   EXPECT_EQ(config.options.track_bed.history_frames, 4);
   EXPECT_NE(config.Describe().find("track bed (sleepers): sigma 0.02 m"), std::string::npos)
       << config.Describe();
-  EXPECT_NE(config.Describe().find("rail-head lines matched sideways, sigma 0.2 m"),
-            std::string::npos)
+  EXPECT_NE(
+      config.Describe().find("rail-head lines matched sideways, sigma 0.2 m, within 12 m ahead"),
+      std::string::npos)
       << config.Describe();
 }
 
