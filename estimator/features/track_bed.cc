@@ -127,7 +127,6 @@ TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
     out.failure = "reference has no points in the depth band";
     return out;
   }
-  for (double& v : grid) v = std::log(0.02 + v / peak);
 
   // The current points over the reference's span, as (fractional along bin, depth bin).
   struct Cell {
@@ -149,6 +148,19 @@ TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
     out.failure = "frame has " + std::to_string(out.points) + " bed points over the reference";
     return out;
   }
+  // Log-density, only over the columns the search reads, with bins to spare for rounding (the
+  // grid spans every reference frame, most of them behind what this frame sees).
+  const int steps = static_cast<int>(std::lround(options.max_search_m / options.bin_m));
+  double c_min = 1e300, c_max = -1e300;
+  for (const Cell& c : cells) {
+    c_min = std::min(c_min, c.s);
+    c_max = std::max(c_max, c.s);
+  }
+  const int read_lo = std::clamp(static_cast<int>(std::floor(c_min)) - steps - 2, 0, ns - 1);
+  const int read_hi = std::clamp(static_cast<int>(std::floor(c_max)) + steps + 2, 0, ns - 1);
+  for (int t = read_lo; t <= read_hi; ++t) {
+    for (int d = 0; d < nd; ++d) at(t, d) = std::log(0.02 + at(t, d) / peak);
+  }
   auto score = [&](double shift_bins) {
     double sum = 0.0;
     for (const Cell& c : cells) {
@@ -162,7 +174,6 @@ TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
     }
     return sum / static_cast<double>(cells.size());
   };
-  const int steps = static_cast<int>(std::lround(options.max_search_m / options.bin_m));
   std::vector<double> scores(static_cast<size_t>(2 * steps + 1));
   int best = 0;
   double mean = 0.0;

@@ -535,9 +535,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     std::vector<LineTerm> line_terms;
     LidarMatches all;
     // Soft edges (down_edge_soft_spread_m) say nothing along the body's horizontal lateral axis.
-    Eigen::Vector3d forward = T_current.linear().col(0);
-    forward.z() = 0.0;
-    forward.normalize();
     Eigen::Vector3d lateral = T_current.linear().col(1);
     lateral.z() = 0.0;
     lateral.normalize();
@@ -584,6 +581,9 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       FeatureSet rail;
       rail.edges = extras->rail_points;
       const LidarMatches matches = MatchFeatures(match, rail, T_current, *rail_map_, *empty_map_);
+      Eigen::Vector3d forward = T_current.linear().col(0);
+      forward.z() = 0.0;
+      forward.normalize();
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
         line_terms.back().Ignore(forward);
