@@ -198,7 +198,8 @@ void Preintegration::Integrate(const Step& s) {
   q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / imu_dt);
   q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / imu_dt);
   q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
-  q_white.segment<2>(kNl).setConstant(Square(noise_.odometer_lateral_density) / dt);
+  q_white(kNl) = Square(noise_.odometer_lateral_density) / dt;
+  q_white(kNl + 1) = Square(noise_.odometer_vertical_density) / dt;
 
   // Eq. (17): J = F J, P = F P F^T + G Q G^T, touching only the rows and columns F changes.
   const Eigen::Matrix<double, 12, 19> new_rows = Fr * jacobian_;

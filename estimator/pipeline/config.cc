@@ -115,6 +115,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
   r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
   r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
+  r.Read("odometer_vertical_density", &noise->odometer_vertical_density);
   if (r.Has("preprocess")) {
     MapReader p(r.Node("preprocess"), r.Path("preprocess"), root.source());
     p.Read("min_range_m", &o->preprocess.min_range_m);
@@ -261,7 +262,8 @@ std::string EstimatorConfig::Describe() const {
   s << "odometer: " << rig.odometer_topic << " joint '" << rig.odometer_joint << "', wheel "
     << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, at ["
     << rig.p_body_odometer.transpose() << "] m, speed noise " << rig.noise.odometer_speed_density
-    << ", across-axis noise " << rig.noise.odometer_lateral_density << ", scale walk "
+    << ", across-axis noise " << rig.noise.odometer_lateral_density << " sideways, "
+    << rig.noise.odometer_vertical_density << " vertically, scale walk "
     << rig.noise.odometer_scale_walk << ", pulse " << rig.noise.odometer_resolution_m << " m\n";
   s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
     << " m\n";
@@ -434,7 +436,8 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       {"imu.gyro_noise_density", n.gyro_noise_density},
       {"imu.accel_noise_density", n.accel_noise_density},
       {"estimator.odometer_speed_density", n.odometer_speed_density},
-      {"estimator.odometer_lateral_density", n.odometer_lateral_density}};
+      {"estimator.odometer_lateral_density", n.odometer_lateral_density},
+      {"estimator.odometer_vertical_density", n.odometer_vertical_density}};
   const std::pair<const char*, double> walks[] = {
       {"imu.gyro_bias_walk", n.gyro_bias_walk},
       {"imu.accel_bias_walk", n.accel_bias_walk},

@@ -81,6 +81,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"map_voxel_m: big", "wrong type"},
       // A zero across-axis odometer noise would pin the attitude to the car body's sway again.
       {"odometer_lateral_density: 0", "estimator.odometer_lateral_density must be > 0"},
+      {"odometer_vertical_density: -0.03", "estimator.odometer_vertical_density must be > 0"},
       {"degeneracy_projection: -1", "degeneracy_projection must be in [0, 1)"},
       {"edge_max_spread_m: -0.1", "edge_max_spread_m must be >= 0"},
       {"down_edge_soft_spread_m: -1", "down_edge_soft_spread_m must be >= 0"},
