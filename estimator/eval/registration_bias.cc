@@ -92,18 +92,19 @@ bool MeasureRegistrationBias(sim::Simulator* simulator,
   int solved_frames = 0;
 
   // One frame of every LiDAR with the same timebase, matched at the truth, then mapped.
-  auto process = [&](uint64_t timebase_ns, const std::vector<const io::LidarFrame*>& frames) {
+  // A unit that sent nothing for a timebase has an empty frame in its group.
+  auto process = [&](uint64_t timebase_ns, const std::vector<io::LidarFrame>& frames) {
     const double t_start = static_cast<double>(static_cast<int64_t>(timebase_ns) - start_ns) * 1e-9;
     std::vector<FeatureSet> features(rig.lidars.size());
     Eigen::Isometry3d T_end = Eigen::Isometry3d::Identity();
     bool any = false;
     for (size_t i = 0; i < frames.size(); ++i) {
-      if (frames[i] == nullptr) continue;
+      if (frames[i].points.empty()) continue;
       const LidarRig& lidar = rig.lidars[i];
       const double period = 1.0 / lidar.rate_hz;
       T_end = simulator->truth().Pose(t_start + period);
       const Eigen::Isometry3d T_start = simulator->truth().Pose(t_start);
-      Scan scan = ScanFromLidarFrame(*frames[i], static_cast<int>(i), period);
+      Scan scan = ScanFromLidarFrame(frames[i], static_cast<int>(i), period);
       Preprocess(o.preprocess, &scan);
       Deskew(lidar.T_body_lidar, T_end.inverse() * T_start, &scan);
       features[i] = ExtractLoamFeatures(o.loam, scan);
@@ -116,12 +117,12 @@ bool MeasureRegistrationBias(sim::Simulator* simulator,
       const Eigen::Isometry3d T_match = T_end * options.start_offset;
       LidarMatches all;
       for (size_t i = 0; i < frames.size(); ++i) {
-        if (frames[i] == nullptr) continue;
-        MatchOptions match;
-        match.max_distance_m = o.max_correspondence_m;
-        match.line_max_spread_m = o.edge_max_spread_m;
-        match.line_soft_spread_m = rig.lidars[i].looks_down() ? o.down_edge_soft_spread_m : 0.0;
-        const LidarMatches m = MatchFeatures(match, features[i], T_match, edge_map, plane_map);
+        if (frames[i].points.empty()) continue;
+        const LidarMatches m = MatchFeatures(LidarMatchOptions(o, rig.lidars[i].looks_down()),
+                                             features[i],
+                                             T_match,
+                                             edge_map,
+                                             plane_map);
         if (static_cast<int>(m.size()) >= options.min_matches) {
           per_lidar[i].Add(RegistrationPull(m, T_match, T_end, options.iterations));
         }
@@ -157,7 +158,7 @@ bool MeasureRegistrationBias(sim::Simulator* simulator,
   io::SensorMessage message;
   bool seen_lidar = false;
   while (simulator->Next(&message)) {
-    const auto* frame = std::get_if<io::LidarFrame>(&message.data);
+    auto* frame = std::get_if<io::LidarFrame>(&message.data);
     if (frame == nullptr) continue;
     const auto unit = unit_of_topic.find(message.topic);
     if (unit == unit_of_topic.end()) {
@@ -169,26 +170,15 @@ bool MeasureRegistrationBias(sim::Simulator* simulator,
         static_cast<double>(static_cast<int64_t>(frame->timebase_ns) - start_ns) * 1e-9;
     if (options.duration_s > 0.0 && t > options.duration_s) break;
     std::vector<io::LidarFrame>& group = held[frame->timebase_ns];
-    if (group.empty()) group.resize(rig.lidars.size());
-    group[static_cast<size_t>(unit->second)] = *frame;
-    // A newer frame closes every older group: a unit that sent nothing for it is absent.
+    group.resize(rig.lidars.size());
+    group[static_cast<size_t>(unit->second)] = std::move(*frame);
+    // A newer frame closes every older group.
     while (held.size() > 1) {
-      auto oldest = held.begin();
-      std::vector<const io::LidarFrame*> frames(rig.lidars.size(), nullptr);
-      for (size_t i = 0; i < oldest->second.size(); ++i) {
-        if (!oldest->second[i].points.empty()) frames[i] = &oldest->second[i];
-      }
-      process(oldest->first, frames);
-      held.erase(oldest);
+      process(held.begin()->first, held.begin()->second);
+      held.erase(held.begin());
     }
   }
-  for (auto& [timebase, group] : held) {
-    std::vector<const io::LidarFrame*> frames(rig.lidars.size(), nullptr);
-    for (size_t i = 0; i < group.size(); ++i) {
-      if (!group[i].points.empty()) frames[i] = &group[i];
-    }
-    process(timebase, frames);
-  }
+  for (const auto& [timebase, group] : held) process(timebase, group);
   if (!seen_lidar) {
     *error = "the simulator produced no LiDAR frames";
     return false;

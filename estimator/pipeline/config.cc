@@ -167,6 +167,14 @@ std::string AblationSwitches::Name() const {
   return name.empty() ? "full" : name;
 }
 
+MatchOptions LidarMatchOptions(const EstimatorOptions& options, bool looks_down) {
+  MatchOptions match;
+  match.max_distance_m = options.max_correspondence_m;
+  match.line_max_spread_m = options.edge_max_spread_m;
+  match.line_soft_spread_m = looks_down ? options.down_edge_soft_spread_m : 0.0;
+  return match;
+}
+
 bool EstimatorOptions::IsValid(std::string* error) const {
   auto fail = [&](const std::string& m) {
     if (error) *error = m;

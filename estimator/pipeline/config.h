@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 
+#include "estimator/backend/scan_matching.h"
 #include "estimator/factors/preintegration.h"
 #include "estimator/features/height_descriptor.h"
 #include "estimator/features/loam_features.h"
@@ -176,6 +177,10 @@ struct EstimatorConfig {
   /// Every value in effect, one "key: value" per line, for the start-up log.
   std::string Describe() const;
 };
+
+/// How the estimator matches a LiDAR's features to its local map: the correspondence radius,
+/// the edge spread check, and for the LiDAR looking down at the track its soft edges.
+MatchOptions LidarMatchOptions(const EstimatorOptions& options, bool looks_down);
 
 /// Parses rig.yaml (and its optional `estimator:` section); false with "file:line: key" on
 /// unknown keys, wrong types or bad values.

@@ -137,7 +137,6 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   rail_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
-  empty_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   // Re-levelling needs the trajectory's velocities; without the odometer they carry the very
   // tilt it should remove (0.35 deg the wrong way on the demo run), so it is left out.
   gravity_pending_ = o.switches.use_imu && o.switches.use_odometer &&
@@ -524,9 +523,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     if (o.track_bed.sigma_m > 0.0 && !extras->bed.empty()) AddTrackBedFactor(*extras, &result);
   }
 
-  MatchOptions match;
-  match.max_distance_m = o.max_correspondence_m;
-  match.line_max_spread_m = o.edge_max_spread_m;
   const bool have_map = !plane_map_->empty();
   for (int round = 0; round < o.registration_rounds && have_map && !first; ++round) {
     const NavState current = window_->Newest();
@@ -542,9 +538,11 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
       // The down LiDAR's soft edges (creases, not corners): see down_edge_soft_spread_m.
-      match.line_soft_spread_m = rig.lidars[i].looks_down() ? o.down_edge_soft_spread_m : 0.0;
-      const LidarMatches matches =
-          MatchFeatures(match, fronts[i].features, T_current, *edge_map_, *plane_map_);
+      const LidarMatches matches = MatchFeatures(LidarMatchOptions(o, rig.lidars[i].looks_down()),
+                                                 fronts[i].features,
+                                                 T_current,
+                                                 *edge_map_,
+                                                 *plane_map_);
       const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
       diag.matches = matches.size();
       diag.degeneracy = lidar_only.degeneracy;
@@ -580,7 +578,9 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     if (!extras->rail_points.empty() && !rail_map_->empty()) {
       FeatureSet rail;
       rail.edges = extras->rail_points;
-      const LidarMatches matches = MatchFeatures(match, rail, T_current, *rail_map_, *empty_map_);
+      // Edges only: with no plane features the plane map is never searched.
+      const LidarMatches matches =
+          MatchFeatures(LidarMatchOptions(o, true), rail, T_current, *rail_map_, *rail_map_);
       Eigen::Vector3d forward = T_current.linear().col(0);
       forward.z() = 0.0;
       forward.normalize();

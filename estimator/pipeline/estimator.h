@@ -173,8 +173,7 @@ class Estimator {
 
   std::unique_ptr<SlidingWindow> window_;
   std::unique_ptr<LocalMap> edge_map_, plane_map_;
-  /// Rail-head points, and a map with nothing in it (rail heads are matched as lines only).
-  std::unique_ptr<LocalMap> rail_map_, empty_map_;
+  std::unique_ptr<LocalMap> rail_map_;              ///< rail-head points (rail_line_sigma_m)
   std::deque<std::unique_ptr<NodeExtras>> extras_;  ///< parallel to the window's states
   /// Track-bed points (world frame, final poses) of the frames that have left the window,
   /// newest last: with the window's own, the reference of the sleeper match.
