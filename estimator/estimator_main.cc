@@ -299,12 +299,15 @@ int main(int argc, char** argv) {
   std::string input_error;
   if (bag && !bag->error().empty()) input_error = bag->error();
   if (simulator) {
-    // The truth beside the estimate, for raillomer-eval, and the receiver's fixes (UTM).
+    // The truth beside the estimate, for raillomer-eval, the receiver's fixes (UTM) and the
+    // IMU's true biases.
     const api::Trajectory truth = simulator->TruthTrajectory(100.0);
     sim_fixes.utm_zone = truth.utm_zone;
     std::string truth_error;
     if (!api::WriteFileAtomically(out_dir + "/truth.tum", api::FormatTum(truth), &truth_error) ||
-        !api::WriteFileAtomically(out_dir + "/gnss.tum", api::FormatTum(sim_fixes), &truth_error)) {
+        !api::WriteFileAtomically(out_dir + "/gnss.tum", api::FormatTum(sim_fixes), &truth_error) ||
+        !api::WriteFileAtomically(
+            out_dir + "/imu_bias.csv", simulator->ImuBiasCsv(), &truth_error)) {
       return Fail(truth_error);
     }
   }

@@ -32,8 +32,8 @@ int Fail(const std::string& message) {
 int main(int argc, char** argv) {
   CLI::App app{
       "raillomer-sim: simulates a railway corridor and the RailLoMer sensor rig (two Livox "
-      "Horizon, IMU, wheel odometer, GNSS) and writes run.bag, truth.tum, rig.yaml, gnss.tum "
-      "and, for changed runs, changes.json."};
+      "Horizon, IMU, wheel odometer, GNSS) and writes run.bag, truth.tum, rig.yaml, gnss.tum, "
+      "imu_bias.csv (the IMU's true biases) and, for changed runs, changes.json."};
   bool list = false;
   std::string scenario_name, out_dir;
   double duration_s = -1.0;
@@ -127,6 +127,7 @@ int main(int argc, char** argv) {
   if (!raillomer::api::WriteTum(
           out_dir + "/truth.tum", simulator->TruthTrajectory(100.0), &error) ||
       !raillomer::api::WriteTum(out_dir + "/gnss.tum", gnss, &error) ||
+      !WriteFileAtomically(out_dir + "/imu_bias.csv", simulator->ImuBiasCsv(), &error) ||
       !WriteFileAtomically(out_dir + "/rig.yaml", simulator->RigYaml(), &error)) {
     return Fail(error);
   }
@@ -143,7 +144,7 @@ int main(int argc, char** argv) {
     first = false;
   }
   std::fprintf(stderr,
-               "), truth.tum, gnss.tum, rig.yaml%s in %.1f s (%.2fx real time)\n",
+               "), truth.tum, gnss.tum, imu_bias.csv, rig.yaml%s in %.1f s (%.2fx real time)\n",
                s.changes.empty() ? "" : ", changes.json",
                wall,
                simulator->duration_s() / wall);

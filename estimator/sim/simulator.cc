@@ -1,6 +1,8 @@
 #include "estimator/sim/simulator.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <future>
 #include <limits>
 
@@ -10,6 +12,8 @@
 namespace raillomer::sim {
 
 namespace {
+
+constexpr double kImuBiasTrackHz = 10.0;
 
 std::vector<double> Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 
@@ -86,6 +90,11 @@ bool Simulator::Next(io::SensorMessage* message) {
       continue;
     }
     if (imu_t <= next) {
+      const int64_t per_tenth =
+          std::max<int64_t>(1, std::llround(scenario_.imu_rate_hz / kImuBiasTrackHz));
+      if (static_cast<int64_t>(imu_index_) % per_tenth == 0) {
+        imu_bias_track_.push_back({StampNs(imu_t), imu_->gyro_bias(), imu_->accel_bias()});
+      }
       ++imu_index_;
       io::ImuSample sample = imu_->Sample(imu_t, StampNs(imu_t));
       if (EventActive(scenario_, Event::Kind::kImuDropout, imu_t)) continue;
@@ -173,6 +182,26 @@ api::Trajectory Simulator::TruthTrajectory(double rate_hz) const {
   trajectory.poses.reserve(static_cast<size_t>(samples) + 1);
   for (int64_t k = 0; k <= samples; ++k) trajectory.poses.push_back(TruthPose(k / rate_hz));
   return trajectory;
+}
+
+std::string Simulator::ImuBiasCsv() const {
+  std::string out =
+      "stamp_s,gyro_bias_x,gyro_bias_y,gyro_bias_z,accel_bias_x,accel_bias_y,accel_bias_z\n";
+  char line[256];
+  for (const ImuBiasSample& b : imu_bias_track_) {
+    std::snprintf(line,
+                  sizeof(line),
+                  ",%.6e,%.6e,%.6e,%.6e,%.6e,%.6e\n",
+                  b.gyro.x(),
+                  b.gyro.y(),
+                  b.gyro.z(),
+                  b.accel.x(),
+                  b.accel.y(),
+                  b.accel.z());
+    out += api::FormatStampSeconds(b.stamp_ns);
+    out += line;
+  }
+  return out;
 }
 
 std::string Simulator::RigYaml() const {

@@ -21,6 +21,13 @@
 
 namespace raillomer::sim {
 
+/// The simulated IMU's true biases at one instant (the estimator's bias states, to compare).
+struct ImuBiasSample {
+  int64_t stamp_ns = 0;
+  Eigen::Vector3d gyro = Eigen::Vector3d::Zero();   ///< rad/s
+  Eigen::Vector3d accel = Eigen::Vector3d::Zero();  ///< m/s^2
+};
+
 /// Run options that are not part of the scenario.
 struct SimOptions {
   double duration_s = -1.0;      ///< < 0: the whole motion profile
@@ -60,6 +67,12 @@ class Simulator : public io::SensorSource {
   api::Trajectory TruthTrajectory(double rate_hz) const;
   /// A fix of the simulated receiver as a pose in UTM (orientation unknown: identity).
   api::StampedPose FixInUtm(const io::GnssFix& fix) const;
+  /// The IMU's true biases as simulated so far, at 10 Hz (the bias of the sample at each tenth
+  /// of a second of run time).
+  const std::vector<ImuBiasSample>& imu_bias_track() const { return imu_bias_track_; }
+  /// imu_bias_track() as CSV (imu_bias.csv): stamp_s, gyro_bias_x/y/z, accel_bias_x/y/z, the
+  /// names of the estimator's timing.csv columns.
+  std::string ImuBiasCsv() const;
   /// The estimator's configuration for this rig (rig.yaml).
   std::string RigYaml() const;
   /// The corridor edits of a changed run, in UTM and WGS84 (changes.json).
@@ -91,6 +104,7 @@ class Simulator : public io::SensorSource {
   /// unit order.
   std::vector<io::SensorMessage> pending_frames_;
   size_t next_pending_ = 0;
+  std::vector<ImuBiasSample> imu_bias_track_;
 };
 
 }  // namespace raillomer::sim

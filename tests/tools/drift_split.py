@@ -9,15 +9,23 @@ Usage:
 yaw and position of the first estimated pose (no fitting; roll and pitch are absolute, since the
 estimator levels on gravity), so the figures are the drift accumulated since the start.
 Rows are printed every M metres of travelled distance (default 50).
+
+--biases adds the error of the estimator's IMU bias states (timing.csv) against the simulator's
+true biases (imu_bias.csv, written beside truth.tum by --sim runs): dbg_x/y/z, the gyroscope's
+in urad/s, and dba_x/y/z, the accelerometer's in mm/s^2, body axes. A yaw gyro bias error of e urad/s turns the heading by e urad
+every second wherever the LiDARs do not hold it.
 """
 import argparse
 import bisect
 import math
+import os
 import sys
 
 
 def read_tum(path):
     rows = []
+    if not os.path.exists(path):
+        sys.exit(f"drift_split: {path} does not exist")
     with open(path) as f:
         for line in f:
             if not line.strip() or line.startswith("#"):
@@ -59,6 +67,51 @@ def rpy_of(q):
     return roll, pitch, yaw_of(q)
 
 
+def read_csv_columns(path, names):
+    """Rows of (stamp_s, [values of `names`]) from a CSV with a header, stamp_s first."""
+    rows = []
+    if not os.path.exists(path):
+        sys.exit(f"drift_split: {path} does not exist" +
+                 (" (imu_bias.csv comes with --sim runs of this version)" if path.endswith("imu_bias.csv") else ""))
+    with open(path) as f:
+        header = f.readline().strip().split(",")
+        try:
+            idx = [header.index(n) for n in names]
+        except ValueError as e:
+            sys.exit(f"drift_split: {path}: {e}")
+        for line in f:
+            v = line.strip().split(",")
+            if len(v) < len(header):
+                continue
+            rows.append((float(v[0]), [float(v[i]) for i in idx]))
+    return rows
+
+
+BIAS_NAMES = ["gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x", "accel_bias_y", "accel_bias_z"]
+
+
+def bias_errors(run):
+    """A function t -> the six bias errors (estimate minus truth; gyro urad/s, accel mm/s^2)."""
+    est = read_csv_columns(f"{run}/timing.csv", BIAS_NAMES)
+    truth = read_csv_columns(f"{run}/imu_bias.csv", BIAS_NAMES)
+    if not est or not truth:
+        sys.exit(f"drift_split: {run}: no bias rows in timing.csv or imu_bias.csv")
+    est_t = [t for t, _ in est]
+    truth_t = [t for t, _ in truth]
+
+    def nearest(stamps, rows, t):
+        k = bisect.bisect_left(stamps, t)
+        if k > 0 and (k == len(stamps) or abs(stamps[k - 1] - t) < abs(stamps[k] - t)):
+            k -= 1
+        return rows[k][1]
+
+    def at(t):
+        e, tr = nearest(est_t, est, t), nearest(truth_t, truth, t)
+        return [(a - b) * (1e6 if i < 3 else 1e3) for i, (a, b) in enumerate(zip(e, tr))]
+
+    return at
+
+
 def wrap(a):
     return (a + math.pi) % (2 * math.pi) - math.pi
 
@@ -68,7 +121,10 @@ def main():
     ap.add_argument("run")
     ap.add_argument("--every", type=float, default=50.0, help="metres between printed rows")
     ap.add_argument("--csv", help="write every matched pose's split to this CSV")
+    ap.add_argument("--biases", action="store_true",
+                    help="add the IMU bias states' errors against the truth (needs imu_bias.csv)")
     args = ap.parse_args()
+    bias_at = bias_errors(args.run) if args.biases else None
     est = read_tum(f"{args.run}/trajectory.tum")
     truth = read_tum(f"{args.run}/truth.tum")
     tstamps = [t for t, _, _ in truth]
@@ -113,13 +169,22 @@ def main():
         r_t, p_t, y_t = rpy_of(tq)
         out.append((t, dist, e_body[0], e_body[1], e_body[2], wrap(r_e - r_t), wrap(p_e - p_t), wrap(y_e - y_t)))
 
-    print(f"{'t_s':>8} {'dist_m':>8} {'along_m':>8} {'lat_m':>8} {'vert_m':>8} {'roll_deg':>8} {'pitch_deg':>9} {'yaw_deg':>8}")
+    header = (f"{'t_s':>8} {'dist_m':>8} {'along_m':>8} {'lat_m':>8} {'vert_m':>8} {'roll_deg':>8} "
+              f"{'pitch_deg':>9} {'yaw_deg':>8}")
+    if bias_at:
+        # Bias errors: gyroscope dbg (urad/s), accelerometer dba (mm/s^2), body x y z.
+        header += "".join(f"{n:>8}" for n in ("dbg_x", "dbg_y", "dbg_z", "dba_x", "dba_y", "dba_z"))
+    print(header)
     next_d = 0.0
     t0 = out[0][0]
     for i, r in enumerate(out):
         if r[1] >= next_d or i == len(out) - 1:
-            print(f"{r[0] - t0:8.1f} {r[1]:8.1f} {r[2]:8.3f} {r[3]:8.3f} {r[4]:8.3f} "
-                  f"{math.degrees(r[5]):8.3f} {math.degrees(r[6]):9.3f} {math.degrees(r[7]):8.3f}")
+            line = (f"{r[0] - t0:8.1f} {r[1]:8.1f} {r[2]:8.3f} {r[3]:8.3f} {r[4]:8.3f} "
+                    f"{math.degrees(r[5]):8.3f} {math.degrees(r[6]):9.3f} {math.degrees(r[7]):8.3f}")
+            if bias_at:
+                b = bias_at(r[0])
+                line += "".join(f"{x:8.1f}" for x in b[:3]) + "".join(f"{x:8.2f}" for x in b[3:])
+            print(line)
             next_d += args.every
     if args.csv:
         with open(args.csv, "w") as f:

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <string>
 #include <variant>
@@ -130,6 +131,58 @@ TEST(ImuModel, NoiseDensityAndBiasAtStandstill) {
     EXPECT_LT((imu.accel_bias() - accel_bias0).norm(), 10.0 * s.accel_bias_walk * 10.0);
     EXPECT_LT((imu.gyro_bias() - gyro_bias0).norm(), 10.0 * s.gyro_bias_walk * 10.0);
   }
+}
+
+TEST(ImuModel, TheSimulatorRecordsTheBiasesItAppliesAtTenHertz) {
+  // Large turn-on biases and a fast walk, so the track's values and their drift are plain.
+  Scenario s = Standstill(3.0);
+  s.gyro_bias_sigma = 0.01;
+  s.accel_bias_sigma = 0.05;
+  s.gyro_bias_walk = 1e-3;
+  s.accel_bias_walk = 1e-2;
+  SimOptions options;
+  options.lidar = false;
+  std::string error;
+  std::unique_ptr<Simulator> sim = Simulator::Create(s, options, &error);
+  ASSERT_TRUE(sim) << error;
+  std::vector<io::ImuSample> samples;
+  io::SensorMessage message;
+  while (sim->Next(&message)) {
+    if (const auto* imu = std::get_if<io::ImuSample>(&message.data)) samples.push_back(*imu);
+  }
+  const std::vector<ImuBiasSample>& track = sim->imu_bias_track();
+  ASSERT_EQ(track.size(), 31u);  // 0, 0.1, ..., 3.0 s
+  for (size_t k = 0; k < track.size(); ++k) {
+    EXPECT_EQ(track[k].stamp_ns, sim->StampNs(0.1 * static_cast<double>(k))) << k;
+  }
+  // The first entry is the model's turn-on bias (the same seed gives the same model).
+  const ImuModel fresh(sim->scenario(), sim->truth(), sim->scenario().seed);
+  EXPECT_EQ(track.front().gyro, fresh.gyro_bias());
+  EXPECT_EQ(track.front().accel, fresh.accel_bias());
+  // The track walks, and it is what the samples carry: at standstill each tenth of a second's
+  // 20 gyro samples average to the recorded bias, within 4 standard errors of the white noise.
+  EXPECT_GT((track.back().gyro - track.front().gyro).norm(), 1e-4);
+  const double gyro_sigma = s.gyro_noise_density * std::sqrt(s.imu_rate_hz);
+  const int per_tenth = static_cast<int>(s.imu_rate_hz / 10.0);
+  for (size_t k = 0; k + 1 < track.size(); ++k) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (int i = 0; i < per_tenth; ++i) mean += samples[k * per_tenth + i].angular_velocity_radps;
+    mean /= per_tenth;
+    EXPECT_LT((mean - track[k].gyro).cwiseAbs().maxCoeff(), 4.0 * gyro_sigma / std::sqrt(per_tenth))
+        << "tenth " << k;
+  }
+  // The CSV: the estimator's timing.csv names, one row per entry, the values as recorded.
+  const std::string csv = sim->ImuBiasCsv();
+  EXPECT_EQ(csv.rfind("stamp_s,gyro_bias_x,gyro_bias_y,gyro_bias_z,accel_bias_x,accel_bias_y,"
+                      "accel_bias_z\n",
+                      0),
+            0u);
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 32);
+  const size_t second_line = csv.find('\n') + 1;
+  double stamp = 0.0, gx = 0.0;
+  ASSERT_EQ(std::sscanf(csv.c_str() + second_line, "%lf,%lf", &stamp, &gx), 2);
+  EXPECT_NEAR(stamp, track.front().stamp_ns * 1e-9, 1e-6);
+  EXPECT_NEAR(gx, track.front().gyro.x(), 1e-6 * std::abs(gx));
 }
 
 struct OdometerReading {

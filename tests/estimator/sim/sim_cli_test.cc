@@ -1,6 +1,7 @@
 // raillomer-sim end to end: the outputs of a short run, the independent bag check (python
 // rosbag, not our reader), and clear errors on bad input with nothing half-written left behind.
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -61,10 +62,13 @@ TEST_F(SimCli, ShortRunWritesAValidBagTruthAndRig) {
   const CommandResult run =
       Shell(sim_ + " --scenario demo --out " + out.string() + " --duration 3 --seed 5");
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  for (const char* file : {"run.bag", "truth.tum", "gnss.tum", "rig.yaml"}) {
+  for (const char* file : {"run.bag", "truth.tum", "gnss.tum", "imu_bias.csv", "rig.yaml"}) {
     EXPECT_TRUE(fs::exists(out / file)) << file;
   }
   EXPECT_FALSE(fs::exists(out / "changes.json"));
+  const std::string biases = ReadText(out / "imu_bias.csv");
+  EXPECT_EQ(biases.rfind("stamp_s,gyro_bias_x,", 0), 0u) << biases.substr(0, 80);
+  EXPECT_EQ(std::count(biases.begin(), biases.end(), '\n'), 32);  // header + 10 Hz over 3 s
   for (const auto& entry : fs::directory_iterator(out)) {
     EXPECT_EQ(entry.path().filename().string().find(".tmp-"), std::string::npos)
         << "leftover temporary " << entry.path();
