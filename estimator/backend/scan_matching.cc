@@ -158,6 +158,12 @@ LidarOnlySolution SolveLidarOnly(const LidarMatches& matches,
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(S);
   out.degeneracy = std::max(0.0, eig.eigenvalues()(0));
   out.weakest_direction = eig.eigenvectors().col(0);
+  // Heading: the tangent direction u of a turn about world z (body-frame rotation R^T z); its
+  // marginal information 1 / (u^T H^-1 u).
+  Vec6 u = Vec6::Zero();
+  u.tail<3>() = out.T_world_body.linear().transpose() * Eigen::Vector3d::UnitZ();
+  const double variance = u.dot((H / n + 1e-12 * Mat6::Identity()).ldlt().solve(u));
+  out.heading_information = variance > 0.0 ? 1.0 / variance : 0.0;
   return out;
 }
 

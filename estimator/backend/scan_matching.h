@@ -60,6 +60,9 @@ struct LidarOnlySolution {
   /// direction is unobserved (a long straight cutting).
   double degeneracy = 0.0;
   Eigen::Vector3d weakest_direction = Eigen::Vector3d::UnitX();  ///< world frame
+  /// Per-residual information on the heading (rotation about world z) with the other five
+  /// directions free, in 1/rad^2: how well the matches alone hold the heading.
+  double heading_information = 0.0;
   int iterations = 0;
   bool converged = false;
 };

@@ -292,4 +292,41 @@ bool ProjectedTranslationCost::Evaluate(double const* const* parameters,
   return true;
 }
 
+ProjectedYawCost::ProjectedYawCost(std::shared_ptr<ceres::CostFunction> inner,
+                                   const Eigen::Quaterniond& q0)
+    : inner_(std::move(inner)), q0_(q0.normalized()) {
+  set_num_residuals(inner_->num_residuals());
+  mutable_parameter_block_sizes()->push_back(7);
+}
+
+bool ProjectedYawCost::Evaluate(double const* const* parameters,
+                                double* residuals,
+                                double** jacobians) const {
+  double pose[7];
+  std::copy(parameters[0], parameters[0] + 7, pose);
+  const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
+  // The rotation since q0 in the world frame, without its part about z.
+  Eigen::Vector3d delta = LogQuaternion(q * q0_.conjugate());
+  delta.z() = 0.0;
+  const Eigen::Quaterniond q_projected = (ExpQuaternion(delta) * q0_).normalized();
+  pose[3] = q_projected.x();
+  pose[4] = q_projected.y();
+  pose[5] = q_projected.z();
+  pose[6] = q_projected.w();
+  const double* projected[1] = {pose};
+  if (!inner_->Evaluate(projected, residuals, jacobians)) return false;
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    // A body-frame turn dtheta of q is R dtheta in the world; without its z part it is the
+    // projected pose's body-frame turn R'^T P R dtheta.
+    Eigen::Matrix3d P = Eigen::Matrix3d::Identity();
+    P(2, 2) = 0.0;
+    const Eigen::Matrix3d map =
+        q_projected.toRotationMatrix().transpose() * P * q.toRotationMatrix();
+    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 7, Eigen::RowMajor>> J(
+        jacobians[0], num_residuals(), 7);
+    J.middleCols<3>(3) = (J.middleCols<3>(3) * map).eval();
+  }
+  return true;
+}
+
 }  // namespace raillomer

@@ -7,6 +7,7 @@
 #include <ceres/sized_cost_function.h>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "estimator/factors/pose_manifold.h"
 
@@ -111,6 +112,22 @@ class ProjectedTranslationCost : public ceres::CostFunction {
   std::shared_ptr<ceres::CostFunction> inner_;
   Eigen::Vector3d p0_;
   Eigen::Matrix3d projector_;
+};
+
+/// Wraps a cost over one pose block so that it no longer sees the heading: it is evaluated at
+/// the pose with its rotation about world z since `q0` taken out, so a frame whose matches hold
+/// the heading only weakly neither turns nor holds the pose about the vertical. Jacobian
+/// columns: the first 6 of 7.
+class ProjectedYawCost : public ceres::CostFunction {
+ public:
+  ProjectedYawCost(std::shared_ptr<ceres::CostFunction> inner, const Eigen::Quaterniond& q0);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  std::shared_ptr<ceres::CostFunction> inner_;
+  Eigen::Quaterniond q0_;
 };
 
 /// Rail-plane factor, eq. (28-30): the rail plane measured in body frame i, moved into body

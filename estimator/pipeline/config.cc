@@ -76,6 +76,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
   r.Read("degeneracy_projection", &o->degeneracy_projection);
+  r.Read("heading_projection", &o->heading_projection);
   r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
   r.Read("initial_accel_bias_sigma", &o->initial_accel_bias_sigma);
   r.Read("initial_gyro_bias_sigma", &o->initial_gyro_bias_sigma);
@@ -246,6 +247,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("degeneracy_threshold must be in [0, 1)");
   if (!(degeneracy_projection >= 0.0 && degeneracy_projection < 1.0))
     return fail("degeneracy_projection must be in [0, 1) (0 = no remapping)");
+  if (!(heading_projection >= 0.0 && heading_projection < 1e6))
+    return fail("heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)");
   std::string stage;
   if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
@@ -309,7 +312,8 @@ std::string EstimatorConfig::Describe() const {
     << " rad/s, odometer scale " << o.initial_scale_sigma << "\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
-    << "; solution remapping below " << o.degeneracy_projection << "\n";
+    << "; solution remapping below " << o.degeneracy_projection << "; heading remapping below "
+    << o.heading_projection << " /rad^2\n";
   s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
     << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
     << o.preprocess.flicker_min_points_per_cell << ", hidden sector "

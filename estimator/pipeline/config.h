@@ -130,6 +130,13 @@ struct EstimatorOptions {
   /// Solution remapping: when both LiDARs' matches together are this degenerate, their
   /// factors stop seeing the translation along the weakest direction. 0 disables.
   double degeneracy_projection = 0.012;
+  /// Heading remapping: when both LiDARs' matches together hold the heading (rotation about
+  /// the vertical, the other five directions free) with less than this information per
+  /// residual (1/rad^2), their factors stop seeing the heading and the gyro carries it. Weakly
+  /// held, the heading follows the registration's small steady pulls (+565 urad a frame on
+  /// the embankment at true poses), and the yaw gyro bias with it (README, "Where the
+  /// estimator stands"). Feature-rich frames score 20-140, the embankment's 2-5. 0 disables.
+  double heading_projection = 10.0;
   /// Priors of the first state (and of the window after re-levelling).
   double initial_velocity_sigma_mps = 1.0;
   double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2

@@ -575,6 +575,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     }
     // Rail heads against the rail map: lines along the track that hold the frame sideways and
     // in heading where the LiDARs' other features are soft or few.
+    size_t rail_lines = 0;
     if (!extras->rail_points.empty() && !rail_map_->empty()) {
       FeatureSet rail;
       rail.edges = extras->rail_points;
@@ -589,15 +590,24 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         line_terms.back().Ignore(forward);
         line_terms.back().Ignore(Eigen::Vector3d::UnitZ());
       }
+      rail_lines = matches.lines.size();
     }
     // Solution remapping: what neither LiDAR observes is left to the other factors.
     const LidarOnlySolution frame = SolveLidarOnly(all, T_current, 1);
     result.degeneracy = frame.degeneracy;
     result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
                        frame.degeneracy < o.degeneracy_projection;
+    result.heading_information = frame.heading_information;
+    // The rail-head lines, when matched, hold the heading themselves.
+    result.heading_projected = o.heading_projection > 0.0 && all.size() >= 6 && rail_lines == 0 &&
+                               frame.heading_information < o.heading_projection;
     // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
     std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
         std::move(plane_terms), std::move(line_terms), kLidarHuber);
+    if (result.heading_projected) {
+      cost = std::make_shared<ProjectedYawCost>(std::move(cost),
+                                                Eigen::Quaterniond(T_current.linear()));
+    }
     if (result.projected) {
       cost = std::make_shared<ProjectedTranslationCost>(
           std::move(cost), T_current.translation(), frame.weakest_direction);

@@ -54,9 +54,12 @@ struct FrameResult {
   bool height_shift = false;  ///< a height-descriptor displacement was used
   /// The sleeper match's correction to the predicted along-track motion (m), when it was used.
   std::optional<double> bed_shift_m;
-  double degeneracy = 0.0;     ///< of both LiDARs' matches together (last registration round)
-  bool projected = false;      ///< LiDAR factors blind to the weakest direction (remapping)
-  bool odometer_used = false;  ///< the odometer entered this interval's factor
+  double degeneracy = 0.0;  ///< of both LiDARs' matches together (last registration round)
+  bool projected = false;   ///< LiDAR factors blind to the weakest direction (remapping)
+  /// Per-residual information of both LiDARs' matches on the heading, 1/rad^2 (last round).
+  double heading_information = 0.0;
+  bool heading_projected = false;  ///< LiDAR factors blind to the heading (heading_projection)
+  bool odometer_used = false;      ///< the odometer entered this interval's factor
   int solver_iterations = 0;
 };
 

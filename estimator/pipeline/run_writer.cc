@@ -79,7 +79,7 @@ bool RunWriter::Open(const std::string& out_dir,
                  lidar,
                  lidar);
   }
-  std::fprintf(timing_, ",bed_shift_m\n");
+  std::fprintf(timing_, ",bed_shift_m,heading_information,heading_projected\n");
   return true;
 }
 
@@ -196,10 +196,11 @@ void RunWriter::WriteFrame(const FrameResult& f) {
   }
   // Empty when the sleepers gave no measurement.
   if (f.bed_shift_m) {
-    std::fprintf(timing_, ",%.4f\n", *f.bed_shift_m);
+    std::fprintf(timing_, ",%.4f", *f.bed_shift_m);
   } else {
-    std::fprintf(timing_, ",\n");
+    std::fprintf(timing_, ",");
   }
+  std::fprintf(timing_, ",%.3f,%d\n", f.heading_information, f.heading_projected ? 1 : 0);
   if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
 }
 

@@ -212,6 +212,48 @@ TEST(ProjectedTranslationCost, IgnoresTranslationAlongTheDirection) {
               1e-12);
 }
 
+// At the reference rotation the wrapped Jacobian is exact; a few milliradians away (a solve's
+// step) it still matches to first order.
+TEST(ProjectedYawCost, JacobianMatchesNumeric) {
+  const auto line = std::make_shared<PointToLineFactor>(Eigen::Vector3d(4.0, -2.0, 1.5),
+                                                        Eigen::Vector3d(1.0, 0.0, -1.0),
+                                                        Eigen::Vector3d(0.2, 0.9, 0.1),
+                                                        2.5);
+  Pose pose = kTruePose;
+  const Eigen::Quaterniond q(Rotation(pose));
+  ExpectJacobiansMatch(ProjectedYawCost(line, q), {pose.data()});
+  const Eigen::Quaterniond q_near = ExpQuaternion(Eigen::Vector3d(0.002, -0.001, 0.003)) * q;
+  ExpectJacobiansMatch(ProjectedYawCost(line, q_near), {pose.data()}, 2e-3);
+}
+
+// The wrapped cost does not change with a turn about the vertical, and changes as before with a
+// turn about a level axis.
+TEST(ProjectedYawCost, IgnoresTurnsAboutTheVertical) {
+  Pose pose = kTruePose;
+  // A plane seen 20 m to the side: a turn about z swings the point across it.
+  const Eigen::Vector3d normal = Eigen::Vector3d(0.0, 1.0, 0.2).normalized();
+  auto inner =
+      std::make_shared<PointToPlaneFactor>(Eigen::Vector3d(20.0, 5.0, -1.0), normal, 0.3, 1.0);
+  const ProjectedYawCost projected(inner, Eigen::Quaterniond(Rotation(pose)));
+  const double r0 = EvaluateScalar(projected, {pose.data()});
+  EXPECT_NEAR(r0, EvaluateScalar(*inner, {pose.data()}), 1e-12);
+  auto turned = [&](const Eigen::Vector3d& world_axis, double angle) {
+    Pose out = pose;
+    Eigen::Map<Eigen::Quaterniond>(out.data() + 3) =
+        (Eigen::Quaterniond(Eigen::AngleAxisd(angle, world_axis)) *
+         Eigen::Quaterniond(Rotation(pose)))
+            .normalized();
+    return out;
+  };
+  Pose yawed = turned(Eigen::Vector3d::UnitZ(), 0.05);
+  EXPECT_NEAR(EvaluateScalar(projected, {yawed.data()}), r0, 1e-9);
+  EXPECT_GT(std::abs(EvaluateScalar(*inner, {yawed.data()}) - r0), 0.1);
+  Pose rolled = turned(Eigen::Vector3d::UnitX(), 0.05);
+  EXPECT_NEAR(
+      EvaluateScalar(projected, {rolled.data()}), EvaluateScalar(*inner, {rolled.data()}), 1e-9);
+  EXPECT_GT(std::abs(EvaluateScalar(*inner, {rolled.data()}) - r0), 0.01);
+}
+
 /// The plane n_w . x + d_w = 0 expressed in the body frame of `pose`.
 std::pair<Eigen::Vector3d, double> PlaneInBody(const Pose& pose,
                                                const Eigen::Vector3d& n_world,

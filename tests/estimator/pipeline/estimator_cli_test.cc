@@ -1,10 +1,13 @@
 // raillomer-estimator end to end: a short simulated run scored against the truth, the same on a
 // recorded bag, and clear errors on bad input that keep what was already written.
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -292,6 +295,52 @@ TEST_F(EstimatorCli, TheSleepersHoldTheDistanceWhenTheWheelSizeIsWrong) {
   EXPECT_EQ(off["bed_shifts"].get<int>(), 0);
   EXPECT_GT(without, 0.2) << "without the sleepers";
   EXPECT_LT(std::fabs(with), 0.25 * without) << with << " m with, " << without << " m without";
+}
+
+/// The cells of one CSV line (a trailing comma gives a last empty cell).
+std::vector<std::string> CsvCells(const std::string& row) {
+  std::vector<std::string> cells;
+  std::stringstream ss(row);
+  for (std::string cell; std::getline(ss, cell, ',');) cells.push_back(cell);
+  if (!row.empty() && row.back() == ',') cells.emplace_back();
+  return cells;
+}
+
+/// The share of a run's timing.csv rows whose column `name` is 1.
+double ShareOfFlaggedFrames(const fs::path& timing_csv, const std::string& name) {
+  std::ifstream in(timing_csv);
+  std::string row;
+  std::getline(in, row);
+  const std::vector<std::string> header = CsvCells(row);
+  const auto column = std::find(header.begin(), header.end(), name);
+  EXPECT_NE(column, header.end()) << name;
+  if (column == header.end()) return -1.0;
+  const size_t index = static_cast<size_t>(column - header.begin());
+  size_t rows = 0, flagged = 0;
+  while (std::getline(in, row)) {
+    const std::vector<std::string> cells = CsvCells(row);
+    ++rows;
+    flagged += index < cells.size() && cells[index] == "1";
+  }
+  return rows == 0 ? -1.0 : static_cast<double>(flagged) / static_cast<double>(rows);
+}
+
+// On the embankment the LiDARs hold the heading only weakly (rails, ballast and masts all run
+// along the track), so nearly every frame leaves it to the gyro (heading_projection); on the
+// demo's corridor, with buildings and a station, almost none does. Switched off, none does.
+TEST_F(EstimatorCli, WeaklyHeldHeadingsAreLeftToTheGyro) {
+  const std::string rig = EmbankmentRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
+  ASSERT_FALSE(rig.empty());
+  EmbankmentEndError(rig, "heading_projected");
+  EmbankmentEndError(rig + "estimator:\n  heading_projection: 0\n", "heading_free");
+  EXPECT_GT(ShareOfFlaggedFrames(Dir() / "heading_projected" / "timing.csv", "heading_projected"),
+            0.8);
+  EXPECT_EQ(ShareOfFlaggedFrames(Dir() / "heading_free" / "timing.csv", "heading_projected"), 0.0);
+  const fs::path demo = Dir() / "demo_heading";
+  const CommandResult r = Estimate("--sim demo --duration 15 --no-keyframes --no-submaps --out " +
+                                   ShellQuote(demo.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_LT(ShareOfFlaggedFrames(demo / "timing.csv", "heading_projected"), 0.1);
 }
 
 // On a straight embankment with nothing but masts beside it, the rail heads matched as lines
