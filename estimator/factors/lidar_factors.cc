@@ -264,67 +264,46 @@ bool LongitudinalShiftFactor::Evaluate(double const* const* parameters,
   return true;
 }
 
-ProjectedTranslationCost::ProjectedTranslationCost(std::shared_ptr<ceres::CostFunction> inner,
-                                                   const Eigen::Vector3d& p0,
-                                                   const Eigen::Vector3d& direction)
-    : inner_(std::move(inner)),
-      p0_(p0),
-      projector_(Eigen::Matrix3d::Identity() -
-                 direction.normalized() * direction.normalized().transpose()) {
-  set_num_residuals(inner_->num_residuals());
-  mutable_parameter_block_sizes()->push_back(7);
-}
-
-bool ProjectedTranslationCost::Evaluate(double const* const* parameters,
-                                        double* residuals,
-                                        double** jacobians) const {
-  double pose[7];
-  std::copy(parameters[0], parameters[0] + 7, pose);
-  Eigen::Map<Eigen::Vector3d> p(pose);
-  p = p0_ + projector_ * (p - p0_);
-  const double* projected[1] = {pose};
-  if (!inner_->Evaluate(projected, residuals, jacobians)) return false;
-  if (jacobians != nullptr && jacobians[0] != nullptr) {
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 7, Eigen::RowMajor>> J(
-        jacobians[0], num_residuals(), 7);
-    J.leftCols<3>() = (J.leftCols<3>() * projector_).eval();
+RemappedPoseCost::RemappedPoseCost(std::shared_ptr<ceres::CostFunction> inner,
+                                   const PoseRemapping& remapping)
+    : inner_(std::move(inner)), remapping_(remapping) {
+  if (remapping_.direction) {
+    const Eigen::Vector3d u = remapping_.direction->normalized();
+    projector_ -= u * u.transpose();
   }
-  return true;
-}
-
-ProjectedYawCost::ProjectedYawCost(std::shared_ptr<ceres::CostFunction> inner,
-                                   const Eigen::Quaterniond& q0)
-    : inner_(std::move(inner)), q0_(q0.normalized()) {
+  if (remapping_.q0) remapping_.q0->normalize();
   set_num_residuals(inner_->num_residuals());
   mutable_parameter_block_sizes()->push_back(7);
 }
 
-bool ProjectedYawCost::Evaluate(double const* const* parameters,
+bool RemappedPoseCost::Evaluate(double const* const* parameters,
                                 double* residuals,
                                 double** jacobians) const {
   double pose[7];
   std::copy(parameters[0], parameters[0] + 7, pose);
-  const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
-  // The rotation since q0 in the world frame, without its part about z.
-  Eigen::Vector3d delta = LogQuaternion(q * q0_.conjugate());
-  delta.z() = 0.0;
-  const Eigen::Quaterniond q_projected = (ExpQuaternion(delta) * q0_).normalized();
-  pose[3] = q_projected.x();
-  pose[4] = q_projected.y();
-  pose[5] = q_projected.z();
-  pose[6] = q_projected.w();
-  const double* projected[1] = {pose};
-  if (!inner_->Evaluate(projected, residuals, jacobians)) return false;
-  if (jacobians != nullptr && jacobians[0] != nullptr) {
+  Eigen::Map<Eigen::Vector3d> p(pose);
+  if (remapping_.direction) p = remapping_.p0 + projector_ * (p - remapping_.p0);
+  Eigen::Matrix3d rotation_map = Eigen::Matrix3d::Identity();
+  if (remapping_.q0) {
+    const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
+    // The rotation since q0 in the world frame, without its part about z.
+    Eigen::Vector3d delta = LogQuaternion(q * remapping_.q0->conjugate());
+    delta.z() = 0.0;
+    const Eigen::Quaterniond q_remapped = (ExpQuaternion(delta) * *remapping_.q0).normalized();
+    Eigen::Map<Eigen::Quaterniond>(pose + 3) = q_remapped;
     // A body-frame turn dtheta of q is R dtheta in the world; without its z part it is the
-    // projected pose's body-frame turn R'^T P R dtheta.
+    // remapped pose's body-frame turn R'^T P R dtheta.
     Eigen::Matrix3d P = Eigen::Matrix3d::Identity();
     P(2, 2) = 0.0;
-    const Eigen::Matrix3d map =
-        q_projected.toRotationMatrix().transpose() * P * q.toRotationMatrix();
+    rotation_map = q_remapped.toRotationMatrix().transpose() * P * q.toRotationMatrix();
+  }
+  const double* remapped[1] = {pose};
+  if (!inner_->Evaluate(remapped, residuals, jacobians)) return false;
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
     Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 7, Eigen::RowMajor>> J(
         jacobians[0], num_residuals(), 7);
-    J.middleCols<3>(3) = (J.middleCols<3>(3) * map).eval();
+    if (remapping_.direction) J.leftCols<3>() = (J.leftCols<3>() * projector_).eval();
+    if (remapping_.q0) J.middleCols<3>(3) = (J.middleCols<3>(3) * rotation_map).eval();
   }
   return true;
 }

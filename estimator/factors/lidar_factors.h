@@ -1,6 +1,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <ceres/cost_function.h>
@@ -94,40 +95,32 @@ class LidarFrameCost : public ceres::SizedCostFunction<7, 7> {
   double huber_;
 };
 
-/// Solution remapping (Zhang et al., the degeneracy measure of eq. 25): wraps a cost over one
-/// pose block so that it no longer sees the translation along `direction` (world frame, unit)
-/// away from `p0`: it is evaluated at p0 + (I - u u^T)(p - p0). A LiDAR frame that cannot
-/// observe that direction (a plain cutting, seen along the track) then neither pulls nor holds
-/// the pose along it, and the other factors decide. Jacobian columns: the first 6 of 7.
-class ProjectedTranslationCost : public ceres::CostFunction {
- public:
-  ProjectedTranslationCost(std::shared_ptr<ceres::CostFunction> inner,
-                           const Eigen::Vector3d& p0,
-                           const Eigen::Vector3d& direction);
-  bool Evaluate(double const* const* parameters,
-                double* residuals,
-                double** jacobians) const override;
-
- private:
-  std::shared_ptr<ceres::CostFunction> inner_;
-  Eigen::Vector3d p0_;
-  Eigen::Matrix3d projector_;
+/// What a remapped LiDAR frame no longer sees (solution remapping, Zhang et al.; the degeneracy
+/// measure of eq. 25 and the heading information): the translation along `direction` (world
+/// frame) away from `p0`, and/or the turn about world z away from `q0`.
+struct PoseRemapping {
+  std::optional<Eigen::Vector3d> direction;  ///< the weakest translation, with p0
+  Eigen::Vector3d p0 = Eigen::Vector3d::Zero();
+  std::optional<Eigen::Quaterniond> q0;  ///< set: the heading is left out
 };
 
-/// Wraps a cost over one pose block so that it no longer sees the heading: it is evaluated at
-/// the pose with its rotation about world z since `q0` taken out, so a frame whose matches hold
-/// the heading only weakly neither turns nor holds the pose about the vertical. Jacobian
-/// columns: the first 6 of 7.
-class ProjectedYawCost : public ceres::CostFunction {
+/// Wraps a cost over one pose block so that it no longer sees what `remapping` names: it is
+/// evaluated at the pose with those parts taken out (p0 + (I - u u^T)(p - p0); the rotation
+/// since q0 without its part about world z). A LiDAR frame that cannot observe a direction (a
+/// plain cutting seen along the track; a heading held only by soft creases) then neither pulls
+/// nor holds the pose along it, and the other factors decide. Jacobian columns: the first 6
+/// of 7.
+class RemappedPoseCost : public ceres::CostFunction {
  public:
-  ProjectedYawCost(std::shared_ptr<ceres::CostFunction> inner, const Eigen::Quaterniond& q0);
+  RemappedPoseCost(std::shared_ptr<ceres::CostFunction> inner, const PoseRemapping& remapping);
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override;
 
  private:
   std::shared_ptr<ceres::CostFunction> inner_;
-  Eigen::Quaterniond q0_;
+  PoseRemapping remapping_;
+  Eigen::Matrix3d projector_ = Eigen::Matrix3d::Identity();  ///< I - u u^T
 };
 
 /// Rail-plane factor, eq. (28-30): the rail plane measured in body frame i, moved into body

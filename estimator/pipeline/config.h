@@ -135,7 +135,8 @@ struct EstimatorOptions {
   /// residual (1/rad^2), their factors stop seeing the heading and the gyro carries it. Weakly
   /// held, the heading follows the registration's small steady pulls (+565 urad a frame on
   /// the embankment at true poses), and the yaw gyro bias with it (README, "Where the
-  /// estimator stands"). Feature-rich frames score 20-140, the embankment's 2-5. 0 disables.
+  /// estimator stands"). rich_high_mixed_b's frames score 20-140, the embankment's 2-5 (10th-90th
+  /// percentile). 0 disables.
   double heading_projection = 10.0;
   /// Priors of the first state (and of the window after re-levelling).
   double initial_velocity_sigma_mps = 1.0;

@@ -604,13 +604,14 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
     std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
         std::move(plane_terms), std::move(line_terms), kLidarHuber);
-    if (result.heading_projected) {
-      cost = std::make_shared<ProjectedYawCost>(std::move(cost),
-                                                Eigen::Quaterniond(T_current.linear()));
-    }
-    if (result.projected) {
-      cost = std::make_shared<ProjectedTranslationCost>(
-          std::move(cost), T_current.translation(), frame.weakest_direction);
+    if (result.projected || result.heading_projected) {
+      PoseRemapping remapping;
+      if (result.projected) {
+        remapping.direction = frame.weakest_direction;
+        remapping.p0 = T_current.translation();
+      }
+      if (result.heading_projected) remapping.q0 = Eigen::Quaterniond(T_current.linear());
+      cost = std::make_shared<RemappedPoseCost>(std::move(cost), remapping);
     }
     window_->SetNewestLidarFactor(std::move(cost));
     const WindowSummary summary = window_->Optimize();

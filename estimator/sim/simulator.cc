@@ -55,6 +55,8 @@ std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario,
     for (const LidarConfig& lidar : s.lidars) sim->lidars_.emplace_back(s, lidar, s.seed);
   }
   sim->imu_ = std::make_unique<ImuModel>(s, *sim->truth_, s.seed);
+  sim->imu_samples_per_bias_entry_ =
+      static_cast<uint64_t>(std::max<int64_t>(1, std::llround(s.imu_rate_hz / kImuBiasTrackHz)));
   sim->odometer_ = std::make_unique<OdometerModel>(s, *sim->truth_, s.seed);
   sim->gnss_ = std::make_unique<GnssModel>(
       s, *sim->world_, *sim->truth_, sim->zone_, sim->origin_utm_, s.seed);
@@ -90,9 +92,7 @@ bool Simulator::Next(io::SensorMessage* message) {
       continue;
     }
     if (imu_t <= next) {
-      const int64_t per_tenth =
-          std::max<int64_t>(1, std::llround(scenario_.imu_rate_hz / kImuBiasTrackHz));
-      if (static_cast<int64_t>(imu_index_) % per_tenth == 0) {
+      if (imu_index_ % imu_samples_per_bias_entry_ == 0) {
         imu_bias_track_.push_back({StampNs(imu_t), imu_->gyro_bias(), imu_->accel_bias()});
       }
       ++imu_index_;

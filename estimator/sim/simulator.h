@@ -105,6 +105,7 @@ class Simulator : public io::SensorSource {
   std::vector<io::SensorMessage> pending_frames_;
   size_t next_pending_ = 0;
   std::vector<ImuBiasSample> imu_bias_track_;
+  uint64_t imu_samples_per_bias_entry_ = 1;  ///< IMU samples between two bias track entries
 };
 
 }  // namespace raillomer::sim

@@ -175,29 +175,42 @@ TEST(PointToLineFactor, JacobianMatchesNumeric) {
   }
 }
 
-TEST(ProjectedTranslationCost, JacobianMatchesNumeric) {
+/// Remapping of the translation along `direction` away from p0 only.
+PoseRemapping TranslationRemapping(const Eigen::Vector3d& p0, const Eigen::Vector3d& direction) {
+  PoseRemapping remapping;
+  remapping.p0 = p0;
+  remapping.direction = direction;
+  return remapping;
+}
+
+/// Remapping of the heading away from q0 only.
+PoseRemapping HeadingRemapping(const Eigen::Quaterniond& q0) {
+  PoseRemapping remapping;
+  remapping.q0 = q0;
+  return remapping;
+}
+
+TEST(RemappedPoseCost, TranslationJacobianMatchesNumeric) {
   Pose pose = kTruePose;
   const Eigen::Vector3d p0 = Position(pose) + Eigen::Vector3d(0.3, -0.2, 0.1);
-  const ProjectedTranslationCost plane(
-      std::make_shared<PointToLineFactor>(Eigen::Vector3d(4.0, -2.0, 1.5),
-                                          Eigen::Vector3d(1.0, 0.0, -1.0),
-                                          Eigen::Vector3d(0.2, 0.9, 0.1),
-                                          2.5),
-      p0,
-      Eigen::Vector3d(1.0, 1.0, 0.2));
+  const RemappedPoseCost plane(std::make_shared<PointToLineFactor>(Eigen::Vector3d(4.0, -2.0, 1.5),
+                                                                   Eigen::Vector3d(1.0, 0.0, -1.0),
+                                                                   Eigen::Vector3d(0.2, 0.9, 0.1),
+                                                                   2.5),
+                               TranslationRemapping(p0, Eigen::Vector3d(1.0, 1.0, 0.2)));
   ExpectJacobiansMatch(plane, {pose.data()});
 }
 
 // The wrapped cost does not change with the translation along the projected direction, and
 // changes as before across it.
-TEST(ProjectedTranslationCost, IgnoresTranslationAlongTheDirection) {
+TEST(RemappedPoseCost, IgnoresTranslationAlongTheDirection) {
   Pose pose = kTruePose;
   const Eigen::Vector3d u = Eigen::Vector3d(1.0, 0.5, 0.0).normalized();
   // A plane whose normal has a component along u: it would pull the pose along u.
   const Eigen::Vector3d normal = Eigen::Vector3d(0.6, 0.0, 0.8);
   auto inner =
       std::make_shared<PointToPlaneFactor>(Eigen::Vector3d(2.0, 1.0, -1.0), normal, 0.3, 1.0);
-  const ProjectedTranslationCost projected(inner, Position(pose), u);
+  const RemappedPoseCost projected(inner, TranslationRemapping(Position(pose), u));
   const double r0 = EvaluateScalar(projected, {pose.data()});
   EXPECT_NEAR(r0, EvaluateScalar(*inner, {pose.data()}), 1e-12);
   Pose moved = pose;
@@ -214,27 +227,32 @@ TEST(ProjectedTranslationCost, IgnoresTranslationAlongTheDirection) {
 
 // At the reference rotation the wrapped Jacobian is exact; a few milliradians away (a solve's
 // step) it still matches to first order.
-TEST(ProjectedYawCost, JacobianMatchesNumeric) {
+TEST(RemappedPoseCost, HeadingJacobianMatchesNumeric) {
   const auto line = std::make_shared<PointToLineFactor>(Eigen::Vector3d(4.0, -2.0, 1.5),
                                                         Eigen::Vector3d(1.0, 0.0, -1.0),
                                                         Eigen::Vector3d(0.2, 0.9, 0.1),
                                                         2.5);
   Pose pose = kTruePose;
   const Eigen::Quaterniond q(Rotation(pose));
-  ExpectJacobiansMatch(ProjectedYawCost(line, q), {pose.data()});
+  ExpectJacobiansMatch(RemappedPoseCost(line, HeadingRemapping(q)), {pose.data()});
   const Eigen::Quaterniond q_near = ExpQuaternion(Eigen::Vector3d(0.002, -0.001, 0.003)) * q;
-  ExpectJacobiansMatch(ProjectedYawCost(line, q_near), {pose.data()}, 2e-3);
+  ExpectJacobiansMatch(RemappedPoseCost(line, HeadingRemapping(q_near)), {pose.data()}, 2e-3);
+  // Both at once, as a degenerate frame with a weakly held heading has them.
+  PoseRemapping both = HeadingRemapping(q);
+  both.p0 = Position(pose) + Eigen::Vector3d(0.3, -0.2, 0.1);
+  both.direction = Eigen::Vector3d(1.0, 1.0, 0.2);
+  ExpectJacobiansMatch(RemappedPoseCost(line, both), {pose.data()});
 }
 
 // The wrapped cost does not change with a turn about the vertical, and changes as before with a
 // turn about a level axis.
-TEST(ProjectedYawCost, IgnoresTurnsAboutTheVertical) {
+TEST(RemappedPoseCost, IgnoresTurnsAboutTheVertical) {
   Pose pose = kTruePose;
   // A plane seen 20 m to the side: a turn about z swings the point across it.
   const Eigen::Vector3d normal = Eigen::Vector3d(0.0, 1.0, 0.2).normalized();
   auto inner =
       std::make_shared<PointToPlaneFactor>(Eigen::Vector3d(20.0, 5.0, -1.0), normal, 0.3, 1.0);
-  const ProjectedYawCost projected(inner, Eigen::Quaterniond(Rotation(pose)));
+  const RemappedPoseCost projected(inner, HeadingRemapping(Eigen::Quaterniond(Rotation(pose))));
   const double r0 = EvaluateScalar(projected, {pose.data()});
   EXPECT_NEAR(r0, EvaluateScalar(*inner, {pose.data()}), 1e-12);
   auto turned = [&](const Eigen::Vector3d& world_axis, double angle) {
