@@ -48,28 +48,43 @@ Preintegration::Preintegration(const Vector3d& ba,
   const Vector3d axis = R_body_odo_.col(0), up = R_body_odo_.col(2);
   p_body_odo_level_ = p_body_odo_ - up * up.dot(p_body_odo_);
   along_odo_ = axis * axis.transpose();
+  set_sway_roll(0.0);
+}
+
+void Preintegration::set_sway_roll(double rad) {
+  sway_roll_ = rad;
+  const Eigen::AngleAxisd undo(-rad, R_body_odo_.col(0));
+  sway_p_body_odo_ = undo * p_body_odo_;
+  sway_p_body_odo_level_ = undo * p_body_odo_level_;
 }
 
 Vector3d Preintegration::LeverTerm(const Matrix3d& R_ij) const {
-  return along_odo_ * (R_ij * p_body_odo_level_ - p_body_odo_level_) +
-         (Matrix3d::Identity() - along_odo_) * (R_ij * p_body_odo_ - p_body_odo_);
+  return LeverTerm(R_ij, sway_p_body_odo_, sway_p_body_odo_level_);
+}
+
+Vector3d Preintegration::LeverTerm(const Matrix3d& R_ij,
+                                   const Vector3d& swayed_p,
+                                   const Vector3d& swayed_p_level) const {
+  return along_odo_ * (R_ij * swayed_p_level - p_body_odo_level_) +
+         (Matrix3d::Identity() - along_odo_) * (R_ij * swayed_p - p_body_odo_);
 }
 
 Matrix3d Preintegration::LeverTermJacobianJ(const Matrix3d& R_ij) const {
-  return -along_odo_ * R_ij * Skew(p_body_odo_level_) -
-         (Matrix3d::Identity() - along_odo_) * R_ij * Skew(p_body_odo_);
+  return -along_odo_ * R_ij * Skew(sway_p_body_odo_level_) -
+         (Matrix3d::Identity() - along_odo_) * R_ij * Skew(sway_p_body_odo_);
 }
 
 Matrix3d Preintegration::LeverTermJacobianI(const Matrix3d& R_ij) const {
-  return along_odo_ * Skew(R_ij * p_body_odo_level_) +
-         (Matrix3d::Identity() - along_odo_) * Skew(R_ij * p_body_odo_);
+  return along_odo_ * Skew(R_ij * sway_p_body_odo_level_) +
+         (Matrix3d::Identity() - along_odo_) * Skew(R_ij * sway_p_body_odo_);
 }
 
 void Preintegration::Add(double dt,
                          const Vector3d& gyro_radps,
                          const Vector3d& accel_mps2,
                          double speed_mps,
-                         bool odometer_valid) {
+                         bool odometer_valid,
+                         const Vector3d& sway_rad) {
   ++revision_;
   if (!has_last_) {
     // The very first measurement: the start of the first step.
@@ -78,6 +93,7 @@ void Preintegration::Add(double dt,
     last_accel_ = accel_mps2;
     last_speed_ = speed_mps;
     last_odometer_valid_ = odometer_valid;
+    last_sway_ = sway_rad;
     if (!odometer_valid) odometer_used_ = false;
     if (dt <= 0.0) return;
   } else if (dt <= 0.0) {
@@ -85,6 +101,7 @@ void Preintegration::Add(double dt,
     last_accel_ = accel_mps2;
     last_speed_ = speed_mps;
     last_odometer_valid_ = odometer_valid;
+    last_sway_ = sway_rad;
     return;
   }
   Step step;
@@ -96,37 +113,45 @@ void Preintegration::Add(double dt,
   step.accel1 = accel_mps2;
   step.speed1 = speed_mps;
   step.odometer_valid = last_odometer_valid_ && odometer_valid;
+  step.sway0 = last_sway_;
+  step.sway1 = sway_rad;
   steps_.push_back(step);
   Integrate(step);
   last_gyro_ = gyro_radps;
   last_accel_ = accel_mps2;
   last_speed_ = speed_mps;
   last_odometer_valid_ = odometer_valid;
+  last_sway_ = sway_rad;
 }
 
-Preintegration::Delta Preintegration::Propagate(const Delta& in,
-                                                double h,
-                                                const Vector3d& gyro0,
-                                                const Vector3d& accel0,
-                                                double speed0,
-                                                const Vector3d& gyro1,
-                                                const Vector3d& accel1,
-                                                double speed1,
-                                                bool odometer_valid) const {
-  // Eq. (14) with midpoint values, as in VINS-Mono's integration_base.h.
-  const Vector3d w = 0.5 * (gyro0 + gyro1) - bg_;
+Preintegration::Delta Preintegration::Propagate(const Delta& in, const Step& s, double f) const {
+  // Eq. (14) with midpoint values, as in VINS-Mono's integration_base.h; the step ends at the
+  // share f of s, its end measurements interpolated.
+  const double h = f * s.dt;
+  const Vector3d gyro1 = s.gyro0 + f * (s.gyro1 - s.gyro0);
+  const Vector3d accel1 = s.accel0 + f * (s.accel1 - s.accel0);
+  const Vector3d w = 0.5 * (s.gyro0 + gyro1) - bg_;
   Delta out;
   out.gamma = (in.gamma * ExpQuaternion(w * h)).normalized();
-  const Vector3d acc = 0.5 * (in.gamma * (accel0 - ba_) + out.gamma * (accel1 - ba_));
+  const Vector3d acc = 0.5 * (in.gamma * (s.accel0 - ba_) + out.gamma * (accel1 - ba_));
   out.alpha = in.alpha + in.beta * h + 0.5 * acc * h * h;
   out.beta = in.beta + acc * h;
   out.phi = in.phi;
-  if (odometer_valid) {
-    // Eq. (13): the odometer velocity c * s along its x axis, rotated into the start body frame.
-    const Vector3d u = R_body_odo_.col(0);
-    out.phi += 0.5 * c_ * (in.gamma * (u * speed0) + out.gamma * (u * speed1)) * h;
+  if (s.odometer_valid) {
+    // Eq. (13): the odometer velocity c * s along its x axis, rotated into the start body frame;
+    // the axis turned back by the body's own sway, so that it runs along the track.
+    const double speed1 = s.speed0 + f * (s.speed1 - s.speed0);
+    const Vector3d sway1 = s.sway0 + f * (s.sway1 - s.sway0);
+    out.phi +=
+        0.5 * c_ *
+        (in.gamma * (TrackAxis(s.sway0) * s.speed0) + out.gamma * (TrackAxis(sway1) * speed1)) * h;
   }
   return out;
+}
+
+Vector3d Preintegration::TrackAxis(const Vector3d& sway) const {
+  const Vector3d u = R_body_odo_.col(0);
+  return u - sway.cross(u);
 }
 
 void Preintegration::Integrate(const Step& s) {
@@ -138,8 +163,7 @@ void Preintegration::Integrate(const Step& s) {
   start.phi = phi_;
   step_start_deltas_.push_back(start);
   step_start_times_.push_back(sum_dt_);
-  const Delta end = Propagate(
-      start, dt, s.gyro0, s.accel0, s.speed0, s.gyro1, s.accel1, s.speed1, s.odometer_valid);
+  const Delta end = Propagate(start, s, 1.0);
 
   // Error-state transition F and noise input G of one step (eq. 15-17).
   const Vector3d w = 0.5 * (s.gyro0 + s.gyro1) - bg_;
@@ -180,11 +204,12 @@ void Preintegration::Integrate(const Step& s) {
   Gr.block<3, 3>(kTheta, kNg) = -jr_dt;
   if (s.odometer_valid) {
     const Vector3d u = R_body_odo_.col(0);
-    const Matrix3d R1_o1x = R1 * Skew(c_ * s.speed1 * u);
+    const Vector3d u0 = TrackAxis(s.sway0), u1 = TrackAxis(s.sway1);
+    const Matrix3d R1_o1x = R1 * Skew(c_ * s.speed1 * u1);
     Fr.block<3, 3>(kRowPhi, kTheta) =
-        -0.5 * dt * (R0 * Skew(c_ * s.speed0 * u) + R1_o1x * dR.transpose());
+        -0.5 * dt * (R0 * Skew(c_ * s.speed0 * u0) + R1_o1x * dR.transpose());
     Fr.block<3, 3>(kRowPhi, kBg) = 0.5 * dt * R1_o1x * jr_dt;
-    Fr.block<3, 1>(kRowPhi, kC) = 0.5 * dt * (R0 * u * s.speed0 + R1 * u * s.speed1);
+    Fr.block<3, 1>(kRowPhi, kC) = 0.5 * dt * (R0 * u0 * s.speed0 + R1 * u1 * s.speed1);
     Gr.block<3, 3>(kRowPhi, kNg) = Fr.block<3, 3>(kRowPhi, kBg);
     // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
     Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
@@ -256,8 +281,10 @@ void Preintegration::Append(const Preintegration& next) {
     last_accel_ = next.last_accel_;
     last_speed_ = next.last_speed_;
     last_odometer_valid_ = next.last_odometer_valid_;
+    last_sway_ = next.last_sway_;
   }
   const bool used = odometer_used_ && next.odometer_used_;
+  set_sway_roll(sway_roll_ + next.sway_roll_);
   Repropagate(ba_, bg_, c_);
   odometer_used_ = odometer_used_ && used;
 }
@@ -323,16 +350,7 @@ Preintegration::Delta Preintegration::DeltaAt(double t_s) const {
   const Step& s = steps_[k];
   const double h = t_s - step_start_times_[k];
   if (h <= 0.0) return step_start_deltas_[k];
-  const double f = std::min(h / s.dt, 1.0);
-  return Propagate(step_start_deltas_[k],
-                   h,
-                   s.gyro0,
-                   s.accel0,
-                   s.speed0,
-                   s.gyro0 + f * (s.gyro1 - s.gyro0),
-                   s.accel0 + f * (s.accel1 - s.accel0),
-                   s.speed0 + f * (s.speed1 - s.speed0),
-                   s.odometer_valid);
+  return Propagate(step_start_deltas_[k], s, std::min(h / s.dt, 1.0));
 }
 
 Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s, const Vector3d& v_start_body) const {
@@ -342,8 +360,12 @@ Eigen::Isometry3d Preintegration::RelativePoseAt(double t_s, const Vector3d& v_s
   const Delta d = DeltaAt(t_s);
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = d.gamma.toRotationMatrix();
-  // The odometer point moved by phi in the start body frame.
-  T.translation() = d.phi - LeverTerm(d.gamma.toRotationMatrix());
+  // The odometer point moved by phi in the start body frame; the body's sway roll so far is
+  // taken as the share of the interval's.
+  const double share = sum_dt_ > 0.0 ? std::clamp(t_s / sum_dt_, 0.0, 1.0) : 0.0;
+  const Eigen::AngleAxisd undo(-share * sway_roll_, R_body_odo_.col(0));
+  T.translation() =
+      d.phi - LeverTerm(d.gamma.toRotationMatrix(), undo * p_body_odo_, undo * p_body_odo_level_);
   return T;
 }
 

@@ -89,11 +89,16 @@ class Preintegration {
   /// records it; a first call with dt > 0 uses its own measurement at both ends. Later calls
   /// with dt <= 0 replace the recorded measurement without integrating. A step carries odometer
   /// data only when the readings at both of its ends are valid.
+  ///
+  /// sway_rad is the car body's own rotation on its suspension at the measurement (the gyro's
+  /// angles high-passed, InertialBuffer::SwayAt): the wheels run along the track, which is the
+  /// odometer's x axis turned back by it. Zero by default.
   void Add(double dt,
            const Eigen::Vector3d& gyro_radps,
            const Eigen::Vector3d& accel_mps2,
            double speed_mps,
-           bool odometer_valid);
+           bool odometer_valid,
+           const Eigen::Vector3d& sway_rad = Eigen::Vector3d::Zero());
 
   /// Integrates all steps again about new linearisation points.
   void Repropagate(const Eigen::Vector3d& ba, const Eigen::Vector3d& bg, double c);
@@ -148,11 +153,19 @@ class Preintegration {
   /// whole arm counts: a body high above the rail swings sideways over it when the track cants.
   /// Along the axis the arm's height (its component along the odometer's z) is left out: the
   /// body pitching on its suspension does not turn the wheels.
+  ///
+  /// The whole arm swings with the track's roll only: the roll the car body makes on its
+  /// suspension, about itself, over the interval (sway_roll(), measured by the caller) is taken
+  /// out of R_ij first, as R_ij * Exp(-sway_roll * x_odo).
   Eigen::Vector3d LeverTerm(const Eigen::Matrix3d& R_ij) const;
   /// d LeverTerm / d delta for R_ij * Exp(delta) (perturbing j) and for Exp(-delta) * R_ij
   /// (perturbing i, right perturbation of R_i).
   Eigen::Matrix3d LeverTermJacobianJ(const Eigen::Matrix3d& R_ij) const;
   Eigen::Matrix3d LeverTermJacobianI(const Eigen::Matrix3d& R_ij) const;
+  /// rad: the car body's roll on its suspension over the interval, about the odometer axis (the
+  /// fast part of the gyro's roll, InertialBuffer::SwayRollAt); 0 by default. Append() adds up.
+  void set_sway_roll(double rad);
+  double sway_roll() const { return sway_roll_; }
   /// Number of integrated steps.
   int num_steps() const { return static_cast<int>(steps_.size()); }
   /// Incremented by every Add(), Repropagate() and Append(); lets factors spot stale caches.
@@ -164,6 +177,7 @@ class Preintegration {
     Eigen::Vector3d gyro0, accel0, gyro1, accel1;
     double speed0, speed1;
     bool odometer_valid;
+    Eigen::Vector3d sway0, sway1;
   };
   /// The preintegrated quantities at one instant (eq. 14).
   struct Delta {
@@ -173,16 +187,14 @@ class Preintegration {
     Eigen::Vector3d phi = Eigen::Vector3d::Zero();
   };
   void Integrate(const Step& step);
-  /// Midpoint step of h seconds from `in` (measurements at its start and end).
-  Delta Propagate(const Delta& in,
-                  double h,
-                  const Eigen::Vector3d& gyro0,
-                  const Eigen::Vector3d& accel0,
-                  double speed0,
-                  const Eigen::Vector3d& gyro1,
-                  const Eigen::Vector3d& accel1,
-                  double speed1,
-                  bool odometer_valid) const;
+  /// LeverTerm with the sway roll already applied to the arm and its level part.
+  Eigen::Vector3d LeverTerm(const Eigen::Matrix3d& R_ij,
+                            const Eigen::Vector3d& swayed_p,
+                            const Eigen::Vector3d& swayed_p_level) const;
+  /// Midpoint step from `in` over the share f of step s (its end measurements interpolated).
+  Delta Propagate(const Delta& in, const Step& s, double f) const;
+  /// The odometer axis turned back by the body's sway (to first order): the track's direction.
+  Eigen::Vector3d TrackAxis(const Eigen::Vector3d& sway) const;
   /// The preintegrated quantities at t_s (see RelativePoseAt).
   Delta DeltaAt(double t_s) const;
   /// alpha, beta, gamma, phi corrected to first order for the given biases and scale (eq. 18).
@@ -194,6 +206,9 @@ class Preintegration {
   Eigen::Vector3d p_body_odo_;
   Eigen::Vector3d p_body_odo_level_;  ///< p_body_odo_ without its height (see LeverTerm)
   Eigen::Matrix3d along_odo_;         ///< projector onto the odometer axis
+  double sway_roll_ = 0.0;
+  /// Exp(-sway_roll_ x_odo) applied to the lever arm and its level part (see LeverTerm).
+  Eigen::Vector3d sway_p_body_odo_, sway_p_body_odo_level_;
   PreintegrationNoise noise_;
   double gravity_mps2_;
 
@@ -216,6 +231,7 @@ class Preintegration {
   Eigen::Vector3d last_accel_ = Eigen::Vector3d::Zero();
   double last_speed_ = 0.0;
   bool last_odometer_valid_ = true;
+  Eigen::Vector3d last_sway_ = Eigen::Vector3d::Zero();
   std::uint64_t revision_ = 0;
 };
 

@@ -77,6 +77,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
   r.Read("degeneracy_projection", &o->degeneracy_projection);
   r.Read("heading_projection", &o->heading_projection);
+  r.Read("odometer_sway_time_constant_s", &o->odometer_sway_time_constant_s);
   r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
   r.Read("initial_accel_bias_sigma", &o->initial_accel_bias_sigma);
   r.Read("initial_gyro_bias_sigma", &o->initial_gyro_bias_sigma);
@@ -249,6 +250,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("degeneracy_projection must be in [0, 1) (0 = no remapping)");
   if (!(heading_projection >= 0.0 && heading_projection < 1e6))
     return fail("heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)");
+  if (!(odometer_sway_time_constant_s >= 0.0 && odometer_sway_time_constant_s <= 60.0))
+    return fail("odometer_sway_time_constant_s must be in [0, 60] s (0 = off)");
   std::string stage;
   if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
@@ -314,6 +317,13 @@ std::string EstimatorConfig::Describe() const {
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
     << "; solution remapping below " << o.degeneracy_projection << "; heading remapping below "
     << o.heading_projection << " /rad^2\n";
+  s << "odometer sway: ";
+  if (o.odometer_sway_time_constant_s > 0.0) {
+    s << "the body's rotation faster than " << o.odometer_sway_time_constant_s
+      << " s is its own, not the track's\n";
+  } else {
+    s << "off (the body's whole rotation is the track's)\n";
+  }
   s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
     << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
     << o.preprocess.flicker_min_points_per_cell << ", hidden sector "

@@ -120,6 +120,7 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
     : config_(config), sinks_(std::move(sinks)), submaps_(config.options.submap) {
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
+  inertial_.sway_time_constant_s = config_.options.odometer_sway_time_constant_s;
   for (size_t i = 0; i < config_.rig.lidars.size(); ++i) {
     lidar_topics_[config_.rig.lidars[i].topic] = static_cast<int>(i);
   }

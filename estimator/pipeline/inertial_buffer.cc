@@ -9,7 +9,37 @@
 namespace raillomer {
 
 void InertialBuffer::AddImu(double t, const Eigen::Vector3d& gyro, const Eigen::Vector3d& accel) {
-  imu_.push_back({t, gyro, accel});
+  ImuRecord r{t, gyro, accel};
+  const double tau = sway_time_constant_s;
+  if (tau > 0.0 && !imu_.empty() && t > imu_.back().t) {
+    // First-order high-pass of an angle, h' = w - h / tau, exact for the step's mean rate w;
+    // the pitch goes through it twice (its first stage's rate is the input of the second).
+    const ImuRecord& last = imu_.back();
+    const double dt = t - last.t;
+    const double keep = std::exp(-dt / tau), gain = tau * (1.0 - keep);
+    const Eigen::Vector3d rate = 0.5 * (last.gyro + gyro);
+    r.sway_roll = keep * last.sway_roll + rate.x() * gain;
+    r.pitch_once = keep * last.pitch_once + rate.y() * gain;
+    r.sway_pitch = keep * last.sway_pitch + (r.pitch_once - last.pitch_once) / dt * gain;
+  } else if (!imu_.empty()) {
+    r.sway_roll = imu_.back().sway_roll;
+    r.pitch_once = imu_.back().pitch_once;
+    r.sway_pitch = imu_.back().sway_pitch;
+  }
+  imu_.push_back(r);
+}
+
+InertialBuffer::Sway InertialBuffer::SwayAt(double t) const {
+  if (imu_.empty()) return Sway();
+  const auto sway = [](const ImuRecord& r) { return Sway{r.sway_roll, r.sway_pitch}; };
+  if (t <= imu_.front().t) return sway(imu_.front());
+  if (t >= imu_.back().t) return sway(imu_.back());
+  auto it = std::lower_bound(
+      imu_.begin(), imu_.end(), t, [](const ImuRecord& r, double value) { return r.t < value; });
+  const ImuRecord& a = *(it - 1);
+  const double s = (t - a.t) / (it->t - a.t);
+  return {a.sway_roll + s * (it->sway_roll - a.sway_roll),
+          a.sway_pitch + s * (it->sway_pitch - a.sway_pitch)};
 }
 
 void InertialBuffer::AddOdometer(double t, double distance_m) { odo_.push_back({t, distance_m}); }
@@ -113,6 +143,7 @@ std::shared_ptr<Preintegration> InertialBuffer::Preintegrate(double t0,
       ba, bg, c, Eigen::Matrix3d::Identity(), p_body_odometer, noise, gravity_mps2);
   *odometer_ok = false;
   if (imu_.empty()) return pre;
+  pre->set_sway_roll(SwayAt(t1).roll - SwayAt(t0).roll);
   // IMU samples at t0, every record inside (t0, t1), and t1.
   std::vector<double> times{t0};
   for (const ImuRecord& r : imu_) {
@@ -149,7 +180,12 @@ std::shared_ptr<Preintegration> InertialBuffer::Preintegrate(double t0,
     const double dt = i == 0 ? 0.0 : times[i] - times[i - 1];
     if (i > 0 && dt <= 0.0) continue;
     ImuAt(times[i], &gyro, &accel);
-    pre->Add(dt, gyro, accel, speed[i], *odometer_ok && speed_ok[i]);
+    pre->Add(dt,
+             gyro,
+             accel,
+             speed[i],
+             *odometer_ok && speed_ok[i],
+             Eigen::Vector3d(0.0, SwayAt(times[i]).pitch, 0.0));
   }
   return pre;
 }

@@ -16,6 +16,8 @@ class InertialBuffer {
   struct ImuRecord {
     double t;
     Eigen::Vector3d gyro, accel;
+    /// rad, see SwayAt; pitch_once is the pitch's first high-pass stage.
+    double sway_roll = 0.0, pitch_once = 0.0, sway_pitch = 0.0;
   };
   struct OdoRecord {
     double t;
@@ -63,10 +65,28 @@ class InertialBuffer {
                                                bool use_odometer,
                                                bool* odometer_ok) const;
 
+  /// The car body's rotation on its suspension, about its own origin (rad): the gyro's angles
+  /// high-passed with sway_time_constant_s, so that the track's slow turns (a cant transition's
+  /// roll, a change of grade) and a steady gyro bias stay out of it.
+  struct Sway {
+    /// High-passed once: only its change over an interval is used, and a steady roll rate (a
+    /// cant transition, a bias) leaves that change at zero.
+    double roll = 0.0;
+    /// High-passed twice: it is used as an angle, and a steady pitch rate (a vertical curve, a
+    /// bias) would hold a once-high-passed angle at rate * tau.
+    double pitch = 0.0;
+  };
+  /// Interpolated at t; held across the ends of the buffer; zero without a time constant.
+  Sway SwayAt(double t) const;
+
   /// Drops what lies entirely before t (keeping one record before it for interpolation).
   void Trim(double t);
 
   double max_gap_s = 0.25;  ///< odometer readings farther apart than this are a gap
+  /// s: time constant of the sway's high-passes (0: no sway; the odometer's lever arm then swings
+  /// with the body's whole roll, and the wheels run along the body's x axis). Set before the
+  /// first sample.
+  double sway_time_constant_s = 0.0;
 
  private:
   void ImuAt(double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) const;

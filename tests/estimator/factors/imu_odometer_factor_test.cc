@@ -24,7 +24,9 @@ constexpr int kTangentSizes[6] = {6, 9, 1, 6, 9, 1};
 
 /// A 0.3 s preintegration of smooth synthetic IMU and odometer data (not a consistent
 /// trajectory: the Jacobians do not need one).
-std::shared_ptr<Preintegration> MakePreintegration(bool odometer_valid = true) {
+/// sway_roll: the body's own roll over the interval, taken out of the lever arm's swing.
+std::shared_ptr<Preintegration> MakePreintegration(bool odometer_valid = true,
+                                                   double sway_roll = 0.0) {
   const Matrix3d R_body_odo =
       (Eigen::AngleAxisd(0.05, Vector3d::UnitZ()) * Eigen::AngleAxisd(-0.03, Vector3d::UnitY()))
           .toRotationMatrix();
@@ -42,6 +44,7 @@ std::shared_ptr<Preintegration> MakePreintegration(bool odometer_valid = true) {
         0.5 * std::sin(t), 0.2 * std::cos(2.0 * t), kGravity + 0.1 * std::sin(3.0 * t));
     pre->Add(k == 0 ? 0.0 : 0.005, gyro, accel, 25.0 + std::sin(t), odometer_valid);
   }
+  pre->set_sway_roll(sway_roll);
   return pre;
 }
 
@@ -169,6 +172,7 @@ TEST(ImuOdometerFactorTest, OdometerAxisRowIsInOdometerUnits) {
 
 struct JacobianCase {
   bool odometer_valid;
+  double sway_roll;
 };
 
 class ImuOdometerFactorJacobianTest : public ::testing::TestWithParam<JacobianCase> {};
@@ -178,7 +182,7 @@ class ImuOdometerFactorJacobianTest : public ::testing::TestWithParam<JacobianCa
 // derivatives of Preintegration::Evaluate, row by row) so that rows with small information are
 // not hidden behind the large ones.
 TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
-  const auto pre = MakePreintegration(GetParam().odometer_valid);
+  const auto pre = MakePreintegration(GetParam().odometer_valid, GetParam().sway_roll);
   EXPECT_EQ(pre->odometer_used(), GetParam().odometer_valid);
   const ImuOdometerFactor factor(pre);
   const auto blocks = MakeParameters(*pre);
@@ -246,7 +250,9 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
 
 INSTANTIATE_TEST_SUITE_P(Odometer,
                          ImuOdometerFactorJacobianTest,
-                         ::testing::Values(JacobianCase{true}, JacobianCase{false}));
+                         ::testing::Values(JacobianCase{true, 0.0},
+                                           JacobianCase{false, 0.0},
+                                           JacobianCase{true, 0.004}));
 
 TEST(ImuOdometerFactorTest, NoticesARepropagatedPreintegration) {
   const auto pre = MakePreintegration();

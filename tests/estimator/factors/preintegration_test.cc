@@ -277,13 +277,14 @@ TEST_P(PreintegrationTruthTest, MatchesIntegratedTruth) {
 }
 
 /// Odometer-row residual of an interval of `n` steps with constant gyro and odometer speed, for
-/// body positions p_i = 0 and p_j, rotations Identity and R_j.
+/// body positions p_i = 0 and p_j, rotations Identity and R_j, and the body's own sway roll.
 Vector3d OdometerRow(const Vector3d& p_body_odo,
                      const Vector3d& gyro,
                      double speed,
                      int n,
                      const Vector3d& p_j,
-                     const Matrix3d& R_j) {
+                     const Matrix3d& R_j,
+                     double sway_roll = 0.0) {
   Preintegration pre(Vector3d::Zero(),
                      Vector3d::Zero(),
                      1.0,
@@ -293,6 +294,7 @@ Vector3d OdometerRow(const Vector3d& p_body_odo,
                      kGravity);
   for (int k = 0; k <= n; ++k)
     pre.Add(k == 0 ? 0.0 : kImuDt, gyro, Vector3d(0, 0, kGravity), speed, true);
+  pre.set_sway_roll(sway_roll);
   NavState i, j;
   j.p = p_j;
   j.q = Quaterniond(R_j);
@@ -328,6 +330,52 @@ TEST(PreintegrationTest, OdometerPointUnderATallBody) {
   const Vector3d bounce =
       OdometerRow(rail_contact, gyro_pitch, v, n, Vector3d(v * T, 0.0, 0.0), R_pitch);
   EXPECT_LT(std::fabs(bounce.x()), 1e-4) << bounce.transpose();
+
+  // Rolling 2 mrad on its suspension, about its own origin, the body does not swing over the
+  // rail. Told that this roll is sway, the across-track row holds; taken as the track's roll,
+  // the arm would swing h * roll = 7.6 mm sideways.
+  const double sway = 0.002;
+  const Matrix3d R_sway(Eigen::AngleAxisd(sway, Vector3d::UnitX()));
+  const Vector3d gyro_sway(sway / T, 0.0, 0.0);
+  const Vector3d swaying =
+      OdometerRow(rail_contact, gyro_sway, v, n, Vector3d(v * T, 0.0, 0.0), R_sway, sway);
+  EXPECT_LT(swaying.norm(), 1e-4) << swaying.transpose();
+  const Vector3d as_cant =
+      OdometerRow(rail_contact, gyro_sway, v, n, Vector3d(v * T, 0.0, 0.0), R_sway);
+  EXPECT_NEAR(std::fabs(as_cant.y()), h * sway, 1e-4) << as_cant.transpose();
+  // Half the roll sway, half cant: the body swings over the rail by the cant's half only.
+  const Vector3d body_half =
+      Vector3d(v * T, 0.0, 0.0) +
+      Matrix3d(Eigen::AngleAxisd(0.5 * sway, Vector3d::UnitX())) * Vector3d(0.0, 0.0, h) -
+      Vector3d(0.0, 0.0, h);
+  const Vector3d mixed = OdometerRow(rail_contact, gyro_sway, v, n, body_half, R_sway, 0.5 * sway);
+  EXPECT_LT(mixed.norm(), 1e-4) << mixed.transpose();
+}
+
+// Pitched 2 mrad on its suspension, the body's x axis points below the track, but the wheels
+// run along the track. Told the sway, the odometer rows hold; without it they would take the
+// wheels' path 2 mrad downwards (3 cm over 15 m).
+TEST(PreintegrationTest, TheWheelsFollowTheTrackNotTheSwayingBody) {
+  const double sway = 0.002, v = 30.0, T = 0.5;
+  const int n = static_cast<int>(std::lround(T / kImuDt));
+  auto row = [&](const Vector3d& told) {
+    Preintegration pre(Vector3d::Zero(),
+                       Vector3d::Zero(),
+                       1.0,
+                       Matrix3d::Identity(),
+                       Vector3d::Zero(),
+                       PreintegrationNoise(),
+                       kGravity);
+    for (int k = 0; k <= n; ++k)
+      pre.Add(k == 0 ? 0.0 : kImuDt, Vector3d::Zero(), Vector3d(0, 0, kGravity), v, true, told);
+    NavState i, j;
+    i.q = j.q = Quaterniond(Eigen::AngleAxisd(sway, Vector3d::UnitY()));
+    j.p = Vector3d(v * T, 0.0, 0.0);
+    return Vector3d(pre.Evaluate(i, j).segment<3>(15));
+  };
+  EXPECT_LT(row(Vector3d(0.0, sway, 0.0)).norm(), 1e-4)
+      << row(Vector3d(0.0, sway, 0.0)).transpose();
+  EXPECT_NEAR(std::fabs(row(Vector3d::Zero()).z()), v * T * sway, 1e-4);
 }
 
 // A 0.5 s IMU dropout is bridged by one step between the samples around it. Their noise holds

@@ -84,6 +84,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"odometer_vertical_density: -0.03", "estimator.odometer_vertical_density must be > 0"},
       {"degeneracy_projection: -1", "degeneracy_projection must be in [0, 1)"},
       {"heading_projection: -5", "heading_projection must be in [0, 1e6)"},
+      {"odometer_sway_time_constant_s: -1", "odometer_sway_time_constant_s must be in [0, 60]"},
       {"edge_max_spread_m: -0.1", "edge_max_spread_m must be >= 0"},
       {"down_edge_soft_spread_m: -1", "down_edge_soft_spread_m must be >= 0"},
       {"map_insert_lag: -1", "map_insert_lag must be >= 0"},

@@ -170,5 +170,55 @@ TEST(InertialBufferSim, UpInBodyLevelsAtSpeed) {
   }
 }
 
+// The sway is the gyro's angles high-passed. A cant transition's steady roll (0.03 rad/s for
+// 8 s) leaves the roll's change over a frame within a few time constants, and a vertical curve's
+// steady pitch rate leaves the pitch itself; the body's 1 Hz rotation on its suspension passes,
+// the roll's change nearly whole. Without a time constant there is none.
+TEST(InertialBufferSway, SplitsTheBodysSwayFromTheTracksTurns) {
+  const double tau = 1.0, dt = 0.005, frame = 0.1, amplitude = 0.002;
+  auto rate = [&](double t, bool track) {
+    if (track) return t > 1.0 && t < 9.0 ? 0.03 : 0.0;
+    return amplitude * 2.0 * M_PI * std::cos(2.0 * M_PI * t);
+  };
+  for (const bool track : {true, false}) {
+    InertialBuffer buffer, off;
+    buffer.sway_time_constant_s = tau;
+    for (int k = 0; k <= static_cast<int>(10.0 / dt); ++k) {
+      const double t = k * dt;
+      const Eigen::Vector3d gyro(rate(t, track), rate(t, track), 0.0), accel(0.0, 0.0, 9.81);
+      buffer.AddImu(t, gyro, accel);
+      off.AddImu(t, gyro, accel);
+    }
+    double roll_error = 0.0, roll_peak = 0.0, pitch_error = 0.0;
+    for (double t0 = 6.5; t0 + frame <= 8.9; t0 += frame) {
+      const InertialBuffer::Sway a = buffer.SwayAt(t0), b = buffer.SwayAt(t0 + frame);
+      EXPECT_EQ(off.SwayAt(t0).roll, 0.0);
+      EXPECT_EQ(off.SwayAt(t0).pitch, 0.0);
+      // The rotation over the frame, by the trapezoid rule on a fine grid.
+      double turn = 0.0;
+      for (int k = 0; k < 100; ++k) {
+        const double u = t0 + frame * k / 100.0, v = t0 + frame * (k + 1) / 100.0;
+        turn += 0.5 * (rate(u, track) + rate(v, track)) * (v - u);
+      }
+      // What is sway: nothing of the track's turn; all of the suspension's.
+      const double roll_sway = track ? 0.0 : turn;
+      const double pitch_sway = track ? 0.0 : amplitude * std::sin(2.0 * M_PI * t0);
+      roll_error = std::max(roll_error, std::fabs(b.roll - a.roll - roll_sway));
+      roll_peak = std::max(roll_peak, std::fabs(turn));
+      pitch_error = std::max(pitch_error, std::fabs(a.pitch - pitch_sway));
+    }
+    if (track) {
+      EXPECT_LT(roll_error, 0.01 * roll_peak) << "cant taken as sway";
+      // Once high-passed, the pitch would hold 0.03 rad/s * tau = 0.03 rad.
+      EXPECT_LT(pitch_error, 1e-3) << "vertical curve taken as sway";
+    } else {
+      // A first-order high-pass misses 1 / |1 + i w tau| = 16 % of a 1 Hz rotation; twice
+      // high-passed, 31 %, mostly its phase.
+      EXPECT_LT(roll_error, 0.2 * roll_peak) << "sway roll missed";
+      EXPECT_LT(pitch_error, 0.35 * amplitude) << "sway pitch missed";
+    }
+  }
+}
+
 }  // namespace
 }  // namespace raillomer
