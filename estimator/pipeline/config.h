@@ -142,9 +142,10 @@ struct EstimatorOptions {
   /// origin (InertialBuffer::SwayAt, the gyro's angles high-passed): that roll does not swing the
   /// odometer's lever arm over the rail, and that pitch does not tilt the wheels' path, which
   /// follows the track. Slower rotation is the track's (cant, grade). 0: the body's whole
-  /// rotation is the track's. rich_high_mixed_b 0.220 -> 0.199 % end drift (3.0 -> 2.4 m down),
-  /// rich_high_town_a 0.103 -> 0.069 % (README, "Where the estimator stands").
-  double odometer_sway_time_constant_s = 1.0;
+  /// rotation is the track's. rich_high_mixed_b 0.220 -> 0.177 % end drift (3.0 -> 2.2 m down),
+  /// rich_high_town_a 0.103 -> 0.060 %; at 1 s 0.199 and 0.069 % (README, "Where the estimator
+  /// stands").
+  double odometer_sway_time_constant_s = 2.0;
   /// Priors of the first state (and of the window after re-levelling).
   double initial_velocity_sigma_mps = 1.0;
   double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2
