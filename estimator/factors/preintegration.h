@@ -163,7 +163,7 @@ class Preintegration {
   Eigen::Matrix3d LeverTermJacobianJ(const Eigen::Matrix3d& R_ij) const;
   Eigen::Matrix3d LeverTermJacobianI(const Eigen::Matrix3d& R_ij) const;
   /// rad: the car body's roll on its suspension over the interval, about the odometer axis (the
-  /// fast part of the gyro's roll, InertialBuffer::SwayRollAt); 0 by default. Append() adds up.
+  /// fast part of the gyro's roll, InertialBuffer::SwayAt); 0 by default. Append() adds up.
   void set_sway_roll(double rad);
   double sway_roll() const { return sway_roll_; }
   /// Number of integrated steps.

@@ -599,8 +599,10 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
                        frame.degeneracy < o.degeneracy_projection;
     result.heading_information = frame.heading_information;
-    // The rail-head lines, when matched, hold the heading themselves.
-    result.heading_projected = o.heading_projection > 0.0 && all.size() >= 6 && rail_lines == 0 &&
+    // The rail-head lines, when matched, hold the heading themselves; without the IMU there is
+    // no gyro to carry it.
+    result.heading_projected = o.heading_projection > 0.0 && o.switches.use_imu &&
+                               all.size() >= 6 && rail_lines == 0 &&
                                frame.heading_information < o.heading_projection;
     // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
     std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
