@@ -31,15 +31,8 @@ void InertialBuffer::AddImu(double t, const Eigen::Vector3d& gyro, const Eigen::
 
 InertialBuffer::Sway InertialBuffer::SwayAt(double t) const {
   if (imu_.empty()) return Sway();
-  const auto sway = [](const ImuRecord& r) { return Sway{r.sway_roll, r.sway_pitch}; };
-  if (t <= imu_.front().t) return sway(imu_.front());
-  if (t >= imu_.back().t) return sway(imu_.back());
-  auto it = std::lower_bound(
-      imu_.begin(), imu_.end(), t, [](const ImuRecord& r, double value) { return r.t < value; });
-  const ImuRecord& a = *(it - 1);
-  const double s = (t - a.t) / (it->t - a.t);
-  return {a.sway_roll + s * (it->sway_roll - a.sway_roll),
-          a.sway_pitch + s * (it->sway_pitch - a.sway_pitch)};
+  const ImuRecord r = RecordAt(t);
+  return {r.sway_roll, r.sway_pitch};
 }
 
 void InertialBuffer::AddOdometer(double t, double distance_m) { odo_.push_back({t, distance_m}); }
@@ -112,21 +105,21 @@ bool InertialBuffer::UpInBody(double t0,
   return true;
 }
 
-void InertialBuffer::ImuAt(double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) const {
+InertialBuffer::ImuRecord InertialBuffer::RecordAt(double t) const {
   auto it = std::lower_bound(
       imu_.begin(), imu_.end(), t, [](const ImuRecord& r, double value) { return r.t < value; });
-  if (it == imu_.end()) {
-    *gyro = imu_.back().gyro;
-    *accel = imu_.back().accel;
-  } else if (it == imu_.begin()) {
-    *gyro = it->gyro;
-    *accel = it->accel;
-  } else {
-    const ImuRecord& a = *(it - 1);
-    const double s = (t - a.t) / (it->t - a.t);
-    *gyro = (1 - s) * a.gyro + s * it->gyro;
-    *accel = (1 - s) * a.accel + s * it->accel;
-  }
+  if (it == imu_.end()) return imu_.back();
+  if (it == imu_.begin()) return *it;
+  const ImuRecord& a = *(it - 1);
+  const double s = (t - a.t) / (it->t - a.t);
+  ImuRecord r;
+  r.t = t;
+  r.gyro = (1 - s) * a.gyro + s * it->gyro;
+  r.accel = (1 - s) * a.accel + s * it->accel;
+  r.sway_roll = (1 - s) * a.sway_roll + s * it->sway_roll;
+  r.pitch_once = (1 - s) * a.pitch_once + s * it->pitch_once;
+  r.sway_pitch = (1 - s) * a.sway_pitch + s * it->sway_pitch;
+  return r;
 }
 
 std::shared_ptr<Preintegration> InertialBuffer::Preintegrate(double t0,
@@ -175,17 +168,16 @@ std::shared_ptr<Preintegration> InertialBuffer::Preintegrate(double t0,
     speed_ok[0] = times.size() > 1 ? speed_ok[1] : 0;
   }
   // Each Add() is the sample that ends a step (the first one only starts the interval).
-  Eigen::Vector3d gyro, accel;
   for (size_t i = 0; i < times.size(); ++i) {
     const double dt = i == 0 ? 0.0 : times[i] - times[i - 1];
     if (i > 0 && dt <= 0.0) continue;
-    ImuAt(times[i], &gyro, &accel);
+    const ImuRecord r = RecordAt(times[i]);
     pre->Add(dt,
-             gyro,
-             accel,
+             r.gyro,
+             r.accel,
              speed[i],
              *odometer_ok && speed_ok[i],
-             Eigen::Vector3d(0.0, SwayAt(times[i]).pitch, 0.0));
+             Eigen::Vector3d(0.0, r.sway_pitch, 0.0));
   }
   return pre;
 }

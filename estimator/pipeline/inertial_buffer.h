@@ -89,7 +89,9 @@ class InertialBuffer {
   double sway_time_constant_s = 0.0;
 
  private:
-  void ImuAt(double t, Eigen::Vector3d* gyro, Eigen::Vector3d* accel) const;
+  /// The record at t, every field interpolated linearly; held across the ends of the buffer,
+  /// which must not be empty.
+  ImuRecord RecordAt(double t) const;
 
   std::deque<ImuRecord> imu_;
   std::deque<OdoRecord> odo_;
