@@ -77,6 +77,7 @@ struct SlidingWindow::Node {
   double scale[kScaleSize];
   std::shared_ptr<Preintegration> preintegration;  ///< from the previous state to this one
   std::vector<WindowTerm> lidar;                   ///< unary, on pose: none or one
+  std::vector<WindowTerm> unary;                   ///< other factors on pose alone
   std::vector<WindowTerm> links;   ///< with the previous state: IMU and pair factors
   std::vector<WindowTerm> priors;  ///< initial priors of the first state
 };
@@ -117,6 +118,15 @@ void SlidingWindow::AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cos
   node.links.push_back({std::move(cost), std::move(loss), {prev.pose, node.pose}});
 }
 
+void SlidingWindow::AddNewestUnaryFactor(std::shared_ptr<ceres::CostFunction> cost) {
+  Node& node = *nodes_.back();
+  node.unary.push_back({std::move(cost), nullptr, {node.pose}});
+}
+
+void SlidingWindow::ClearUnaryFactors() {
+  for (auto& n : nodes_) n->unary.clear();
+}
+
 void SlidingWindow::AddAnchorPriors(Node* node) const {
   // The anchor state holds the frame: its pose tightly (roll and pitch loosely when the IMU
   // observes them through gravity), velocity and biases loosely.
@@ -146,6 +156,7 @@ void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old) {
     v = R_new_old * v;
     ba.setZero();
     n->lidar.clear();
+    n->unary.clear();
     n->priors.clear();
   }
   has_prior_ = false;
@@ -160,6 +171,7 @@ std::vector<WindowTerm> SlidingWindow::AllTerms() const {
     const Node& n = *nodes_[i];
     terms.insert(terms.end(), n.priors.begin(), n.priors.end());
     terms.insert(terms.end(), n.lidar.begin(), n.lidar.end());
+    terms.insert(terms.end(), n.unary.begin(), n.unary.end());
     if (i > 0) terms.insert(terms.end(), n.links.begin(), n.links.end());
   }
   return terms;
@@ -246,6 +258,7 @@ NavState SlidingWindow::PopOldest(double* t_s) {
     if (has_prior_) add(prior_term_);
     for (const WindowTerm& t : oldest.priors) add(t);
     for (const WindowTerm& t : oldest.lidar) add(t);
+    for (const WindowTerm& t : oldest.unary) add(t);
     for (const WindowTerm& t : nodes_[1]->links) add(t);
     if (info->Marginalize()) {
       prior_term_ = {std::make_shared<MarginalizationFactor>(info), nullptr, info->KeptBlocks({})};

@@ -67,6 +67,11 @@ class SlidingWindow {
   void AddNewestPairFactor(std::shared_ptr<ceres::CostFunction> cost,
                            std::shared_ptr<ceres::LossFunction> loss);
 
+  /// Adds a factor over the newest state's pose alone (the straight track's heading hold);
+  /// ClearUnaryFactors() takes every such factor off the states still in the window.
+  void AddNewestUnaryFactor(std::shared_ptr<ceres::CostFunction> cost);
+  void ClearUnaryFactors();
+
   /// Solves the window (relinearising preintegrations whose biases moved).
   WindowSummary Optimize();
 
@@ -85,7 +90,8 @@ class SlidingWindow {
   /// Re-levels the world frame: rotates every state (position, attitude, velocity) by
   /// R_new_old about the origin and zeroes the accelerometer biases, which had absorbed the
   /// old frame's tilt. The LiDAR factors (tied to the old frame's map) are dropped and the
-  /// marginalisation prior is replaced by fresh priors on the oldest state.
+  /// marginalisation prior is replaced by fresh priors on the oldest state; the unary factors
+  /// (held in the old frame) are dropped too.
   void RotateWorld(const Eigen::Matrix3d& R_new_old);
 
  private:

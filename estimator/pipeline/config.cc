@@ -151,6 +151,14 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     b.Read("min_gain", &o->track_bed.min_gain);
     b.Finish();
   }
+  if (r.Has("straight_track")) {
+    MapReader st(r.Node("straight_track"), r.Path("straight_track"), root.source());
+    st.Read("sigma_rad", &o->straight_track.sigma_rad);
+    st.Read("detect_s", &o->straight_track.detect_s);
+    st.Read("tolerance_rad", &o->straight_track.tolerance_rad);
+    st.Read("max_rate_rps", &o->straight_track.max_rate_rps);
+    st.Finish();
+  }
   r.Finish();
 }
 
@@ -258,6 +266,7 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!rail.IsValid(&stage)) return fail("rail: " + stage);
   if (!height.IsValid(&stage)) return fail("height_descriptor: " + stage);
   if (!track_bed.IsValid(&stage)) return fail("track_bed: " + stage);
+  if (!straight_track.IsValid(&stage)) return fail("straight_track: " + stage);
   return true;
 }
 
@@ -337,6 +346,14 @@ std::string EstimatorConfig::Describe() const {
       << o.track_bed.max_forward_m << "] m, within " << o.track_bed.half_width_m
       << " m of the centre, " << o.track_bed.min_depth_m << "-" << o.track_bed.max_depth_m
       << " m below the rails, against " << o.track_bed.history_frames << " frames\n";
+  } else {
+    s << "off\n";
+  }
+  s << "straight track (heading hold): ";
+  if (o.straight_track.sigma_rad > 0.0 && o.switches.use_imu) {
+    s << "sigma " << o.straight_track.sigma_rad << " rad, once the gyro's heading has kept within "
+      << o.straight_track.tolerance_rad << " rad of a line turning at most "
+      << o.straight_track.max_rate_rps << " rad/s for " << o.straight_track.detect_s << " s\n";
   } else {
     s << "off\n";
   }

@@ -13,6 +13,7 @@
 #include "estimator/features/track_bed.h"
 #include "estimator/mapping/gnss_fusion.h"
 #include "estimator/mapping/submap_builder.h"
+#include "estimator/pipeline/straight_track.h"
 #include "estimator/preprocess/filters.h"
 
 namespace raillomer {
@@ -72,6 +73,8 @@ struct EstimatorOptions {
   RailExtractionOptions rail;
   HeightDescriptorOptions height;
   TrackBedOptions track_bed;  ///< the sleepers as a distance measure
+  /// The heading hold on straight track (needs the IMU; `straight_track.sigma_rad: 0` is off).
+  StraightTrackOptions straight_track;
   AblationSwitches switches;
 
   int window_size = 6;             ///< states in the sliding window (eq. 2)

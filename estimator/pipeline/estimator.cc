@@ -13,6 +13,7 @@
 #include "estimator/backend/local_map.h"
 #include "estimator/backend/scan_matching.h"
 #include "estimator/backend/sliding_window.h"
+#include "estimator/factors/heading_factor.h"
 #include "estimator/factors/lidar_factors.h"
 #include "estimator/factors/preintegration.h"
 #include "estimator/features/loam_features.h"
@@ -117,7 +118,10 @@ struct Estimator::NodeExtras {
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
-    : config_(config), sinks_(std::move(sinks)), submaps_(config.options.submap) {
+    : config_(config),
+      sinks_(std::move(sinks)),
+      straight_(config.options.straight_track),
+      submaps_(config.options.submap) {
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
   inertial_.sway_time_constant_s = config_.options.odometer_sway_time_constant_s;
@@ -499,6 +503,8 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   // Backend: the new state, its pair factors, then rounds of matching and optimisation.
   if (!first) {
     window_->Push(t_end, pred, pre);
+    if (o.switches.use_imu && o.straight_track.sigma_rad > 0.0)
+      HoldStraightHeading(prev, pred, &result);
     NodeExtras* before = extras_.empty() ? nullptr : extras_.back().get();
     if (before && before->has_rail && extras->has_rail) {
       window_->AddNewestPairFactor(std::make_shared<RailPlaneFactor>(before->rail_normal,
@@ -669,6 +675,44 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   inertial_.Trim(last_node_t_ - 1.0);
 }
 
+void Estimator::HoldStraightHeading(const NavState& prev,
+                                    const NavState& pred,
+                                    FrameResult* result) {
+  const StraightTrackOptions& st = config_.options.straight_track;
+  // The gyro's turn about the vertical, its bias estimate put back (StraightTrackDetector).
+  const double t_new = window_->Time(window_->size() - 1);
+  const double bias_up = (prev.q * prev.bg).z();
+  const double turn = HeadingOf(pred.q) - HeadingOf(prev.q);
+  straight_.Add(t_new,
+                std::atan2(std::sin(turn), std::cos(turn)) + bias_up * (t_new - last_node_t_),
+                bias_up);
+  if (straight_.ended()) {
+    // The train has begun to turn: the states still in the window may be in the curve's
+    // transition already, so none of them keeps the hold.
+    window_->ClearUnaryFactors();
+    straight_heading_.reset();
+  }
+  if (straight_.started()) {
+    // The straight's heading: the mean over its recognition span of the final headings and of
+    // the window's current ones, each less the gyro's deviation from its line there (the car
+    // body's sway, or the last of a transition).
+    std::vector<double> headings;
+    for (const auto& [t, h] : recent_headings_) headings.push_back(h - straight_.DeviationAt(t));
+    for (int i = 0; i < window_->size(); ++i) {
+      headings.push_back(HeadingOf(window_->State(i).q) - straight_.DeviationAt(window_->Time(i)));
+    }
+    const double h0 = headings.front();
+    double sum = 0.0;
+    for (double h : headings) sum += std::atan2(std::sin(h - h0), std::cos(h - h0));
+    straight_heading_ = h0 + sum / static_cast<double>(headings.size());
+  }
+  if (straight_heading_) {
+    window_->AddNewestUnaryFactor(
+        std::make_shared<HeadingHoldFactor>(*straight_heading_, st.sigma_rad));
+    result->straight_hold = true;
+  }
+}
+
 void Estimator::AddTrackBedFactor(const NodeExtras& newest, FrameResult* result) {
   const TrackBedOptions& b = config_.options.track_bed;
   const int n = window_->size();
@@ -735,6 +779,10 @@ void Estimator::EmitOldest() {
   }
   extras->bed.clear();
   extras->bed.shrink_to_fit();
+  recent_headings_.emplace_back(t, HeadingOf(s.q));
+  while (!recent_headings_.empty() &&
+         recent_headings_.front().first < t - config_.options.straight_track.detect_s)
+    recent_headings_.pop_front();
   result.T_world_body = PoseOf(s);
   result.v_world = s.v;
   result.odometer_scale = s.c;
@@ -904,6 +952,10 @@ void Estimator::AlignGravity(bool last_chance) {
     if (std::abs(g_est.norm() - g_w.z()) < 0.03 * g_w.z() && angle_deg < 3.0) {
       const Eigen::Matrix3d R = q_fix.toRotationMatrix();
       window_->RotateWorld(R);
+      // The heading hold was in the old frame: the straight is recognised anew.
+      straight_.Reset();
+      straight_heading_.reset();
+      recent_headings_.clear();
       edge_map_->Rotate(R);
       plane_map_->Rotate(R);
       rail_map_->Rotate(R);

@@ -17,6 +17,7 @@
 #include "estimator/mapping/submap_builder.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/inertial_buffer.h"
+#include "estimator/pipeline/straight_track.h"
 
 namespace raillomer {
 
@@ -59,6 +60,7 @@ struct FrameResult {
   /// Per-residual information of both LiDARs' matches on the heading, 1/rad^2 (last round).
   double heading_information = 0.0;
   bool heading_projected = false;  ///< LiDAR factors blind to the heading (heading_projection)
+  bool straight_hold = false;      ///< on straight track: the heading held (straight_track)
   bool odometer_used = false;      ///< the odometer entered this interval's factor
   int solver_iterations = 0;
 };
@@ -146,6 +148,9 @@ class Estimator {
   /// The sleeper match of the newest frame against the earlier ones (TrackBedOptions): a
   /// factor on the along-track motion from the previous state.
   void AddTrackBedFactor(const NodeExtras& newest, FrameResult* result);
+  /// Feeds the gyro's heading change from `prev` to `pred` to the straight-track detector and
+  /// holds the newest state's heading while the track is straight (StraightTrackOptions).
+  void HoldStraightHeading(const NavState& prev, const NavState& pred, FrameResult* result);
   /// Puts a frame's features into the local map at the given pose, once.
   void AddToMap(NodeExtras* node, const Eigen::Isometry3d& T_world_body);
   /// Hands a final state to the sinks (and picks keyframes).
@@ -181,7 +186,12 @@ class Estimator {
   /// Track-bed points (world frame, final poses) of the frames that have left the window,
   /// newest last: with the window's own, the reference of the sleeper match.
   std::deque<std::vector<Eigen::Vector3d>> bed_history_;
-  bool gravity_pending_ = false;  ///< re-levelling still to come
+  StraightTrackDetector straight_;
+  /// The final headings (t, rad) of the states that left the window over the last
+  /// straight_track.detect_s: a straight's heading is their mean when it is recognised.
+  std::deque<std::pair<double, double>> recent_headings_;
+  std::optional<double> straight_heading_;  ///< the heading held, while on a straight
+  bool gravity_pending_ = false;            ///< re-levelling still to come
   double next_gravity_try_s_ = 0.0;
   std::deque<std::unique_ptr<NodeExtras>> held_;  ///< final states held until re-levelling
   bool initialized_ = false;

@@ -79,7 +79,7 @@ bool RunWriter::Open(const std::string& out_dir,
                  lidar,
                  lidar);
   }
-  std::fprintf(timing_, ",bed_shift_m,heading_information,heading_projected\n");
+  std::fprintf(timing_, ",bed_shift_m,heading_information,heading_projected,straight_hold\n");
   return true;
 }
 
@@ -200,7 +200,11 @@ void RunWriter::WriteFrame(const FrameResult& f) {
   } else {
     std::fprintf(timing_, ",");
   }
-  std::fprintf(timing_, ",%.3f,%d\n", f.heading_information, f.heading_projected ? 1 : 0);
+  std::fprintf(timing_,
+               ",%.3f,%d,%d\n",
+               f.heading_information,
+               f.heading_projected ? 1 : 0,
+               f.straight_hold ? 1 : 0);
   if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
 }
 

@@ -13,6 +13,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 
+#include "estimator/factors/heading_factor.h"
 #include "estimator/factors/pose_manifold.h"
 
 namespace raillomer {
@@ -344,6 +345,47 @@ TEST(RailPlaneFactor, ConstrainsRollPitchAndHeightOnly) {
   EXPECT_NEAR((jac_j * roll).norm(), 10.0, 1e-9);
   EXPECT_NEAR((jac_j * pitch).norm(), 10.0, 1e-9);
   EXPECT_NEAR((jac_j * height).norm(), 5.0, 1e-9);
+}
+
+TEST(HeadingHoldFactor, ResidualIsTheHeadingErrorWrapped) {
+  // Heading 0.3 rad with roll and pitch: the body's x axis still points 0.3 rad from world x.
+  const Eigen::Quaterniond q = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()) *
+                               Eigen::AngleAxisd(-0.05, Eigen::Vector3d::UnitY()) *
+                               Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX());
+  EXPECT_NEAR(HeadingOf(q), 0.3, 1e-12);
+  Pose pose;
+  Eigen::Map<Eigen::Vector3d>(pose.data()) = Eigen::Vector3d(5.0, -2.0, 1.0);
+  Eigen::Map<Eigen::Quaterniond>(pose.data() + 3) = q;
+  EXPECT_NEAR(EvaluateScalar(HeadingHoldFactor(0.29, 1e-3), {pose.data()}), 10.0, 1e-9);
+  // Across +-pi: 3.1 rad held to -3.1 rad is 0.083 rad off, not 6.2.
+  Pose back = MakePose(Eigen::Vector3d::Zero(), Eigen::Vector3d(0.0, 0.0, 3.1));
+  EXPECT_NEAR(EvaluateScalar(HeadingHoldFactor(-3.1, 1.0), {back.data()}), 6.2 - 2.0 * M_PI, 1e-12);
+}
+
+TEST(HeadingHoldFactor, JacobianMatchesNumeric) {
+  for (const Eigen::Vector3d& rv : {Eigen::Vector3d(0.0, 0.0, 0.0),
+                                    Eigen::Vector3d(0.02, -0.01, 1.2),
+                                    Eigen::Vector3d(0.1, 0.2, -2.0),
+                                    Eigen::Vector3d(0.03, 0.01, 3.1)}) {
+    Pose pose = MakePose(Eigen::Vector3d(1.0, 2.0, 3.0), rv);
+    const HeadingHoldFactor factor(0.5, 2e-3);
+    ExpectJacobiansMatch(factor, {pose.data()}, 1e-6);
+  }
+}
+
+TEST(HeadingHoldFactor, LeavesPositionAndRollFree) {
+  // A tilted pose: moving it, or turning it about its own x axis (roll), leaves the heading.
+  Pose pose = MakePose(Eigen::Vector3d(1.0, 2.0, 3.0), Eigen::Vector3d(0.05, -0.03, 0.7));
+  const HeadingHoldFactor factor(0.6, 1e-3);
+  const double r0 = EvaluateScalar(factor, {pose.data()});
+  const PoseManifold manifold;
+  for (int k : {0, 1, 2, 3}) {
+    Eigen::Matrix<double, 6, 1> delta = Eigen::Matrix<double, 6, 1>::Zero();
+    delta(k) = 0.01;
+    Pose moved;
+    manifold.Plus(pose.data(), delta.data(), moved.data());
+    EXPECT_NEAR(EvaluateScalar(factor, {moved.data()}), r0, 1e-9) << "tangent " << k;
+  }
 }
 
 TEST(LongitudinalShiftFactor, ResidualIsForwardMotion) {

@@ -102,6 +102,9 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"track_bed:\n    max_search_m: 0.3", "track_bed: max_search_m must be in"},
       {"track_bed:\n    sigma_m: -1", "track_bed: sigma_m must be >= 0"},
       {"track_bed:\n    sigma: 0.01", "unknown key 'estimator.track_bed.sigma'"},
+      {"straight_track:\n    sigma_rad: -0.001", "straight_track: sigma_rad must be in [0, 0.1]"},
+      {"straight_track:\n    detect_s: 0", "straight_track: detect_s must be in [0.5, 600]"},
+      {"straight_track:\n    tolerance: 0.001", "unknown key 'estimator.straight_track.tolerance'"},
   };
   EstimatorConfig config;
   std::string error;
@@ -133,7 +136,12 @@ TEST(EstimatorConfig, OverridesTunables) {
       "    min_range_m: 3.5\n"
       "  track_bed:\n"
       "    sigma_m: 0.02\n"
-      "    history_frames: 4\n";
+      "    history_frames: 4\n"
+      "  straight_track:\n"
+      "    sigma_rad: 0.002\n"
+      "    detect_s: 8\n"
+      "    tolerance_rad: 0.0015\n"
+      "    max_rate_rps: 0.0002\n";
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
   EXPECT_EQ(config.options.window_size, 8);
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
@@ -154,6 +162,13 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.track_bed.sigma_m, 0.02);
   EXPECT_EQ(config.options.track_bed.history_frames, 4);
   EXPECT_NE(config.Describe().find("track bed (sleepers): sigma 0.02 m"), std::string::npos)
+      << config.Describe();
+  EXPECT_DOUBLE_EQ(config.options.straight_track.sigma_rad, 0.002);
+  EXPECT_DOUBLE_EQ(config.options.straight_track.detect_s, 8.0);
+  EXPECT_DOUBLE_EQ(config.options.straight_track.tolerance_rad, 0.0015);
+  EXPECT_DOUBLE_EQ(config.options.straight_track.max_rate_rps, 0.0002);
+  EXPECT_NE(config.Describe().find("straight track (heading hold): sigma 0.002 rad"),
+            std::string::npos)
       << config.Describe();
   EXPECT_NE(
       config.Describe().find("rail-head lines matched sideways, sigma 0.2 m, within 12 m ahead"),
