@@ -4,15 +4,16 @@
 
 #include <Eigen/Core>
 
+#include "estimator/factors/gnss_factors.h"
+
 namespace raillomer {
 
-namespace {
-double Wrap(double a) { return std::atan2(std::sin(a), std::cos(a)); }
-}  // namespace
+double HeadingOf(const Eigen::Matrix3d& R_world_body) {
+  return std::atan2(R_world_body(1, 0), R_world_body(0, 0));
+}
 
 double HeadingOf(const Eigen::Quaterniond& q_world_body) {
-  const Eigen::Matrix3d R = q_world_body.normalized().toRotationMatrix();
-  return std::atan2(R(1, 0), R(0, 0));
+  return HeadingOf(q_world_body.normalized().toRotationMatrix());
 }
 
 HeadingHoldFactor::HeadingHoldFactor(double heading_ref_rad, double sigma_rad)
@@ -23,7 +24,7 @@ bool HeadingHoldFactor::Evaluate(double const* const* parameters,
                                  double** jacobians) const {
   Eigen::Map<const Eigen::Quaterniond> q(parameters[0] + 3);
   const Eigen::Matrix3d R = q.normalized().toRotationMatrix();
-  residuals[0] = weight_ * Wrap(std::atan2(R(1, 0), R(0, 0)) - heading_ref_);
+  residuals[0] = weight_ * WrapAngle(HeadingOf(R) - heading_ref_);
   if (jacobians && jacobians[0]) {
     // The body x axis a = R e1 moves by R (dtheta x e1) = R(:,1) dtheta_z - R(:,2) dtheta_y
     // under q' = q Exp(dtheta); the heading atan2(a_y, a_x) by (a_x da_y - a_y da_x) / |a_xy|^2.

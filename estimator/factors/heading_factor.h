@@ -8,6 +8,7 @@ namespace raillomer {
 
 /// The heading of a body attitude: the direction of its x axis in the world's horizontal plane,
 /// counter-clockwise from world x (rad, in (-pi, pi]).
+double HeadingOf(const Eigen::Matrix3d& R_world_body);
 double HeadingOf(const Eigen::Quaterniond& q_world_body);
 
 /// Holds a pose's heading to a reference (a straight track's, StraightTrackDetector):

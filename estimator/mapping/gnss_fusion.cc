@@ -9,12 +9,11 @@
 #include <ceres/normal_prior.h>
 
 #include "estimator/factors/gnss_factors.h"
+#include "estimator/factors/heading_factor.h"
 
 namespace raillomer {
 
 namespace {
-
-double YawOf(const Eigen::Matrix3d& R) { return std::atan2(R(1, 0), R(0, 0)); }
 
 Eigen::Matrix3d Rz(double yaw) {
   return Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
@@ -312,7 +311,7 @@ void GnssFusion::AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu) {
   const Eigen::Isometry3d& T_odom_body = pair.T_odom_body;
   Node n;
   n.p_odom = T_odom_body.translation();
-  n.yaw_odom = YawOf(T_odom_body.linear());
+  n.yaw_odom = HeadingOf(T_odom_body.linear());
   n.distance_m = pair.distance_m;
   n.t_s = pair.t_s;
   n.fix_enu = fix_enu;
@@ -321,7 +320,7 @@ void GnssFusion::AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu) {
   n.x[0] = T.translation().x();
   n.x[1] = T.translation().y();
   n.x[2] = T.translation().z();
-  n.x[3] = YawOf(T.linear());
+  n.x[3] = HeadingOf(T.linear());
   nodes_.push_back(n);
   while (static_cast<int>(nodes_.size()) > options_.max_nodes) {
     nodes_.pop_front();
@@ -428,8 +427,8 @@ Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double
   SpanFit(ca.anchor_enu, cb.anchor_enu, ca.Apply(b.p_odom), &pa);
   SpanFit(cb.anchor_enu, ca.anchor_enu, cb.Apply(a.p_odom), &pb);
   const double w = (t_s - a.t_s) / (b.t_s - a.t_s);
-  const double yaw_a = YawOf(A.linear() * T_odom_body.linear().transpose());
-  const double yaw_b = YawOf(B.linear() * T_odom_body.linear().transpose());
+  const double yaw_a = HeadingOf(A.linear() * T_odom_body.linear().transpose());
+  const double yaw_b = HeadingOf(B.linear() * T_odom_body.linear().transpose());
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = Rz(yaw_a + w * WrapAngle(yaw_b - yaw_a)) * T_odom_body.linear();
   T.translation() = (1.0 - w) * pa + w * pb;

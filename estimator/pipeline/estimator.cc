@@ -13,6 +13,7 @@
 #include "estimator/backend/local_map.h"
 #include "estimator/backend/scan_matching.h"
 #include "estimator/backend/sliding_window.h"
+#include "estimator/factors/gnss_factors.h"
 #include "estimator/factors/heading_factor.h"
 #include "estimator/factors/lidar_factors.h"
 #include "estimator/factors/preintegration.h"
@@ -682,9 +683,8 @@ void Estimator::HoldStraightHeading(const NavState& prev,
   // The gyro's turn about the vertical, its bias estimate put back (StraightTrackDetector).
   const double t_new = window_->Time(window_->size() - 1);
   const double bias_up = (prev.q * prev.bg).z();
-  const double turn = HeadingOf(pred.q) - HeadingOf(prev.q);
   straight_.Add(t_new,
-                std::atan2(std::sin(turn), std::cos(turn)) + bias_up * (t_new - last_node_t_),
+                WrapAngle(HeadingOf(pred.q) - HeadingOf(prev.q)) + bias_up * (t_new - last_node_t_),
                 bias_up);
   if (straight_.ended()) {
     // The train has begun to turn: the states still in the window may be in the curve's
@@ -703,7 +703,7 @@ void Estimator::HoldStraightHeading(const NavState& prev,
     }
     const double h0 = headings.front();
     double sum = 0.0;
-    for (double h : headings) sum += std::atan2(std::sin(h - h0), std::cos(h - h0));
+    for (double h : headings) sum += WrapAngle(h - h0);
     straight_heading_ = h0 + sum / static_cast<double>(headings.size());
   }
   if (straight_heading_) {

@@ -188,7 +188,8 @@ class Estimator {
   std::deque<std::vector<Eigen::Vector3d>> bed_history_;
   StraightTrackDetector straight_;
   /// The final headings (t, rad) of the states that left the window over the last
-  /// straight_track.detect_s: a straight's heading is their mean when it is recognised.
+  /// straight_track.detect_s: with the window's, a straight's heading is their mean, each less
+  /// the gyro's deviation from its line, when it is recognised.
   std::deque<std::pair<double, double>> recent_headings_;
   std::optional<double> straight_heading_;  ///< the heading held, while on a straight
   bool gravity_pending_ = false;            ///< re-levelling still to come

@@ -29,7 +29,7 @@ void StraightTrackDetector::Reset() {
   samples_.clear();
   heading_ = 0.0;
   straight_ = started_ = ended_ = false;
-  rate_ = spread_ = fit_t_ = fit_h_ = fit_slope_ = 0.0;
+  rate_ = fit_t_ = fit_h_ = fit_slope_ = 0.0;
 }
 
 double StraightTrackDetector::DeviationAt(double t_s) const {
@@ -73,11 +73,11 @@ void StraightTrackDetector::Add(double t_s, double raw_heading_change_rad, doubl
     fit_h_ = h_mean;
     fit_slope_ = slope;
     rate_ = slope - bias_rps;
-    spread_ = 0.0;
+    double spread = 0.0;
     for (const auto& [t, h] : samples_) {
-      spread_ = std::max(spread_, std::abs(h - h_mean - slope * (t - t_mean)));
+      spread = std::max(spread, std::abs(h - h_mean - slope * (t - t_mean)));
     }
-    now = spread_ <= options_.tolerance_rad && std::abs(rate_) <= options_.max_rate_rps;
+    now = spread <= options_.tolerance_rad && std::abs(rate_) <= options_.max_rate_rps;
   }
   straight_ = now;
   started_ = now && !was;

@@ -46,10 +46,8 @@ class StraightTrackDetector {
   /// The last Add() began a straight stretch, or ended one (the train began to turn).
   bool started() const { return started_; }
   bool ended() const { return ended_; }
-  /// The fitted line's slope less the bias, and its largest residual, at the last Add() (rad/s,
-  /// rad).
+  /// The fitted line's slope less the bias at the last Add() (rad/s).
   double rate_rps() const { return rate_; }
-  double spread_rad() const { return spread_; }
   /// How far the gyro's heading at time t_s (a time given to Add(), within the span) lay from
   /// the fitted line: the car body's sway about the track's heading, or 0 when t_s is not in
   /// the span.
@@ -60,7 +58,7 @@ class StraightTrackDetector {
   std::deque<std::pair<double, double>> samples_;  ///< (t, integrated heading)
   double heading_ = 0.0;
   bool straight_ = false, started_ = false, ended_ = false;
-  double rate_ = 0.0, spread_ = 0.0;
+  double rate_ = 0.0;
   double fit_t_ = 0.0, fit_h_ = 0.0, fit_slope_ = 0.0;  ///< the line: h = fit_h + slope (t - fit_t)
 };
 
