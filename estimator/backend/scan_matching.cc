@@ -110,9 +110,11 @@ LidarOnlySolution SolveLidarOnly(const LidarMatches& matches,
   using Mat6 = Eigen::Matrix<double, 6, 6>;
   using Vec6 = Eigen::Matrix<double, 6, 1>;
   Mat6 H = Mat6::Zero();
+  Vec6 b = Vec6::Zero();
   for (int it = 0; it < max_iterations; ++it) {
     H.setZero();
-    Vec6 b = Vec6::Zero();
+    b.setZero();
+    out.T_linearized = out.T_world_body;
     const Eigen::Matrix3d R = out.T_world_body.linear();
     const Eigen::Vector3d t = out.T_world_body.translation();
     // Residual r(x) with x = [dp (world), dtheta (body)]: dr/dp = a^T, dr/dtheta = -a^T R [p]x.
@@ -164,6 +166,19 @@ LidarOnlySolution SolveLidarOnly(const LidarMatches& matches,
   u.tail<3>() = out.T_world_body.linear().transpose() * Eigen::Vector3d::UnitZ();
   const double variance = u.dot((H / n + 1e-12 * Mat6::Identity()).ldlt().solve(u));
   out.heading_information = variance > 0.0 ? 1.0 / variance : 0.0;
+  // The heading's profile, in world-frame rotations phi = R dtheta: the normal equations
+  // become T^T H T and T^T b with T = diag(I, R^T); minimising over phi_z alone gives
+  // phi_z = -(b_z + H_z,o o) / H_zz for the other five directions o.
+  const Eigen::Matrix3d R_lin = out.T_linearized.linear();
+  Mat6 T = Mat6::Identity();
+  T.bottomRightCorner<3, 3>() = R_lin.transpose();
+  const Mat6 H_world = T.transpose() * H * T;
+  const Vec6 b_world = T.transpose() * b;
+  const double h_zz = H_world(5, 5);
+  if (h_zz > 1e-9 * std::max(1.0, H_world.trace())) {
+    out.heading_z0 = -b_world(5) / h_zz;
+    out.heading_gain = -H_world.block<1, 5>(5, 0).transpose() / h_zz;
+  }
   return out;
 }
 

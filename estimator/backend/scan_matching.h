@@ -63,6 +63,13 @@ struct LidarOnlySolution {
   /// Per-residual information on the heading (rotation about world z) with the other five
   /// directions free, in 1/rad^2: how well the matches alone hold the heading.
   double heading_information = 0.0;
+  /// The heading's profile at `T_linearized` (the pose the last iteration started from): for
+  /// a pose moved from it by dp (world) and turned by phi (world rotation vector), the turn
+  /// about world z the matches would then make, to first order,
+  /// heading_z0 + heading_gain . [dp; phi_x; phi_y] (PoseRemapping).
+  Eigen::Isometry3d T_linearized = Eigen::Isometry3d::Identity();
+  double heading_z0 = 0.0;
+  Eigen::Matrix<double, 5, 1> heading_gain = Eigen::Matrix<double, 5, 1>::Zero();
   int iterations = 0;
   bool converged = false;
 };

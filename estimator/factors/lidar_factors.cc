@@ -284,26 +284,41 @@ bool RemappedPoseCost::Evaluate(double const* const* parameters,
   Eigen::Map<Eigen::Vector3d> p(pose);
   if (remapping_.direction) p = remapping_.p0 + projector_ * (p - remapping_.p0);
   Eigen::Matrix3d rotation_map = Eigen::Matrix3d::Identity();
+  // d(remapped body-frame turn) / d(position), through the heading's profile.
+  Eigen::Matrix3d position_to_rotation = Eigen::Matrix3d::Zero();
   if (remapping_.q0) {
     const Eigen::Quaterniond q(pose[6], pose[3], pose[4], pose[5]);
-    // The rotation since q0 in the world frame, without its part about z.
-    Eigen::Vector3d delta = LogQuaternion(q * remapping_.q0->conjugate());
-    delta.z() = 0.0;
+    // The rotation since q0 in the world frame, its part about z replaced by the profile's.
+    const Eigen::Vector3d delta_in = LogQuaternion(q * remapping_.q0->conjugate());
+    Eigen::Vector3d delta = delta_in;
+    const Eigen::Vector3d k_p = remapping_.heading_gain.head<3>();
+    const Eigen::Vector3d k_r(remapping_.heading_gain(3), remapping_.heading_gain(4), 0.0);
+    delta.z() = remapping_.heading_z0 + k_p.dot(p - remapping_.heading_p_ref) +
+                k_r.x() * delta.x() + k_r.y() * delta.y();
     const Eigen::Quaterniond q_remapped = (ExpQuaternion(delta) * *remapping_.q0).normalized();
     Eigen::Map<Eigen::Quaterniond>(pose + 3) = q_remapped;
-    // A body-frame turn dtheta of q is R dtheta in the world; without its z part it is the
-    // remapped pose's body-frame turn R'^T P R dtheta.
-    Eigen::Matrix3d P = Eigen::Matrix3d::Identity();
-    P(2, 2) = 0.0;
-    rotation_map = q_remapped.toRotationMatrix().transpose() * P * q.toRotationMatrix();
+    // A body-frame turn dtheta of q moves delta by Jl^-1(delta) R dtheta; its z part replaced
+    // (M = P + e_z k_r^T, P: no z part), delta' turns the remapped pose by R'^T Jl(delta')
+    // d delta' in its body frame (Jl: the left Jacobian of SO(3), to first order).
+    Eigen::Matrix3d M = Eigen::Matrix3d::Identity();
+    M(2, 2) = 0.0;
+    M.row(2) = k_r.transpose();
+    const Eigen::Matrix3d out = q_remapped.toRotationMatrix().transpose() *
+                                (Eigen::Matrix3d::Identity() + 0.5 * Skew(delta));
+    rotation_map =
+        out * M * (Eigen::Matrix3d::Identity() - 0.5 * Skew(delta_in)) * q.toRotationMatrix();
+    position_to_rotation = out.col(2) * k_p.transpose();
   }
   const double* remapped[1] = {pose};
   if (!inner_->Evaluate(remapped, residuals, jacobians)) return false;
   if (jacobians != nullptr && jacobians[0] != nullptr) {
     Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 7, Eigen::RowMajor>> J(
         jacobians[0], num_residuals(), 7);
+    if (remapping_.q0) {
+      J.leftCols<3>() += J.middleCols<3>(3) * position_to_rotation;
+      J.middleCols<3>(3) = (J.middleCols<3>(3) * rotation_map).eval();
+    }
     if (remapping_.direction) J.leftCols<3>() = (J.leftCols<3>() * projector_).eval();
-    if (remapping_.q0) J.middleCols<3>(3) = (J.middleCols<3>(3) * rotation_map).eval();
   }
   return true;
 }

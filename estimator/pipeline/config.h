@@ -139,8 +139,11 @@ struct EstimatorOptions {
   /// held, the heading follows the registration's small steady pulls (+565 urad a frame on
   /// the embankment at true poses), and the yaw gyro bias with it (README, "Where the
   /// estimator stands"). rich_high_mixed_b's frames score 20-140, the embankment's 2-5 (10th-90th
-  /// percentile). 0 disables.
-  double heading_projection = 10.0;
+  /// percentile), the curved tunnel's 11-16. A frame left so is evaluated at the heading its
+  /// matches would take for the rest of its pose (their profile), not at its predicted one:
+  /// held there, the pull went sideways into the points ahead, and the odometer's sideways term
+  /// turned it back into heading (the tunnel's curve 2 mrad, README). 0 disables.
+  double heading_projection = 20.0;
   /// s: the car body's rotation faster than this is its sway on the suspension, about its own
   /// origin (InertialBuffer::SwayAt, the gyro's angles high-passed): that roll does not swing the
   /// odometer's lever arm over the rail, and that pitch does not tilt the wheels' path, which

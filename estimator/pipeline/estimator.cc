@@ -620,7 +620,13 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         remapping.direction = frame.weakest_direction;
         remapping.p0 = T_current.translation();
       }
-      if (result.heading_projected) remapping.q0 = Eigen::Quaterniond(T_current.linear());
+      if (result.heading_projected) {
+        // frame is one iteration from T_current: its profile is linearised there.
+        remapping.q0 = Eigen::Quaterniond(T_current.linear());
+        remapping.heading_z0 = frame.heading_z0;
+        remapping.heading_gain = frame.heading_gain;
+        remapping.heading_p_ref = T_current.translation();
+      }
       cost = std::make_shared<RemappedPoseCost>(std::move(cost), remapping);
     }
     window_->SetNewestLidarFactor(std::move(cost));

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include "estimator/factors/lidar_factors.h"
 #include "estimator/factors/pose_manifold.h"
 
 namespace raillomer {
@@ -118,6 +119,69 @@ TEST(ScanMatching, AnEdgeOnScatteredNeighboursIsNotMatched) {
   const LidarMatches both = MatchFeatures(soft, scan, I, edges, planes);
   ASSERT_EQ(both.lines.size(), 2u);
   for (const LineMatch& line : both.lines) EXPECT_EQ(line.soft, line.p_body.y() < 0.0);
+}
+
+/// Sum of squared residuals of `cost` at pose T.
+double CostAt(const ceres::CostFunction& cost, const Eigen::Isometry3d& T) {
+  double pose[7];
+  Eigen::Map<Eigen::Vector3d> position(pose);
+  Eigen::Map<Eigen::Quaterniond> rotation(pose + 3);
+  position = T.translation();
+  rotation = Eigen::Quaterniond(T.linear());
+  const double* blocks[1] = {pose};
+  Eigen::VectorXd r(cost.num_residuals());
+  EXPECT_TRUE(cost.Evaluate(blocks, r.data(), nullptr));
+  return r.squaredNorm();
+}
+
+/// The sideways offset (body y) from T that minimises `cost` with the rotation held at T's:
+/// the vertex of the parabola through three offsets.
+double SidewaysOptimum(const ceres::CostFunction& cost, const Eigen::Isometry3d& T) {
+  const double h = 0.05;
+  auto at = [&](double y) {
+    Eigen::Isometry3d moved = T;
+    moved.translation() += T.linear().col(1) * y;
+    return CostAt(cost, moved);
+  };
+  const double c_minus = at(-h), c0 = at(0.0), c_plus = at(h);
+  return 0.5 * h * (c_minus - c_plus) / (c_minus - 2.0 * c0 + c_plus);
+}
+
+// A frame whose matches would turn it 3 mrad from its prediction (a registration's pull)
+// and whose walls are all seen ahead. Held at the prediction's heading, those walls are
+// best met by moving the frame sideways by the turn times their distance ahead; at the
+// heading's profile (where the matches would turn it for the rest of the pose) the sideways
+// optimum stays where the matches put the frame.
+TEST(ScanMatching, AHeadingLeftOutIsProfiledNotHeld) {
+  const Eigen::Isometry3d truth = Pose(12.0, 0.0, 0.0, 0.0, 0.0, 0.003);
+  const Eigen::Isometry3d prediction = Pose(12.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  LidarMatches m;
+  auto add = [&](const Eigen::Vector3d& world, const Eigen::Vector3d& normal) {
+    m.planes.push_back({truth.inverse() * world, normal, -normal.dot(world)});
+  };
+  for (int i = 0; i < 400; ++i) {
+    const double x = 17.0 + 25.0 * u(rng);  // 5-30 m ahead
+    add({x, 6.0, 6.0 * u(rng)}, Eigen::Vector3d::UnitY());
+    add({x, -6.0, 6.0 * u(rng)}, -Eigen::Vector3d::UnitY());
+    add({x, -6.0 + 12.0 * u(rng), 0.0}, Eigen::Vector3d::UnitZ());
+    add({60.0, -6.0 + 12.0 * u(rng), 6.0 * u(rng)}, -Eigen::Vector3d::UnitX());
+  }
+  const LidarOnlySolution frame = SolveLidarOnly(m, prediction, 1);
+  EXPECT_NEAR(frame.heading_z0, 0.003, 1e-4);
+  std::vector<PlaneTerm> terms;
+  for (const PlaneMatch& p : m.planes) terms.push_back({p.p_body, p.normal, p.d, 1.0});
+  const auto cost = std::make_shared<LidarFrameCost>(terms, std::vector<LineTerm>{}, 10.0);
+  PoseRemapping held;
+  held.q0 = Eigen::Quaterniond(prediction.linear());
+  PoseRemapping profiled = held;
+  profiled.heading_z0 = frame.heading_z0;
+  profiled.heading_gain = frame.heading_gain;
+  profiled.heading_p_ref = prediction.translation();
+  // Walls 17-42 m out from the frame: the held heading moves it about 8 cm sideways.
+  EXPECT_GT(std::abs(SidewaysOptimum(RemappedPoseCost(cost, held), prediction)), 0.05);
+  EXPECT_LT(std::abs(SidewaysOptimum(RemappedPoseCost(cost, profiled), prediction)), 0.002);
 }
 
 TEST(ScanMatching, NoMatchesAgainstAnEmptyMap) {

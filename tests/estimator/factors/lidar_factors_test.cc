@@ -243,6 +243,50 @@ TEST(RemappedPoseCost, HeadingJacobianMatchesNumeric) {
   both.p0 = Position(pose) + Eigen::Vector3d(0.3, -0.2, 0.1);
   both.direction = Eigen::Vector3d(1.0, 1.0, 0.2);
   ExpectJacobiansMatch(RemappedPoseCost(line, both), {pose.data()});
+  // With the heading's profile the turn about z follows the position and the level turns; the
+  // remapped rotation is then milliradians from q0, so first order again.
+  PoseRemapping profiled = HeadingRemapping(q);
+  profiled.heading_z0 = 0.004;
+  profiled.heading_gain << 0.01, -0.02, 0.005, 0.3, -0.2;
+  profiled.heading_p_ref = Position(pose) + Eigen::Vector3d(0.2, 0.1, -0.1);
+  ExpectJacobiansMatch(RemappedPoseCost(line, profiled), {pose.data()}, 2e-3);
+  profiled.p0 = both.p0;
+  profiled.direction = both.direction;
+  ExpectJacobiansMatch(RemappedPoseCost(line, profiled), {pose.data()}, 2e-3);
+}
+
+// With a profile the wrapped cost is still blind to the turn about the vertical, and it
+// evaluates the inner cost at the profile's heading.
+TEST(RemappedPoseCost, TheProfileSetsTheHeading) {
+  Pose pose = kTruePose;
+  const Eigen::Quaterniond q(Rotation(pose));
+  auto inner = std::make_shared<PointToPlaneFactor>(
+      Eigen::Vector3d(20.0, 5.0, -1.0), Eigen::Vector3d(0.0, 1.0, 0.2).normalized(), 0.3, 1.0);
+  PoseRemapping profiled = HeadingRemapping(q);
+  profiled.heading_z0 = 0.01;
+  profiled.heading_gain << 0.0, 0.05, 0.0, 0.0, 0.0;
+  profiled.heading_p_ref = Position(pose);
+  const RemappedPoseCost projected(inner, profiled);
+  auto turned = [&](const Pose& from, double yaw) {
+    Pose out = from;
+    Eigen::Map<Eigen::Quaterniond>(out.data() + 3) =
+        (Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())) *
+         Eigen::Quaterniond(Rotation(from)))
+            .normalized();
+    return out;
+  };
+  Pose at_z0 = turned(pose, 0.01);
+  EXPECT_NEAR(
+      EvaluateScalar(projected, {pose.data()}), EvaluateScalar(*inner, {at_z0.data()}), 1e-9);
+  Pose yawed = turned(pose, -0.04);
+  EXPECT_NEAR(
+      EvaluateScalar(projected, {yawed.data()}), EvaluateScalar(*inner, {at_z0.data()}), 1e-9);
+  // 0.2 m along world y adds 0.05 * 0.2 = 0.01 rad to the heading the inner cost sees.
+  Pose moved = pose;
+  moved[1] += 0.2;
+  Pose moved_at = turned(moved, 0.02);
+  EXPECT_NEAR(
+      EvaluateScalar(projected, {moved.data()}), EvaluateScalar(*inner, {moved_at.data()}), 1e-9);
 }
 
 // The wrapped cost does not change with a turn about the vertical, and changes as before with a
