@@ -104,11 +104,11 @@ struct PoseRemapping {
   std::optional<Eigen::Quaterniond> q0;  ///< set: the heading is left out
   /// With q0: the heading is not held at q0's but put where the LiDAR itself would turn it
   /// for the rest of the pose (its profile, LidarOnlySolution::heading_z0 and heading_gain of
-  /// scan_matching.h): the turn about
-  /// world z since q0 is heading_z0 + heading_gain . [p - heading_p_ref; the turn about world
-  /// x and y since q0]. Held at q0's heading, a frame whose registration pulls the heading
-  /// would pass that pull on sideways (the points ahead lie off by the turn), and the odometer's
-  /// sideways term would turn it back into heading. Zero gain and z0: held at q0's heading.
+  /// scan_matching.h): the turn about world z since q0 is heading_z0 + heading_gain .
+  /// [p - heading_p_ref; the turn about world x and y since q0]. Held at q0's heading, a frame
+  /// whose registration pulls the heading would pass that pull on sideways (the points ahead lie
+  /// off by the turn), and the odometer's sideways term would turn it back into heading. Zero gain
+  /// and z0: held at q0's heading.
   double heading_z0 = 0.0;
   Eigen::Matrix<double, 5, 1> heading_gain = Eigen::Matrix<double, 5, 1>::Zero();
   Eigen::Vector3d heading_p_ref = Eigen::Vector3d::Zero();

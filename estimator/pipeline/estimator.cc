@@ -621,11 +621,11 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
         remapping.p0 = T_current.translation();
       }
       if (result.heading_projected) {
-        // frame is one iteration from T_current: its profile is linearised there.
-        remapping.q0 = Eigen::Quaterniond(T_current.linear());
+        // The profile is about the pose it was linearised at (T_current, one iteration).
+        remapping.q0 = Eigen::Quaterniond(frame.T_linearized.linear());
         remapping.heading_z0 = frame.heading_z0;
         remapping.heading_gain = frame.heading_gain;
-        remapping.heading_p_ref = T_current.translation();
+        remapping.heading_p_ref = frame.T_linearized.translation();
       }
       cost = std::make_shared<RemappedPoseCost>(std::move(cost), remapping);
     }
