@@ -158,16 +158,25 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
   // every mast spacing NDT slides, and the odometry (its scale corrected by GNSS) is better.
   // The slide is taken out before the trust region is checked, so that it does not throw
   // away the height and the turn that NDT did see.
+  // Likewise the turn about the vertical: where the corridor offers little to turn against (a
+  // bare curve), NDT's turn wanders by milliradians from one submap to the next, and each one
+  // registered onto the last carries the heading along the chain, which then walks sideways off
+  // the track. The placement's heading is GNSS-corrected and better there.
   Eigen::Isometry3d delta = r.T_target_source;
   if (r.converged) {
     const Eigen::Vector3d a = p.P[p.anchor].translation();
+    if (options_.ndt_min_turn_arm_m > 0.0 &&
+        HoldPoorlySeenTurn(r.information, a, options_.ndt_min_turn_arm_m, &delta)) {
+      ++stats_.ndt_turn_held;
+    }
     Eigen::Vector3d along = p.P[p.anchor].linear().col(0);
     along.z() = 0.0;
     if (along.norm() > 1e-6) {
       along.normalize();
-      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(r.translation_information);
+      const Eigen::Matrix3d translation_information = r.information.topLeftCorner<3, 3>();
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(translation_information);
       const double strongest = std::max(eig.eigenvalues().maxCoeff(), 1e-12);
-      const double ratio = along.dot(r.translation_information * along) / strongest;
+      const double ratio = along.dot(translation_information * along) / strongest;
       if (ratio < options_.ndt_min_along_information) {
         delta.translation() -= along * along.dot(delta * a - a);
       }

@@ -99,6 +99,11 @@ struct SubmapOptions {
   /// direction: its information along the track at least this share of the strongest (0.1-0.2
   /// past a station, under 0.01 on plain track with evenly spaced masts).
   double ndt_min_along_information = 0.05;
+  /// NDT's turn about the vertical is used only where the registration constrains it: its
+  /// information (the other directions free) at least that of the strongest translation at
+  /// this lever arm (m). 5-15 m along built-up or mast-lined track, 1-2 m in a bare curve, where
+  /// the placement's GNSS-corrected heading is kept instead. 0 always uses NDT's turn.
+  double ndt_min_turn_arm_m = 3.0;
 };
 
 /// One keyframe for the submap builder.
@@ -127,8 +132,9 @@ struct SubmapStats {
   uint64_t icp_gnss = 0;      ///< ... from their GNSS guess, after the odometry one failed
   uint64_t icp_failed = 0;    ///< keyframes left at their odometry pose
   uint64_t ndt_applied = 0;
-  uint64_t ndt_rejected = 0;  ///< not converged or beyond the trust region
-  uint64_t ndt_revisits = 0;  ///< registrations onto an earlier pass's submaps too
+  uint64_t ndt_rejected = 0;   ///< not converged or beyond the trust region
+  uint64_t ndt_turn_held = 0;  ///< registrations whose turn was held (poorly seen)
+  uint64_t ndt_revisits = 0;   ///< registrations onto an earlier pass's submaps too
 };
 
 /// Groups consecutive keyframes into submaps (paper IV.E: 10 keyframes each) in two stages.

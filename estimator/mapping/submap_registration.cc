@@ -3,6 +3,9 @@
 
 #include <cmath>
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/registration/gicp.h>
@@ -116,7 +119,7 @@ Registration NdtRegister(const std::vector<Eigen::Vector3f>& source,
     if (!r.converged) return r;
     start = ndt.getFinalTransformation();
     r.fitness_m2 = ndt.getFitnessScore(2.0 * resolution);
-    r.translation_information = -ndt.HessianAt(aligned).topLeftCorner<3, 3>();
+    r.information = -ndt.HessianAt(aligned);
   }
   r.T_target_source = ToIsometry(start);
   return r;
@@ -129,6 +132,38 @@ void CorrectionSize(const Eigen::Isometry3d& guess,
   const Eigen::Isometry3d delta = guess.inverse() * result;
   *translation_m = (result.translation() - guess.translation()).norm();
   *rotation_rad = Eigen::AngleAxisd(delta.linear()).angle();
+}
+
+bool HoldPoorlySeenTurn(const Eigen::Matrix<double, 6, 6>& information,
+                        const Eigen::Vector3d& pivot,
+                        double min_arm_m,
+                        Eigen::Isometry3d* delta) {
+  // The information about the pivot: a correction (t_p, w) there is (t_p + pivot x w, w) about
+  // the origin.
+  Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Identity();
+  J.topRightCorner<3, 3>() << 0.0, -pivot.z(), pivot.y(), pivot.z(), 0.0, -pivot.x(), -pivot.y(),
+      pivot.x(), 0.0;
+  const Eigen::Matrix<double, 6, 6> I = J.transpose() * information * J;
+  const double strongest = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(I.topLeftCorner<3, 3>())
+                               .eigenvalues()
+                               .maxCoeff();
+  const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(I);
+  if (!(strongest > 0.0) || !lu.isInvertible()) return false;
+  const double covariance_turn = lu.inverse()(5, 5);
+  if (covariance_turn > 0.0 && 1.0 / covariance_turn >= min_arm_m * min_arm_m * strongest) {
+    return false;
+  }
+  const Eigen::AngleAxisd turn(delta->linear());
+  Eigen::Matrix<double, 6, 1> d;
+  d << *delta * pivot - pivot, turn.angle() * turn.axis();
+  // Minimise (x - d)' I (x - d) with x(5) = 0.
+  Eigen::Matrix<double, 5, 1> x =
+      d.head<5>() + I.topLeftCorner<5, 5>().ldlt().solve(I.block<5, 1>(0, 5) * d(5));
+  const Eigen::Vector3d w(x(3), x(4), 0.0);
+  delta->linear() = w.norm() > 0.0 ? Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix()
+                                   : Eigen::Matrix3d::Identity();
+  delta->translation() = pivot + x.head<3>() - delta->linear() * pivot;
+  return true;
 }
 
 }  // namespace raillomer

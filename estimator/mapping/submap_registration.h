@@ -13,9 +13,10 @@ struct Registration {
   int iterations = 0;       ///< NDT: iterations of its last pass (PCL's ICP does not report them)
   double fitness_m2 = 0.0;  ///< mean squared distance of the matched points
   Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
-  /// NDT only: the information (negative Hessian of the score) on the translation at the
-  /// result, for telling well-constrained directions from degenerate ones.
-  Eigen::Matrix3d translation_information = Eigen::Matrix3d::Zero();
+  /// NDT only: the information (negative Hessian of the score) at the result, for telling
+  /// well-constrained directions from degenerate ones. Parameters: the translation, then the
+  /// turns about x, y and z, all about the source frame's origin.
+  Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
 };
 
 struct IcpOptions {
@@ -62,5 +63,16 @@ void CorrectionSize(const Eigen::Isometry3d& guess,
                     const Eigen::Isometry3d& result,
                     double* translation_m,
                     double* rotation_rad);
+
+/// Takes the turn about the vertical out of an NDT correction `delta` (about the clouds' origin)
+/// where the registration sees it poorly, and re-solves the other five directions with the turn
+/// held: on the score's quadratic model about the result (`information`, as in Registration),
+/// the best correction whose turn about `pivot` is zero. The turn counts as seen where its
+/// information (the other directions free) is at least that of the strongest translation at a
+/// lever arm of `min_arm_m`. Returns true when the turn was held.
+bool HoldPoorlySeenTurn(const Eigen::Matrix<double, 6, 6>& information,
+                        const Eigen::Vector3d& pivot,
+                        double min_arm_m,
+                        Eigen::Isometry3d* delta);
 
 }  // namespace raillomer

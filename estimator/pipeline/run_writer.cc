@@ -266,7 +266,8 @@ std::string SubmapJson(const SubmapStats& m) {
                 sizeof(text),
                 "\"submaps\": {\"count\": %llu, \"chained\": %llu, \"chain_resets\": %llu, "
                 "\"icp_odometry\": %llu, \"icp_gnss\": %llu, \"icp_failed\": %llu, "
-                "\"ndt_applied\": %llu, \"ndt_rejected\": %llu, \"ndt_revisits\": %llu}",
+                "\"ndt_applied\": %llu, \"ndt_rejected\": %llu, \"ndt_turn_held\": %llu, "
+                "\"ndt_revisits\": %llu}",
                 static_cast<unsigned long long>(m.submaps),
                 static_cast<unsigned long long>(m.chained),
                 static_cast<unsigned long long>(m.chain_resets),
@@ -275,6 +276,7 @@ std::string SubmapJson(const SubmapStats& m) {
                 static_cast<unsigned long long>(m.icp_failed),
                 static_cast<unsigned long long>(m.ndt_applied),
                 static_cast<unsigned long long>(m.ndt_rejected),
+                static_cast<unsigned long long>(m.ndt_turn_held),
                 static_cast<unsigned long long>(m.ndt_revisits));
   return text;
 }
