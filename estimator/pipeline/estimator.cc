@@ -119,10 +119,14 @@ struct Estimator::NodeExtras {
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
-    : config_(config),
-      sinks_(std::move(sinks)),
-      straight_(config.options.straight_track),
-      submaps_(config.options.submap) {
+    : config_(config), sinks_(std::move(sinks)), straight_(config.options.straight_track) {
+  if (sinks_.stream) {
+    submaps_ = std::make_unique<SubmapWorker>(config.options.submap, [this](api::Submap s) {
+      std::lock_guard<std::mutex> lock(stream_mutex_);
+      s.sequence = stream_sequence_++;
+      sinks_.stream->OnSubmap(s);
+    });
+  }
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
   inertial_.sway_time_constant_s = config_.options.odometer_sway_time_constant_s;
@@ -892,14 +896,17 @@ void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyfram
   if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
   if (!sinks_.stream) return;
   api::StreamPose pose;
-  pose.sequence = stream_sequence_++;
   pose.stamp_ns = frame.stamp_ns;
   pose.georeferenced = frame.georeferenced;
   pose.utm_zone = frame.utm_zone;
   pose.p = frame.T_world_body.translation() +
            (frame.georeferenced ? frame.origin_utm : Eigen::Vector3d::Zero());
   pose.q = Eigen::Quaterniond(frame.T_world_body.linear()).normalized();
-  sinks_.stream->OnPose(pose);
+  {
+    std::lock_guard<std::mutex> lock(stream_mutex_);
+    pose.sequence = stream_sequence_++;
+    sinks_.stream->OnPose(pose);
+  }
   if (!keyframe) return;
   SubmapKeyframe k;
   k.stamp_ns = keyframe->stamp_ns;
@@ -914,11 +921,8 @@ void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyfram
   k.odometry_suspect = frame.solver_iterations >= config_.options.max_solver_iterations;
   k.points_body = std::move(keyframe->points_body);  // the sinks above are done with it
   k.intensities = std::move(keyframe->intensities);
-  for (api::Submap& s : submaps_.Add(std::move(k))) {
-    s.sequence = stream_sequence_++;
-    sinks_.stream->OnSubmap(s);
-  }
-  stats_.submaps = submaps_.stats();
+  submaps_->Add(std::move(k));
+  stats_.submaps = submaps_->stats();
 }
 
 void Estimator::AlignGravity(bool last_chance) {
@@ -1009,12 +1013,9 @@ void Estimator::Finish() {
     gnss_->Finish();
     ReleaseHeld(true);
   }
-  if (sinks_.stream) {
-    for (api::Submap& s : submaps_.Flush()) {
-      s.sequence = stream_sequence_++;
-      sinks_.stream->OnSubmap(s);
-    }
-    stats_.submaps = submaps_.stats();
+  if (submaps_) {
+    submaps_->Finish();
+    stats_.submaps = submaps_->stats();
   }
 }
 

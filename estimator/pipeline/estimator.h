@@ -4,6 +4,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -18,6 +19,7 @@
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/inertial_buffer.h"
 #include "estimator/pipeline/straight_track.h"
+#include "estimator/pipeline/submap_worker.h"
 
 namespace raillomer {
 
@@ -109,7 +111,8 @@ struct EstimatorStats {
 
 /// raillomer-estimator's core: feeds on a time-ordered stream of sensor messages and estimates
 /// the train's state with the sliding-window factor graph of paper section IV. No I/O, no
-/// threads of its own beyond running the two LiDARs' frontends side by side.
+/// threads of its own beyond running the two LiDARs' frontends side by side and building the
+/// submaps on a worker (SubmapWorker), which calls the stream sink's OnSubmap from there.
 class Estimator {
  public:
   Estimator(const EstimatorConfig& config, EstimatorSinks sinks);
@@ -208,8 +211,11 @@ class Estimator {
     std::optional<Keyframe> keyframe;
   };
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
-  SubmapBuilder submaps_;
+  /// Serialises the stream sink's calls (poses from here, submaps from the worker) and their
+  /// sequence numbers.
+  std::mutex stream_mutex_;
   uint64_t stream_sequence_ = 0;
+  std::unique_ptr<SubmapWorker> submaps_;  ///< with a stream sink only
   std::deque<HeldOutput> gnss_held_;
   bool gnss_gave_up_ = false;
   std::map<std::string, uint64_t> warning_counts_;

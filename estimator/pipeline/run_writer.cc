@@ -109,8 +109,7 @@ void RunWriter::WriteSubmap(const api::Submap& s) {
   std::snprintf(name, sizeof(name), "%06u.pcd", s.index);
   std::string error;
   if (!api::WriteFileAtomically(out_dir_ + "/submaps/" + name, api::EncodeSubmapPcd(s), &error)) {
-    failed_ = true;
-    failure_ = error;
+    Failed(error);
     return;
   }
   std::fprintf(submap_index_,
@@ -246,8 +245,7 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
   }
   std::string error;
   if (!api::WriteFileAtomically(name, pcd, &error)) {
-    failed_ = true;
-    failure_ = error;
+    Failed(error);
     return;
   }
   std::fputs(PoseLine(k.stamp_ns, T).c_str(), keyframes_);
@@ -337,11 +335,28 @@ bool RunWriter::Close(const EstimatorStats& s,
                 extra_json.empty() ? "" : ",\n  ",
                 extra_json.c_str());
   if (!api::WriteFileAtomically(out_dir_ + "/summary.json", text, error)) return false;
-  if (failed_) {
-    *error = failure_;
+  if (failed()) {
+    *error = failure();
     return false;
   }
   return true;
+}
+
+void RunWriter::Failed(const std::string& error) {
+  std::lock_guard<std::mutex> lock(failure_mutex_);
+  if (failed_) return;  // the first failure is the one to report
+  failed_ = true;
+  failure_ = error;
+}
+
+bool RunWriter::failed() const {
+  std::lock_guard<std::mutex> lock(failure_mutex_);
+  return failed_;
+}
+
+std::string RunWriter::failure() const {
+  std::lock_guard<std::mutex> lock(failure_mutex_);
+  return failure_;
 }
 
 }  // namespace raillomer

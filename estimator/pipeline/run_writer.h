@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstdio>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -45,8 +46,8 @@ class RunWriter {
   /// Median and 95th percentile of frontend + backend time per frame.
   double MedianFrameMs() const;
   double PercentileFrameMs(double q) const;
-  bool failed() const { return failed_; }
-  const std::string& failure() const { return failure_; }
+  bool failed() const;
+  std::string failure() const;
 
  private:
   std::string out_dir_;
@@ -60,6 +61,10 @@ class RunWriter {
   void WriteHeader(const FrameResult* first);
   std::vector<double> frame_ms_, frontend_ms_, backend_ms_;
   size_t keyframe_count_ = 0;
+  /// A write that failed: WriteSubmap runs on the submap worker's thread, the rest on the
+  /// caller's.
+  void Failed(const std::string& error);
+  mutable std::mutex failure_mutex_;
   bool failed_ = false;
   std::string failure_;
 };

@@ -1,0 +1,70 @@
+// The submap worker builds on its own thread exactly what the builder builds in the caller's:
+// the same submaps, in order, the last one closed at Finish, none lost when the queue is full.
+#include <gtest/gtest.h>
+
+#include "estimator/mapping/submap_builder.h"
+#include "estimator/pipeline/submap_worker.h"
+
+namespace raillomer {
+namespace {
+
+SubmapKeyframe Keyframe(int k) {
+  SubmapKeyframe kf;
+  kf.stamp_ns = 1'000'000'000LL + k * 100'000'000LL;
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(500000.0 + 2.0 * k, 4000000.0, 30.0);
+  kf.T_world_body = T;
+  kf.T_odom_body = T;
+  kf.georeferenced = true;
+  kf.utm_zone = "32N";
+  for (int i = 0; i < 20; ++i) kf.points_body.emplace_back(2.0f, 0.1f * i, 1.0f);
+  kf.intensities.assign(kf.points_body.size(), static_cast<float>(k));
+  return kf;
+}
+
+SubmapOptions Plain() {
+  SubmapOptions o;
+  o.keyframes = 10;
+  o.voxel_m = 0.0;
+  o.icp = false;
+  o.ndt = false;
+  return o;
+}
+
+TEST(SubmapWorker, BuildsWhatTheBuilderBuildsInOrderAndClosesTheLastAtFinish) {
+  std::vector<api::Submap> direct;
+  SubmapBuilder builder(Plain());
+  for (int k = 0; k < 45; ++k) {
+    for (api::Submap& s : builder.Add(Keyframe(k))) direct.push_back(std::move(s));
+  }
+  for (api::Submap& s : builder.Flush()) direct.push_back(std::move(s));
+  ASSERT_EQ(direct.size(), 5u);  // four of ten, the last of five
+
+  // A queue of two: Add has to wait for the worker most of the time.
+  std::vector<api::Submap> emitted;
+  SubmapWorker worker(
+      Plain(), [&](api::Submap s) { emitted.push_back(std::move(s)); }, 2);
+  for (int k = 0; k < 45; ++k) worker.Add(Keyframe(k));
+  worker.Finish();
+  ASSERT_EQ(emitted.size(), direct.size());
+  for (size_t i = 0; i < direct.size(); ++i) {
+    EXPECT_EQ(emitted[i].index, direct[i].index);
+    EXPECT_EQ(emitted[i].first_stamp_ns, direct[i].first_stamp_ns);
+    EXPECT_EQ(emitted[i].keyframes.size(), direct[i].keyframes.size());
+    EXPECT_EQ(emitted[i].points, direct[i].points);
+    EXPECT_EQ(emitted[i].intensities, direct[i].intensities);
+  }
+  EXPECT_EQ(worker.stats().submaps, 5u);
+}
+
+TEST(SubmapWorker, TheDestructorFinishesWhatWasQueued) {
+  size_t emitted = 0;
+  {
+    SubmapWorker worker(Plain(), [&](api::Submap) { ++emitted; });
+    for (int k = 0; k < 15; ++k) worker.Add(Keyframe(k));
+  }
+  EXPECT_EQ(emitted, 2u);
+}
+
+}  // namespace
+}  // namespace raillomer
