@@ -5,6 +5,8 @@
 // the first from the archive of finished submaps.
 #include <cmath>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -24,13 +26,24 @@ Eigen::Isometry3d Pose(const Vec3& t, double yaw) {
   return T;
 }
 
+/// Points with 1 cm of Gaussian noise on each axis, from a seeded generator.
+class NoisyPoints {
+ public:
+  explicit NoisyPoints(unsigned seed) : rng_(seed) {}
+  void Add(const Vec3& p) { points_.push_back(p + Vec3(noise_(rng_), noise_(rng_), noise_(rng_))); }
+  std::vector<Vec3> Take() { return std::move(points_); }
+
+ private:
+  std::mt19937 rng_;
+  std::normal_distribution<double> noise_{0.0, 0.01};
+  std::vector<Vec3> points_;
+};
+
 /// A corridor in its own frame (x along the track): ground, a wall on either side with
 /// recesses, boxes, and masts every 8 m, sampled every 0.1 m with 1 cm noise.
 std::vector<Vec3> Corridor(double length_m) {
-  std::mt19937 rng(7);
-  std::normal_distribution<double> noise(0.0, 0.01);
-  std::vector<Vec3> points;
-  auto add = [&](const Vec3& p) { points.push_back(p + Vec3(noise(rng), noise(rng), noise(rng))); };
+  NoisyPoints points(7);
+  const auto add = [&](const Vec3& p) { points.Add(p); };
   for (double x = -10.0; x < length_m; x += 0.1) {
     for (double y = -6.0; y <= 6.0; y += 0.2) add(Vec3(x, y, 0.0));
     // Walls with a 0.5 m recess every 12 m, so the along-track position is observable.
@@ -67,7 +80,7 @@ std::vector<Vec3> Corridor(double length_m) {
       }
     }
   }
-  return points;
+  return points.Take();
 }
 
 /// What a sensor at pose T sees of the corridor (within 25 m), in its own frame.
@@ -133,10 +146,8 @@ TEST(Registration, NdtTakesOutASmallRotationAboutTheOrigin) {
 
 /// Bare track: ground 12 m wide and two rails, sampled every 0.1 m with 1 cm noise.
 std::vector<Vec3> BareTrack(double length_m) {
-  std::mt19937 rng(11);
-  std::normal_distribution<double> noise(0.0, 0.01);
-  std::vector<Vec3> points;
-  auto add = [&](const Vec3& p) { points.push_back(p + Vec3(noise(rng), noise(rng), noise(rng))); };
+  NoisyPoints points(11);
+  const auto add = [&](const Vec3& p) { points.Add(p); };
   for (double x = -10.0; x < length_m; x += 0.1) {
     for (double y = -6.0; y <= 6.0; y += 0.2) add(Vec3(x, y, 0.0));
     for (const double y : {-0.75, 0.75}) {
@@ -145,7 +156,7 @@ std::vector<Vec3> BareTrack(double length_m) {
       add(Vec3(x, y + 0.035, 0.17));
     }
   }
-  return points;
+  return points.Take();
 }
 
 /// The cost (x - d)' I (x - d) of the quadratic model HoldPoorlySeenTurn works on.
