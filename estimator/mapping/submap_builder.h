@@ -101,8 +101,8 @@ struct SubmapOptions {
   double ndt_min_along_information = 0.05;
   /// NDT's turn about the vertical is used only where the registration constrains it: its
   /// information (the other directions free) at least that of the strongest translation at
-  /// this lever arm (m). 5-15 m along built-up or mast-lined track, 1-2 m in a bare curve, where
-  /// the placement's GNSS-corrected heading is kept instead. 0 always uses NDT's turn.
+  /// this lever arm (m). Mostly 5-15 m along built-up or mast-lined track, 1-2 m in a bare curve,
+  /// where the placement's GNSS-corrected heading is kept instead. 0 always uses NDT's turn.
   double ndt_min_turn_arm_m = 3.0;
 };
 

@@ -11,6 +11,7 @@
 #include <pcl/registration/gicp.h>
 #include <pcl/registration/ndt.h>
 
+#include "estimator/factors/pose_manifold.h"
 #include "estimator/mapping/voxel_centroids.h"
 
 namespace raillomer {
@@ -141,15 +142,14 @@ bool HoldPoorlySeenTurn(const Eigen::Matrix<double, 6, 6>& information,
   // The information about the pivot: a correction (t_p, w) there is (t_p + pivot x w, w) about
   // the origin.
   Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Identity();
-  J.topRightCorner<3, 3>() << 0.0, -pivot.z(), pivot.y(), pivot.z(), 0.0, -pivot.x(), -pivot.y(),
-      pivot.x(), 0.0;
+  J.topRightCorner<3, 3>() = Skew(pivot);
   const Eigen::Matrix<double, 6, 6> I = J.transpose() * information * J;
   const double strongest = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(I.topLeftCorner<3, 3>())
                                .eigenvalues()
                                .maxCoeff();
   const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(I);
   if (!(strongest > 0.0) || !lu.isInvertible()) return false;
-  const double covariance_turn = lu.inverse()(5, 5);
+  const double covariance_turn = lu.solve(Eigen::Matrix<double, 6, 1>::Unit(5))(5);
   if (covariance_turn > 0.0 && 1.0 / covariance_turn >= min_arm_m * min_arm_m * strongest) {
     return false;
   }

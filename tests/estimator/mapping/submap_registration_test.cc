@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "estimator/factors/pose_manifold.h"
 #include "estimator/mapping/submap_archive.h"
 #include "estimator/mapping/submap_builder.h"
 #include "estimator/mapping/submap_registration.h"
@@ -198,8 +199,7 @@ TEST(Registration, AHeldTurnLeavesTheBestCorrectionWithoutIt) {
   EXPECT_GT(std::fabs(x(1) - d(1)), 1e-4) << "the sideways part moves with the turn taken out";
   // The model's information is about the origin: move it to the pivot as the function does.
   Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Identity();
-  J.topRightCorner<3, 3>() << 0.0, -pivot.z(), pivot.y(), pivot.z(), 0.0, -pivot.x(), -pivot.y(),
-      pivot.x(), 0.0;
+  J.topRightCorner<3, 3>() = Skew(pivot);
   const Eigen::Matrix<double, 6, 6> I = J.transpose() * information * J;
   const double best = ModelCost(I, x, d);
   for (int i = 0; i < 5; ++i) {
