@@ -35,6 +35,23 @@ double Percentile(std::vector<double> values, double q) {
   return values[k];
 }
 
+/// How far `p` lies from the triangle abc in plan (x, y): zero inside it.
+double PlanDistance(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& p) {
+  const Eigen::Vector2d q = p.head<2>();
+  const Eigen::Vector2d corners[3] = {a.head<2>(), b.head<2>(), c.head<2>()};
+  double sides[3], distance = 1e300;
+  for (int e = 0; e < 3; ++e) {
+    const Eigen::Vector2d& u = corners[e];
+    const Eigen::Vector2d edge = corners[(e + 1) % 3] - u;
+    sides[e] = edge.x() * (q.y() - u.y()) - edge.y() * (q.x() - u.x());
+    const double t = std::clamp(edge.dot(q - u) / std::max(edge.squaredNorm(), 1e-18), 0.0, 1.0);
+    distance = std::min(distance, (u + t * edge - q).norm());
+  }
+  const bool inside = (sides[0] >= 0.0 && sides[1] >= 0.0 && sides[2] >= 0.0) ||
+                      (sides[0] <= 0.0 && sides[1] <= 0.0 && sides[2] <= 0.0);
+  return inside ? 0.0 : distance;
+}
+
 /// A reference triangle ready for point tests: its plane and inward edge normals.
 struct Surface {
   ReferenceTriangle::Kind kind;
@@ -118,39 +135,41 @@ std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
       rail_tops.push_back(c);
     }
   }
-  // A rail's upward faces are its head top and its foot; the head is the one with nothing of the
-  // rail above it.
-  std::map<Cell2, std::vector<Vec3>> centroids;
-  constexpr double kCell = 0.25;
-  auto cell = [&](const Vec3& p) {
-    return Cell2{static_cast<int64_t>(std::floor(p.x() / kCell)),
-                 static_cast<int64_t>(std::floor(p.y() / kCell))};
-  };
+  // A rail's horizontal faces are its head top, the head's underside 5 cm below it and its foot
+  // 16 cm below (either way up, as above; the foot reaches 4 cm beyond the head on each side).
+  // The head top is the face with no face of its rail higher by more than a centimetre (a canted
+  // head tilts by millimetres across its width) within 10 cm in plan; the other rail of the
+  // track is 1.5 m away.
+  constexpr double kSameRailM = 0.1;
+  std::map<Cell2, std::vector<const Candidate*>> grid;
   for (const Candidate& c : rail_tops) {
-    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
-    centroids[cell(centroid)].push_back(centroid);
+    const Eigen::AlignedBox3d box = Eigen::AlignedBox3d(c.a).extend(c.b).extend(c.c);
+    const Cell2 lo = GridCell(box.min() - Vec3::Constant(kSameRailM));
+    const Cell2 hi = GridCell(box.max() + Vec3::Constant(kSameRailM));
+    for (int64_t x = lo.first; x <= hi.first; ++x) {
+      for (int64_t y = lo.second; y <= hi.second; ++y) grid[{x, y}].push_back(&c);
+    }
   }
+  const auto covered = [&](const Candidate& c) {
+    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
+    for (const Candidate* other : grid[GridCell(centroid)]) {
+      if (other == &c || PlanDistance(other->a, other->b, other->c, centroid) > kSameRailM)
+        continue;
+      // The other face's height where the centroid is (faces are within 25 degrees of level;
+      // the track's grade tilts them along its length).
+      const double z =
+          other->a.z() -
+          other->n.head<2>().dot(centroid.head<2>() - other->a.head<2>()) / other->n.z();
+      if (z > centroid.z() + 0.01) return true;
+    }
+    return false;
+  };
   std::vector<ReferenceTriangle> out;
   for (const Candidate& c : planes) {
     out.push_back({ReferenceTriangle::Kind::kPlane, c.a, c.b, c.c});
   }
   for (const Candidate& c : rail_tops) {
-    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
-    const Cell2 home = cell(centroid);
-    bool covered = false;
-    for (int64_t dx = -1; dx <= 1 && !covered; ++dx) {
-      for (int64_t dy = -1; dy <= 1 && !covered; ++dy) {
-        const auto it = centroids.find({home.first + dx, home.second + dy});
-        if (it == centroids.end()) continue;
-        for (const Vec3& other : it->second) {
-          if ((other - centroid).head<2>().norm() < 0.12 && other.z() > centroid.z() + 0.08) {
-            covered = true;
-            break;
-          }
-        }
-      }
-    }
-    if (!covered) out.push_back({ReferenceTriangle::Kind::kRailHead, c.a, c.b, c.c});
+    if (!covered(c)) out.push_back({ReferenceTriangle::Kind::kRailHead, c.a, c.b, c.c});
   }
   return out;
 }

@@ -130,24 +130,35 @@ TEST(MapSharpness, ReferenceSurfacesArePlatformTopsWallsAndRailHeads) {
   mesh.AddBox(Vec3(0, 0, 0.5), R, Vec3(10, 2, 0.5), sim::Material::kPlatform);  // top, bottom
   mesh.AddBox(Vec3(0, 20, 3), R, Vec3(5, 5, 3), sim::Material::kBuilding);      // 4 walls
   mesh.AddBox(Vec3(0, -5, 3), R, Vec3(1, 1, 1), sim::Material::kVegetation);    // not at all
-  // A rail: head top at z 0, foot top at z -0.16; only the head counts.
-  mesh.AddQuad(Vec3(0, -0.036, 0),
-               Vec3(2, -0.036, 0),
-               Vec3(2, 0.036, 0),
-               Vec3(0, 0.036, 0),
-               sim::Material::kRail);
-  mesh.AddQuad(Vec3(0, 0.0083, -0.16),
-               Vec3(2, 0.0083, -0.16),
-               Vec3(2, 0.075, -0.16),
-               Vec3(0, 0.075, -0.16),
-               sim::Material::kRail);
+  // A rail on a 3.5 % grade, with the simulator's profile: head top at z 0 (72 mm wide), the
+  // head's underside at z -0.05 either side of the web, the foot's top at z -0.16 and its bottom
+  // at z -0.172 (150 mm wide). Only the head top counts; faces wound either way, as in the
+  // corridor mesh.
+  constexpr double kGrade = 0.035;
+  const auto strip = [&](double from_y, double to_y, double z, bool up) {
+    const Vec3 a(0, from_y, z), b(2, from_y, z + 2 * kGrade), c(2, to_y, z + 2 * kGrade),
+        d(0, to_y, z);
+    if (up) {
+      mesh.AddQuad(a, b, c, d, sim::Material::kRail);
+    } else {
+      mesh.AddQuad(d, c, b, a, sim::Material::kRail);
+    }
+  };
+  strip(-0.036, 0.036, 0.0, false);
+  strip(0.0083, 0.036, -0.05, true);
+  strip(-0.036, -0.0083, -0.05, false);
+  strip(0.0083, 0.075, -0.16, true);
+  strip(-0.075, -0.0083, -0.16, true);
+  strip(-0.075, 0.075, -0.172, false);
   const std::vector<ReferenceTriangle> t = SelectReferenceTriangles(mesh, kOrigin);
   int planes = 0, rails = 0;
   for (const ReferenceTriangle& r : t) {
     if (r.kind == ReferenceTriangle::Kind::kPlane) ++planes;
     if (r.kind == ReferenceTriangle::Kind::kRailHead) {
       ++rails;
-      EXPECT_NEAR(r.a.z(), kOrigin.z(), 1e-6);
+      for (const Vec3& corner : {r.a, r.b, r.c}) {
+        EXPECT_NEAR(corner.z(), kOrigin.z() + kGrade * (corner.x() - kOrigin.x()), 1e-6);
+      }
     }
   }
   EXPECT_EQ(planes, 4 + 8);  // the platform's top and bottom, the building's four walls
