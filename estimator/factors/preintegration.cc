@@ -222,6 +222,11 @@ void Preintegration::Integrate(const Step& s) {
   const double imu_dt = noise_.imu_period_s > 0.0 ? std::min(dt, noise_.imu_period_s) : dt;
   q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / imu_dt);
   q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / imu_dt);
+  if (noise_.imu_period_s > 0.0 && dt > 1.5 * noise_.imu_period_s) {
+    // White noise of variance q over a step of dt moves the integral by (sqrt(q) dt)^2.
+    q_white.segment<3>(kNa).array() += Square(noise_.gap_accel_sigma_mps2);
+    q_white.segment<3>(kNg).array() += Square(noise_.gap_rate_sigma_radps);
+  }
   q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
   q_white(kNl) = Square(noise_.odometer_lateral_density) / dt;
   q_white(kNl + 1) = Square(noise_.odometer_vertical_density) / dt;

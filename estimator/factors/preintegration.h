@@ -38,6 +38,13 @@ struct PreintegrationNoise {
   /// is density^2 / min(dt, period) rather than density^2 / dt, and a 0.5 s dropout is not trusted
   /// like 100 real samples.
   double imu_period_s = 0.0;
+  /// rad/s and m/s^2: how far the body's turn rate and acceleration may stray from the straight
+  /// line between the samples around a bridged step (one of more than 1.5 sample periods). The
+  /// car body pitches and rolls on its suspension at about 1.4 Hz by up to 10 mrad/s, which no
+  /// interpolation across a dropout follows. Each adds (sigma dt)^2 to the step's rotation and
+  /// velocity variance, so the LiDARs and the odometer carry the motion across the gap.
+  double gap_rate_sigma_radps = 0.02;
+  double gap_accel_sigma_mps2 = 0.3;
 };
 
 /// Offsets of the blocks of the 19-row preintegration residual and error state (eq. 19).

@@ -284,7 +284,8 @@ std::string EstimatorConfig::Describe() const {
   s << "imu: " << rig.imu_topic << ", " << rig.imu_rate_hz << " Hz, gyro noise "
     << rig.noise.gyro_noise_density << ", accel noise " << rig.noise.accel_noise_density
     << ", gyro walk " << rig.noise.gyro_bias_walk << ", accel walk " << rig.noise.accel_bias_walk
-    << ", g " << rig.gravity_mps2 << "\n";
+    << ", across gaps rate " << rig.noise.gap_rate_sigma_radps << " accel "
+    << rig.noise.gap_accel_sigma_mps2 << ", g " << rig.gravity_mps2 << "\n";
   s << "odometer: " << rig.odometer_topic << " joint '" << rig.odometer_joint << "', wheel "
     << rig.wheel_diameter_m << " m, " << rig.pulses_per_rev << " pulses/rev, at ["
     << rig.p_body_odometer.transpose() << "] m, speed noise " << rig.noise.odometer_speed_density
@@ -403,6 +404,8 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       r.Read("gyro_bias_walk", &rig.noise.gyro_bias_walk);
       r.Read("accel_noise_density", &rig.noise.accel_noise_density);
       r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
+      r.Read("gap_rate_sigma_radps", &rig.noise.gap_rate_sigma_radps);
+      r.Read("gap_accel_sigma_mps2", &rig.noise.gap_accel_sigma_mps2);
       r.Read("gravity_mps2", &rig.gravity_mps2);
       if (!(rig.imu_rate_hz >= 1.0 && rig.imu_rate_hz <= 10000.0)) {
         r.Fail(r.Node("rate_hz"), "key 'imu.rate_hz' must be in [1, 10000] Hz");
@@ -483,6 +486,8 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
   const std::pair<const char*, double> walks[] = {
       {"imu.gyro_bias_walk", n.gyro_bias_walk},
       {"imu.accel_bias_walk", n.accel_bias_walk},
+      {"imu.gap_rate_sigma_radps", n.gap_rate_sigma_radps},
+      {"imu.gap_accel_sigma_mps2", n.gap_accel_sigma_mps2},
       {"estimator.odometer_scale_walk", n.odometer_scale_walk}};
   for (const auto& [key, value] : densities) {
     if (!(value > 0.0 && std::isfinite(value))) {

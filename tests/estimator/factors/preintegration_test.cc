@@ -385,7 +385,8 @@ TEST(PreintegrationTest, ABridgedGapIsNotTrustedLikeRealSamples) {
   PreintegrationNoise noise;
   noise.imu_period_s = kImuDt;
   const Vector3d gyro(0.0, 0.0, 0.01), accel(0.0, 0.0, kGravity);
-  auto theta_variance = [&](const PreintegrationNoise& n, int steps) {
+  // The variances of the yaw and of the velocity along x after 0.5 s in `steps` steps.
+  auto variances = [&](const PreintegrationNoise& n, int steps) {
     Preintegration pre(Vector3d::Zero(),
                        Vector3d::Zero(),
                        1.0,
@@ -394,16 +395,32 @@ TEST(PreintegrationTest, ABridgedGapIsNotTrustedLikeRealSamples) {
                        n,
                        kGravity);
     for (int k = 0; k <= steps; ++k) pre.Add(k == 0 ? 0.0 : 0.5 / steps, gyro, accel, 20.0, true);
-    return pre.covariance()(8, 8);  // yaw
+    return std::make_pair(pre.covariance()(8, 8), pre.covariance()(3, 3));
   };
-  const double sampled = theta_variance(noise, 100);
-  const double bridged = theta_variance(noise, 1);
+  // The samples' own noise: held through the step, not averaged down over it.
+  PreintegrationNoise sensor_only = noise;
+  sensor_only.gap_rate_sigma_radps = 0.0;
+  sensor_only.gap_accel_sigma_mps2 = 0.0;
+  const double sampled = variances(sensor_only, 100).first;
+  const double held = variances(sensor_only, 1).first;
   const double density = noise.gyro_noise_density;
   EXPECT_NEAR(sampled, density * density * 0.5, 1e-3 * sampled);
-  EXPECT_NEAR(bridged / sampled, 100.0, 1.0);
-  // Without the sample period the bridged step counts as if it had been sampled.
+  EXPECT_NEAR(held / sampled, 100.0, 1.0);
+  // The body's own motion across the gap, which the interpolation does not follow: the turn
+  // and the velocity are uncertain by sigma times the gap. Real samples are left as they were.
+  const double bridged_theta = variances(noise, 1).first;
+  const double rate = noise.gap_rate_sigma_radps * 0.5;
+  EXPECT_NEAR(bridged_theta, held + rate * rate, 1e-3 * bridged_theta);
+  PreintegrationNoise accel_only = sensor_only;  // (the turn's share of the velocity aside)
+  accel_only.gap_accel_sigma_mps2 = noise.gap_accel_sigma_mps2;
+  const double bridged_v = variances(accel_only, 1).second;
+  const double wander = noise.gap_accel_sigma_mps2 * 0.5;
+  EXPECT_NEAR(bridged_v, variances(sensor_only, 1).second + wander * wander, 1e-3 * bridged_v);
+  EXPECT_GT(std::sqrt(bridged_theta), 0.009);  // 10 mrad over the 0.5 s gap
+  EXPECT_NEAR(variances(noise, 100).first / sampled, 1.0, 1e-9);
+  // Without the sample period every step counts as if it had been sampled.
   PreintegrationNoise unknown_period;
-  EXPECT_NEAR(theta_variance(unknown_period, 1) / sampled, 1.0, 1e-4);
+  EXPECT_NEAR(variances(unknown_period, 1).first / sampled, 1.0, 1e-4);
 }
 
 INSTANTIATE_TEST_SUITE_P(Intervals,

@@ -54,6 +54,29 @@ TEST(EstimatorConfig, RejectsAnImuRateThatIsNotARate) {
   EXPECT_NE(error.find("imu.rate_hz"), std::string::npos) << error;
 }
 
+TEST(EstimatorConfig, ReadsTheImuGapMotionAndRejectsItNegative) {
+  const auto with = [](const std::string& lines) {
+    std::string yaml = DemoRigYaml();
+    const size_t at = yaml.find("rate_hz: 200");
+    yaml.insert(yaml.find('\n', at) + 1, lines);
+    return yaml;
+  };
+  EstimatorConfig config;
+  std::string error;
+  ASSERT_TRUE(
+      ParseEstimatorConfig(with("  gap_rate_sigma_radps: 0.05\n  gap_accel_sigma_mps2: 0\n"),
+                           "rig.yaml",
+                           &config,
+                           &error))
+      << error;
+  EXPECT_DOUBLE_EQ(config.rig.noise.gap_rate_sigma_radps, 0.05);
+  EXPECT_DOUBLE_EQ(config.rig.noise.gap_accel_sigma_mps2, 0.0);
+  EXPECT_NE(config.Describe().find("across gaps rate 0.05"), std::string::npos);
+  EXPECT_FALSE(
+      ParseEstimatorConfig(with("  gap_rate_sigma_radps: -0.1\n"), "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("imu.gap_rate_sigma_radps must be >= 0"), std::string::npos) << error;
+}
+
 TEST(EstimatorConfig, AnOdometerPointGivenIsKept) {
   std::string yaml = DemoRigYaml();
   const size_t at = yaml.find("odometer:\n");
