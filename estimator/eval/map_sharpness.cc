@@ -152,7 +152,8 @@ std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
   }
   const auto covered = [&](const Candidate& c) {
     const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
-    for (const Candidate* other : grid[GridCell(centroid)]) {
+    const auto cell = grid.find(GridCell(centroid));  // its own face put it there
+    for (const Candidate* other : cell->second) {
       if (other == &c || PlanDistance(other->a, other->b, other->c, centroid) > kSameRailM)
         continue;
       // The other face's height where the centroid is (faces are within 25 degrees of level;
