@@ -1,6 +1,7 @@
 #include "estimator/pipeline/submap_worker.h"
 
 #include <utility>
+#include <vector>
 
 namespace raillomer {
 
@@ -34,6 +35,11 @@ SubmapStats SubmapWorker::stats() const {
 }
 
 void SubmapWorker::Run() {
+  const auto emit = [this](std::vector<api::Submap> built) {
+    for (api::Submap& s : built) emit_(std::move(s));
+    std::lock_guard<std::mutex> lock(mutex_);
+    stats_ = builder_.stats();
+  };
   for (;;) {
     SubmapKeyframe keyframe;
     {
@@ -44,13 +50,9 @@ void SubmapWorker::Run() {
       queue_.pop_front();
     }
     changed_.notify_all();  // room in the queue
-    for (api::Submap& s : builder_.Add(std::move(keyframe))) emit_(std::move(s));
-    std::lock_guard<std::mutex> lock(mutex_);
-    stats_ = builder_.stats();
+    emit(builder_.Add(std::move(keyframe)));
   }
-  for (api::Submap& s : builder_.Flush()) emit_(std::move(s));
-  std::lock_guard<std::mutex> lock(mutex_);
-  stats_ = builder_.stats();
+  emit(builder_.Flush());
 }
 
 }  // namespace raillomer
