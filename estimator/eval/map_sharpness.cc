@@ -55,9 +55,12 @@ double PlanDistance(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& p) 
 /// A reference triangle ready for point tests: its plane and inward edge normals.
 struct Surface {
   ReferenceTriangle::Kind kind;
-  Vec3 a, n;
+  Vec3 corner[3], n;
   double d = 0.0;
   Vec3 edge_origin[3], edge_normal[3];
+  /// An edge is inner when a triangle of the same surface continues beyond it (the other half
+  /// of a quad, the next step of a rail); margins are kept from outer edges only.
+  bool inner[3] = {false, false, false};
   int64_t plane_key[2];  ///< the plane, quantised, so coplanar triangles share patches
 };
 
@@ -175,6 +178,40 @@ std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
   return out;
 }
 
+/// Whether two triangles belong to one surface: the same kind, within 10 degrees of each other
+/// (a rail's steps follow its curves and grades; a box's faces meet at right angles).
+bool SameSurface(const Surface& a, const Surface& b) {
+  static const double kCos = std::cos(10.0 * M_PI / 180.0);
+  return a.kind == b.kind && std::fabs(a.n.dot(b.n)) > kCos;
+}
+
+/// Marks the edges two triangles of one surface share.
+void MarkInnerEdges(std::vector<Surface>* surfaces) {
+  using Corner = std::tuple<int64_t, int64_t, int64_t>;
+  const auto corner = [](const Vec3& v) {
+    return Corner{std::llround(v.x() * 1000.0),
+                  std::llround(v.y() * 1000.0),
+                  std::llround(v.z() * 1000.0)};  // to a millimetre
+  };
+  std::map<std::pair<Corner, Corner>, std::vector<std::pair<uint32_t, int>>> edges;
+  for (uint32_t i = 0; i < surfaces->size(); ++i) {
+    const Surface& s = (*surfaces)[i];
+    for (int e = 0; e < 3; ++e) {
+      Corner from = corner(s.corner[e]), to = corner(s.corner[(e + 1) % 3]);
+      if (to < from) std::swap(from, to);
+      edges[{from, to}].push_back({i, e});
+    }
+  }
+  for (const auto& [key, sides] : edges) {
+    for (const auto& [i, e] : sides) {
+      Surface& s = (*surfaces)[i];
+      for (const auto& [j, f] : sides) {
+        if (j != i && SameSurface((*surfaces)[j], s)) s.inner[e] = true;
+      }
+    }
+  }
+}
+
 struct MapSharpness::Impl {
   SharpnessOptions options;
   std::vector<Surface> surfaces;
@@ -201,13 +238,38 @@ struct MapSharpness::Impl {
       for (int e = 0; e < 3; ++e) {
         inside = std::min(inside, s.edge_normal[e].dot(q - s.edge_origin[e]));
       }
-      if (inside < (plane ? options.plane_margin_m : -options.rail_overhang_m)) continue;
+      constexpr double kSeamM = 1e-4;  // neighbours share their edges to float precision
+      if (inside < -kSeamM) continue;
+      if (FromOuterEdges(q, s, it->second) <
+          (plane ? options.plane_margin_m : options.rail_margin_m)) {
+        continue;
+      }
       if (inside > best_inside) {
         best_inside = inside;
         best = static_cast<int>(index);
       }
     }
     return best;
+  }
+
+  /// How far `q`, on the surface of `s`, lies from the surface's outer edges: those of every
+  /// triangle of it in `nearby` (a rail head's two sides belong to different halves of a quad).
+  double FromOuterEdges(const Vec3& q,
+                        const Surface& s,
+                        const std::vector<uint32_t>& nearby) const {
+    double nearest = 1e9;
+    for (uint32_t index : nearby) {
+      const Surface& o = surfaces[index];
+      if (!SameSurface(o, s)) continue;
+      for (int e = 0; e < 3; ++e) {
+        if (o.inner[e]) continue;
+        const Vec3& from = o.corner[e];
+        const Vec3 edge = o.corner[(e + 1) % 3] - from;
+        const double t = std::clamp(edge.dot(q - from) / edge.squaredNorm(), 0.0, 1.0);
+        nearest = std::min(nearest, (from + t * edge - q).norm());
+      }
+    }
+    return nearest;
   }
 };
 
@@ -218,7 +280,9 @@ MapSharpness::MapSharpness(std::vector<ReferenceTriangle> triangles,
   for (const ReferenceTriangle& t : triangles) {
     Surface s;
     s.kind = t.kind;
-    s.a = t.a;
+    s.corner[0] = t.a;
+    s.corner[1] = t.b;
+    s.corner[2] = t.c;
     s.n = (t.b - t.a).cross(t.c - t.a).normalized();
     if (!s.n.allFinite()) continue;
     s.d = s.n.dot(t.a);
@@ -246,6 +310,7 @@ MapSharpness::MapSharpness(std::vector<ReferenceTriangle> triangles,
       for (int64_t y = lo.second; y <= hi.second; ++y) impl_->grid[{x, y}].push_back(index);
     }
   }
+  MarkInnerEdges(&impl_->surfaces);
 }
 
 MapSharpness::~MapSharpness() = default;

@@ -23,6 +23,14 @@ std::vector<ReferenceTriangle> Floor() {
   return {{ReferenceTriangle::Kind::kPlane, a, b, c}, {ReferenceTriangle::Kind::kPlane, a, c, d}};
 }
 
+/// A rail head's top, 72 mm wide and `length` long along x from kOrigin, as two triangles.
+std::vector<ReferenceTriangle> RailHeadTop(double length) {
+  const Vec3 a = kOrigin + Vec3(0, -0.036, 0), b = kOrigin + Vec3(length, -0.036, 0),
+             c = kOrigin + Vec3(length, 0.036, 0), d = kOrigin + Vec3(0, 0.036, 0);
+  return {{ReferenceTriangle::Kind::kRailHead, a, b, c},
+          {ReferenceTriangle::Kind::kRailHead, a, c, d}};
+}
+
 /// A submap of points on the floor with Gaussian noise of `sigma` along z, raised by `lift`.
 api::Submap FloorSubmap(double sigma, double lift, uint32_t seed) {
   std::mt19937 rng(seed);
@@ -77,11 +85,7 @@ TEST(MapSharpness, TwoSubmapsOffsetFromEachOtherBlurThePlane) {
 }
 
 TEST(MapSharpness, RailHeadHeightsAreComparedBetweenSubmaps) {
-  // A rail head 72 mm wide and 4 m long along x.
-  const Vec3 a = kOrigin + Vec3(0, -0.036, 0), b = kOrigin + Vec3(4, -0.036, 0),
-             c = kOrigin + Vec3(4, 0.036, 0), d = kOrigin + Vec3(0, 0.036, 0);
-  MapSharpness sharpness({{ReferenceTriangle::Kind::kRailHead, a, b, c},
-                          {ReferenceTriangle::Kind::kRailHead, a, c, d}});
+  MapSharpness sharpness(RailHeadTop(4.0));
   for (int k = 0; k < 3; ++k) {
     api::Submap s;
     s.index = static_cast<uint32_t>(10 + k);
@@ -122,6 +126,38 @@ TEST(MapSharpness, RailHeadHeightsAreComparedBetweenSubmaps) {
             "x,y,z,spread_m,submap,points,height_m,rms_m,truth_offset_m");
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 1 + 6);
   EXPECT_NE(csv.find(",0.0250,12,20,0.0250,0.0000,0.0000\n"), std::string::npos) << csv;
+}
+
+TEST(MapSharpness, PointsAtARailHeadsEdgeAreNotTakenForItsTop) {
+  // A rail head's sides drop from its edges: a map point there, below the top, is no measure
+  // of the top's height.
+  MapSharpness sharpness(RailHeadTop(2.0));
+  for (int k = 0; k < 2; ++k) {
+    api::Submap s;
+    s.index = static_cast<uint32_t>(k);
+    s.origin = kOrigin;
+    for (double x = 0.05; x < 2.0; x += 0.2) {
+      s.points.emplace_back(static_cast<float>(x), 0.0f, 0.0f);                  // the top's middle
+      s.points.emplace_back(static_cast<float>(x), 0.024f, 0.003f);              // 12 mm inside
+      if (k == 1) s.points.emplace_back(static_cast<float>(x), 0.033f, -0.03f);  // 3 mm: a side
+      if (k == 1) s.points.emplace_back(static_cast<float>(x), 0.04f, -0.02f);   // beyond it
+    }
+    sharpness.AddSubmap(s, Eigen::Isometry3d::Identity());
+  }
+  const SharpnessResult r = sharpness.Result();
+  EXPECT_EQ(r.rail_points, 40u);
+  EXPECT_EQ(r.rail_segments, 1u);
+  EXPECT_NEAR(r.rail_spread_max_m, 0.0, 1e-6);
+
+  // A point 12 mm inside the edge counts wherever it is: a submap 25 mm low there is seen.
+  api::Submap low;
+  low.index = 2;
+  low.origin = kOrigin;
+  for (double x = 0.05; x < 2.0; x += 0.2) {
+    low.points.emplace_back(static_cast<float>(x), 0.024f, -0.025f);
+  }
+  sharpness.AddSubmap(low, Eigen::Isometry3d::Identity());
+  EXPECT_NEAR(sharpness.Result().rail_spread_max_m, 0.0265, 1e-4);
 }
 
 TEST(MapSharpness, ReferenceSurfacesArePlatformTopsWallsAndRailHeads) {

@@ -157,7 +157,7 @@ TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
   EXPECT_LT(eval["ate_rmse_m"].get<double>(), 2.0);
   EXPECT_LT(eval["ate_max_m"].get<double>(), 3.0);
   // Issue 4's sharpness targets: 3 cm RMS normal to planes, rail heads from different
-  // submaps within 3 cm (the demo reaches about 1.2 cm and 1.8 cm).
+  // submaps within 3 cm (the demo reaches about 1.2 cm and 0.9 cm).
   const nlohmann::json& map = eval["map"];
   EXPECT_GT(map["plane_patches"].get<int>(), 50);
   EXPECT_LT(map["plane_rms_m"].get<double>(), 0.03);
