@@ -35,6 +35,14 @@ double Percentile(std::vector<double> values, double q) {
   return values[k];
 }
 
+/// How far `p` lies from the segment from..to (2-D or 3-D).
+template <typename V>
+double SegmentDistance(const V& from, const V& to, const V& p) {
+  const V edge = to - from;
+  const double t = std::clamp(edge.dot(p - from) / std::max(edge.squaredNorm(), 1e-18), 0.0, 1.0);
+  return (from + t * edge - p).norm();
+}
+
 /// How far `p` lies from the triangle abc in plan (x, y): zero inside it.
 double PlanDistance(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& p) {
   const Eigen::Vector2d q = p.head<2>();
@@ -44,20 +52,20 @@ double PlanDistance(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& p) 
     const Eigen::Vector2d& u = corners[e];
     const Eigen::Vector2d edge = corners[(e + 1) % 3] - u;
     sides[e] = edge.x() * (q.y() - u.y()) - edge.y() * (q.x() - u.x());
-    const double t = std::clamp(edge.dot(q - u) / std::max(edge.squaredNorm(), 1e-18), 0.0, 1.0);
-    distance = std::min(distance, (u + t * edge - q).norm());
+    distance = std::min(distance, SegmentDistance(u, corners[(e + 1) % 3], q));
   }
   const bool inside = (sides[0] >= 0.0 && sides[1] >= 0.0 && sides[2] >= 0.0) ||
                       (sides[0] <= 0.0 && sides[1] <= 0.0 && sides[2] <= 0.0);
   return inside ? 0.0 : distance;
 }
 
-/// A reference triangle ready for point tests: its plane and inward edge normals.
+/// A reference triangle ready for point tests: its plane and inward edge normals (edge e runs
+/// from corner e to corner e + 1).
 struct Surface {
   ReferenceTriangle::Kind kind;
   Vec3 corner[3], n;
   double d = 0.0;
-  Vec3 edge_origin[3], edge_normal[3];
+  Vec3 edge_normal[3];
   /// An edge is inner when a triangle of the same surface continues beyond it (the other half
   /// of a quad, the next step of a rail); margins are kept from outer edges only.
   bool inner[3] = {false, false, false};
@@ -236,7 +244,7 @@ struct MapSharpness::Impl {
       const Vec3 q = p - distance * s.n;
       double inside = 1e9;
       for (int e = 0; e < 3; ++e) {
-        inside = std::min(inside, s.edge_normal[e].dot(q - s.edge_origin[e]));
+        inside = std::min(inside, s.edge_normal[e].dot(q - s.corner[e]));
       }
       constexpr double kSeamM = 1e-4;  // neighbours share their edges to float precision
       if (inside < -kSeamM) continue;
@@ -262,11 +270,8 @@ struct MapSharpness::Impl {
       const Surface& o = surfaces[index];
       if (!SameSurface(o, s)) continue;
       for (int e = 0; e < 3; ++e) {
-        if (o.inner[e]) continue;
-        const Vec3& from = o.corner[e];
-        const Vec3 edge = o.corner[(e + 1) % 3] - from;
-        const double t = std::clamp(edge.dot(q - from) / edge.squaredNorm(), 0.0, 1.0);
-        nearest = std::min(nearest, (from + t * edge - q).norm());
+        if (!o.inner[e])
+          nearest = std::min(nearest, SegmentDistance(o.corner[e], o.corner[(e + 1) % 3], q));
       }
     }
     return nearest;
@@ -286,14 +291,12 @@ MapSharpness::MapSharpness(std::vector<ReferenceTriangle> triangles,
     s.n = (t.b - t.a).cross(t.c - t.a).normalized();
     if (!s.n.allFinite()) continue;
     s.d = s.n.dot(t.a);
-    const Vec3 corners[3] = {t.a, t.b, t.c};
     for (int e = 0; e < 3; ++e) {
-      const Vec3& from = corners[e];
-      const Vec3& to = corners[(e + 1) % 3];
-      const Vec3& opposite = corners[(e + 2) % 3];
+      const Vec3& from = s.corner[e];
+      const Vec3& to = s.corner[(e + 1) % 3];
+      const Vec3& opposite = s.corner[(e + 2) % 3];
       Vec3 m = s.n.cross(to - from).normalized();
       if (m.dot(opposite - from) < 0.0) m = -m;
-      s.edge_origin[e] = from;
       s.edge_normal[e] = m;
     }
     // Coplanar triangles (the two halves of a quad) share a key: the normal to 1e-3 and the
