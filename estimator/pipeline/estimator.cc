@@ -822,6 +822,7 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       angle_deg >= config_.options.keyframe_angle_deg) {
     have_keyframe_ = true;
     last_keyframe_pose_ = result.T_world_body;
+    ++stats_.keyframes;
     if ((sinks_.on_keyframe || sinks_.stream) && !extras->cloud.empty()) {
       Keyframe k;
       k.stamp_ns = result.stamp_ns;

@@ -98,6 +98,9 @@ struct EstimatorSinks {
 /// Counters over the whole run.
 struct EstimatorStats {
   uint64_t frames = 0;
+  /// Frames taken as keyframes (every keyframe_distance_m or keyframe_angle_deg): the submaps'
+  /// building blocks, written to keyframes/ only with write_keyframes.
+  uint64_t keyframes = 0;
   uint64_t lidar_frames_dropped = 0;  ///< out of order, duplicates, unusable
   uint64_t imu_samples = 0, imu_rejected = 0, imu_gaps = 0;
   uint64_t odometer_samples = 0, odometer_rejected = 0, odometer_outliers = 0;

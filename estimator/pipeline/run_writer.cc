@@ -250,7 +250,6 @@ void RunWriter::WriteKeyframe(const Keyframe& k) {
   }
   std::fputs(PoseLine(k.stamp_ns, T).c_str(), keyframes_);
   std::fflush(keyframes_);
-  ++keyframe_count_;
 }
 
 double RunWriter::MedianFrameMs() const { return Percentile(frame_ms_, 0.5); }
@@ -306,7 +305,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                 "%llu, \"rejected\": %llu, \"outliers\": %llu, \"factors\": %llu, "
                 "\"realignments\": %llu},\n  %s%s%s\n}\n",
                 frame_ms_.size(),
-                keyframe_count_,
+                static_cast<size_t>(s.keyframes),
                 s.distance_m,
                 data_duration_s,
                 wall_s,

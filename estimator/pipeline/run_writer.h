@@ -60,7 +60,6 @@ class RunWriter {
   bool header_written_ = false;
   void WriteHeader(const FrameResult* first);
   std::vector<double> frame_ms_, frontend_ms_, backend_ms_;
-  size_t keyframe_count_ = 0;
   /// A write that failed: WriteSubmap runs on the submap worker's thread, the rest on the
   /// caller's.
   void Failed(const std::string& error);
