@@ -30,8 +30,13 @@ std::unique_ptr<Simulator> Simulator::Create(const Scenario& scenario,
   const double profile = s.ProfileDurationS();
   if (options.duration_s > profile + 1e-9) {
     if (error) {
-      *error = "--duration " + std::to_string(options.duration_s) + " s exceeds the scenario's " +
-               "motion profile of " + std::to_string(profile) + " s";
+      char text[160];
+      std::snprintf(text,
+                    sizeof(text),
+                    "--duration %g s exceeds the scenario's motion profile of %.1f s",
+                    options.duration_s,
+                    profile);
+      *error = text;
     }
     return nullptr;
   }

@@ -174,7 +174,10 @@ TEST_F(SimCli, UnknownScenarioAndTooLongDurationAreClearErrors) {
   const CommandResult too_long =
       Shell(sim_ + " --scenario demo --out " + (dir_ / "x").string() + " --duration 500");
   EXPECT_EQ(too_long.exit_code, 2);
-  EXPECT_NE(too_long.err.find("exceeds"), std::string::npos) << too_long.err;
+  // Both durations as a user would write them (the demo runs 29.8 s).
+  EXPECT_NE(too_long.err.find("--duration 500 s exceeds the scenario's motion profile of 29.8 s"),
+            std::string::npos)
+      << too_long.err;
   EXPECT_FALSE(fs::exists(dir_ / "x" / "run.bag"));
 
   const CommandResult missing = Shell(sim_ + " --scenario demo");
