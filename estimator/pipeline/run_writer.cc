@@ -293,7 +293,7 @@ bool RunWriter::Close(const EstimatorStats& s,
   char text[4096];
   std::snprintf(text,
                 sizeof(text),
-                "{\n  \"frames\": %zu,\n  \"keyframes\": %zu,\n  \"distance_m\": %.3f,\n"
+                "{\n  \"frames\": %zu,\n  \"keyframes\": %llu,\n  \"distance_m\": %.3f,\n"
                 "  \"data_duration_s\": %.3f,\n  \"wall_s\": %.3f,\n  \"real_time_factor\": %.3f,\n"
                 "  \"frame_ms\": {\"median\": %.3f, \"p95\": %.3f, \"max\": %.3f},\n"
                 "  \"frontend_ms\": {\"median\": %.3f, \"p95\": %.3f},\n"
@@ -305,7 +305,7 @@ bool RunWriter::Close(const EstimatorStats& s,
                 "%llu, \"rejected\": %llu, \"outliers\": %llu, \"factors\": %llu, "
                 "\"realignments\": %llu},\n  %s%s%s\n}\n",
                 frame_ms_.size(),
-                static_cast<size_t>(s.keyframes),
+                static_cast<unsigned long long>(s.keyframes),
                 s.distance_m,
                 data_duration_s,
                 wall_s,
