@@ -83,7 +83,8 @@ int main(int argc, char** argv) {
   app.add_option("--map",
                  map_path,
                  "Write the global map of the whole run to this .ply or .pcd file (double x y z: "
-                 "UTM when georeferenced, float intensity)");
+                 "UTM when georeferenced, float intensity) or .las file (LAS 1.2 at 1 mm, the "
+                 "UTM zone as its EPSG code)");
   app.add_option(
          "--map-voxel", map_voxel_m, "With --map: one point per voxel of this size (0: all)")
       ->check(CLI::NonNegativeNumber);
@@ -190,7 +191,7 @@ int main(int argc, char** argv) {
     map_options.box_max = Eigen::Vector2d(v[2], v[3]);
   }
   if (map_path.empty() && (!map_box_text.empty() || app.count("--map-voxel") > 0))
-    return Fail("--map-voxel and --map-box need --map <file.ply|file.pcd>");
+    return Fail("--map-voxel and --map-box need --map <file.ply|file.pcd|file.las>");
   std::unique_ptr<MapExporter> map;
   if (!map_path.empty()) {
     map = MapExporter::Open(map_path, map_options, &error);

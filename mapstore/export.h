@@ -21,8 +21,9 @@ struct ExportPoint {
 
 /// The points as a file: binary PLY (double x y z, uchar intensity), binary PCD (x y z as F 8,
 /// intensity as U 1) or LAS 1.2 (point format 0, 1 mm scale, the offset at the points' minimum
-/// corner, the UTM zone in the header's system identifier). Coordinates are UTM in every case,
-/// so every tool places them without a transform.
+/// corner, the UTM zone in the header's system identifier and as a GeoTIFF key). Coordinates are
+/// UTM in every case, so every tool places them without a transform. Empty if LAS 1.2 cannot hold
+/// the points (see api::las::EncodeHeader).
 std::string EncodeExport(const std::vector<ExportPoint>& points,
                          ExportFormat format,
                          const std::string& utm_zone);

@@ -949,11 +949,19 @@ void Server::Impl::Routes() {
         std::string zone;
         const mapstore::Result r = store_->Export(request, &points, &zone);
         if (!r) return SendResult(res, r);
+        std::string body = mapstore::EncodeExport(points, format, zone);
+        if (body.empty())
+          return SendError(res,
+                           413,
+                           "too_large",
+                           std::to_string(points.size()) +
+                               " points are beyond what LAS 1.2 holds (2^32 - 1 points within "
+                               "2147 km at 1 mm): ask for ply or pcd, or a smaller box");
         res.set_header("Content-Disposition",
                        "attachment; filename=\"run-" + std::to_string(id) + "." +
                            mapstore::ExtensionOf(format) + "\"");
         res.set_header("X-Points", std::to_string(points.size()));
-        res.set_content(mapstore::EncodeExport(points, format, zone), "application/octet-stream");
+        res.set_content(std::move(body), "application/octet-stream");
       }));
 
   if (!config_.web_root.empty()) http_.set_mount_point("/", config_.web_root);

@@ -1,7 +1,9 @@
 #include "estimator/mapping/map_export.h"
 
+#include "api/las.h"
 #include "estimator/mapping/voxel_centroids.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -13,6 +15,8 @@ namespace raillomer {
 namespace {
 
 constexpr size_t kRecordBytes = 3 * sizeof(double) + sizeof(float);
+// Records converted to LAS per read of the temporary file.
+constexpr size_t kLasChunkRecords = 65536;
 
 bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() &&
@@ -26,11 +30,13 @@ std::unique_ptr<MapExporter> MapExporter::Open(const std::string& path,
                                                std::string* error) {
   std::unique_ptr<MapExporter> e(new MapExporter());
   if (EndsWith(path, ".ply")) {
-    e->ply_ = true;
+    e->format_ = Format::kPly;
   } else if (EndsWith(path, ".pcd")) {
-    e->ply_ = false;
+    e->format_ = Format::kPcd;
+  } else if (EndsWith(path, ".las")) {
+    e->format_ = Format::kLas;
   } else {
-    *error = "--map " + path + ": the file must end in .ply or .pcd";
+    *error = "--map " + path + ": the file must end in .ply, .pcd or .las";
     return nullptr;
   }
   if (!(options.voxel_m >= 0.0)) {
@@ -74,6 +80,12 @@ void MapExporter::Add(const api::Submap& s) {
     std::memcpy(record, p.data(), 3 * sizeof(double));
     std::memcpy(record + 3 * sizeof(double), &intensity, sizeof(float));
     std::fwrite(record, 1, kRecordBytes, body_);
+    if (points_ == 0) {
+      min_ = max_ = p;
+    } else {
+      min_ = min_.cwiseMin(p);
+      max_ = max_.cwiseMax(p);
+    }
     ++points_;
   };
   if (options_.voxel_m <= 0.0) {
@@ -113,25 +125,63 @@ bool MapExporter::Close(std::string* error) {
     std::remove(body_path_.c_str());
     return false;
   }
-  const std::string frame =
-      georeferenced_ ? "UTM zone " + utm_zone_ + " (easting, northing, ellipsoidal height)"
-                     : std::string("the estimator's local odometry frame (not georeferenced)");
-  std::ostringstream h;
-  if (ply_) {
-    h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer map in " << frame << "\n"
-      << "element vertex " << points_ << "\nproperty double x\nproperty double y\n"
-      << "property double z\nproperty float intensity\nend_header\n";
+  std::string header;
+  if (format_ == Format::kLas) {
+    api::las::Header las;
+    las.points = points_;
+    las.min = min_;
+    las.max = max_;
+    if (georeferenced_) las.utm_zone = utm_zone_;
+    las.software = "raillomer-estimator";
+    if (!api::las::EncodeHeader(las, &header, error)) {
+      *error = "--map " + path_ + ": " + *error + "; write .ply or .pcd, or thin with --map-voxel";
+      std::remove(body_path_.c_str());
+      return false;
+    }
   } else {
-    h << "# .PCD v0.7 - RailLoMer map in " << frame << "\nVERSION 0.7\nFIELDS x y z intensity\n"
-      << "SIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH " << points_
-      << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << points_ << "\nDATA binary\n";
+    const std::string frame =
+        georeferenced_ ? "UTM zone " + utm_zone_ + " (easting, northing, ellipsoidal height)"
+                       : std::string("the estimator's local odometry frame (not georeferenced)");
+    std::ostringstream h;
+    if (format_ == Format::kPly) {
+      h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer map in " << frame << "\n"
+        << "element vertex " << points_ << "\nproperty double x\nproperty double y\n"
+        << "property double z\nproperty float intensity\nend_header\n";
+    } else {
+      h << "# .PCD v0.7 - RailLoMer map in " << frame << "\nVERSION 0.7\nFIELDS x y z intensity\n"
+        << "SIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH " << points_
+        << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << points_ << "\nDATA binary\n";
+    }
+    header = h.str();
   }
   const std::string tmp = path_ + ".tmp";
   {
     std::ofstream out(tmp, std::ios::binary);
     std::ifstream body(body_path_, std::ios::binary);
-    out << h.str();
-    if (points_ > 0) out << body.rdbuf();
+    out << header;
+    if (format_ == Format::kLas) {
+      // The records are relative to an offset at the map's minimum corner, known only now.
+      const Eigen::Vector3d offset = api::las::OffsetFor(min_);
+      std::vector<char> chunk(kLasChunkRecords * kRecordBytes);
+      std::string records;
+      while (body.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) ||
+             body.gcount() > 0) {
+        records.clear();
+        const size_t n = static_cast<size_t>(body.gcount()) / kRecordBytes;
+        for (size_t i = 0; i < n; ++i) {
+          Eigen::Vector3d p;
+          float intensity = 0.f;
+          std::memcpy(p.data(), &chunk[i * kRecordBytes], 3 * sizeof(double));
+          std::memcpy(&intensity, &chunk[i * kRecordBytes + 3 * sizeof(double)], sizeof(float));
+          const float clamped =
+              std::isfinite(intensity) ? std::clamp(intensity, 0.f, 65535.f) : 0.f;
+          api::las::AppendRecord(&records, p, offset, static_cast<uint16_t>(std::lround(clamped)));
+        }
+        out.write(records.data(), static_cast<std::streamsize>(records.size()));
+      }
+    } else if (points_ > 0) {
+      out << body.rdbuf();
+    }
     if (!out) {
       *error = "cannot write " + tmp;
       std::remove(body_path_.c_str());
@@ -163,6 +213,15 @@ bool ReadMapFile(const std::string& path,
     *error = path + ": " + m;
     return false;
   };
+  if (bytes.rfind("LASF", 0) == 0) {
+    api::las::Contents las;
+    std::string why;
+    if (!api::las::Decode(bytes, &las, &why)) return fail(why);
+    *points = std::move(las.points);
+    intensities->assign(las.intensities.begin(), las.intensities.end());
+    if (comment) *comment = las.system_identifier;
+    return true;
+  }
   size_t pos = 0, count = 0;
   bool have_count = false, header_done = false;
   const bool ply = bytes.rfind("ply\n", 0) == 0;

@@ -25,13 +25,16 @@ struct MapExportOptions {
   int remembered_submaps = 24;
 };
 
-/// Writes a global map from submaps as they come: binary little-endian PLY or PCD (chosen by
-/// the extension) with double x y z (UTM easting, northing, ellipsoidal height when
-/// georeferenced: exact to well below a millimetre) and float intensity. Points stream to a
-/// temporary file; Close writes the header with the count and moves the file into place.
+/// Writes a global map from submaps as they come, in the format its extension names: binary
+/// little-endian PLY or PCD with double x y z (UTM easting, northing, ellipsoidal height when
+/// georeferenced: exact to well below a millimetre) and float intensity, or LAS 1.2 (1 mm, the
+/// intensity rounded, the UTM zone as an EPSG code; see api/las.h). Points stream to a temporary
+/// file; Close writes the header with the count (and for LAS the bounds) and moves the file into
+/// place.
 class MapExporter {
  public:
-  /// Nullptr with a message if the extension is not .ply / .pcd or the file cannot be written.
+  /// Nullptr with a message if the extension is not .ply / .pcd / .las or the file cannot be
+  /// written.
   static std::unique_ptr<MapExporter> Open(const std::string& path,
                                            const MapExportOptions& options,
                                            std::string* error);
@@ -45,16 +48,18 @@ class MapExporter {
  private:
   MapExporter() = default;
   std::string path_, body_path_;
-  bool ply_ = true;
+  enum class Format { kPly, kPcd, kLas } format_ = Format::kPly;
   MapExportOptions options_;
   std::FILE* body_ = nullptr;
   uint64_t points_ = 0, skipped_submaps_ = 0;
+  Eigen::Vector3d min_ = Eigen::Vector3d::Zero(), max_ = Eigen::Vector3d::Zero();
   bool have_frame_ = false, georeferenced_ = false;
   std::string utm_zone_;
   std::deque<std::unordered_set<uint64_t>> recent_voxels_;
 };
 
-/// Reads a map written by MapExporter (either format). False with a message naming the file.
+/// Reads a map written by MapExporter (any of its formats; a LAS file's system identifier is its
+/// comment, its intensities come back rounded). False with a message naming the file.
 bool ReadMapFile(const std::string& path,
                  std::vector<Eigen::Vector3d>* points,
                  std::vector<float>* intensities,

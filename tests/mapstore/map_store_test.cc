@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "api/las.h"
 #include "mapstore/export.h"
 #include "mapstore/map_store.h"
 #include "mapstore/schema.h"
@@ -477,6 +478,12 @@ TEST(MapStore, ExportsABoxOrAKmRangeAsPlyPcdAndLas) {
     }
     EXPECT_LE(worst, 0.001) << ExtensionOf(format);  // LAS keeps millimetres
   }
+  // A LAS export names its zone for GIS tools: WGS 84 / UTM zone 50N.
+  api::las::Contents las;
+  ASSERT_TRUE(api::las::Decode(EncodeExport(points, ExportFormat::kLas, zone), &las, &error))
+      << error;
+  EXPECT_EQ(las.epsg, 32650);
+  EXPECT_EQ(las.system_identifier, "RailLoMer UTM zone 50N");
   // Along the line from 20 m to 40 m, within 3 m of the centreline: ground only (the wall
   // stands 4 m off), 20 m by 6 m with a half disc at either end, 100 points per square metre.
   ExportRequest along;

@@ -11,6 +11,7 @@
 #include <yaml-cpp/yaml.h>
 #include <nlohmann/json.hpp>
 
+#include "api/las.h"
 #include "api/stream.h"
 #include "mapstore/tile_codec.h"
 #include "tests/server/server_process.h"
@@ -229,8 +230,14 @@ TEST(Server, RestApiWithCurl) {
   ASSERT_EQ(r.status, 200) << r.body;
   EXPECT_EQ(r.body.compare(0, 4, "LASF"), 0);
   EXPECT_NE(r.headers.find("filename=\"run-" + std::to_string(run) + ".las\""), std::string::npos);
-  // 10 m of corridor: 100 columns of 110 voxels (ground and wall), 20 bytes each.
-  EXPECT_EQ(r.body.size(), 227u + 20u * 100u * 110u);
+  // 10 m of corridor: 100 columns of 110 voxels (ground and wall), 20 bytes each, after the
+  // public header (227 bytes) and the zone's GeoTIFF key record (54 + 48), which names 50N.
+  EXPECT_EQ(r.body.size(), 227u + 102u + 20u * 100u * 110u);
+  api::las::Contents las;
+  std::string las_error;
+  ASSERT_TRUE(api::las::Decode(r.body, &las, &las_error)) << las_error;
+  EXPECT_EQ(las.points.size(), 100u * 110u);
+  EXPECT_EQ(las.epsg, 32650);
   r = Curl(ShellQuote(runs + "/export?format=ply&line=Test%20line&from_km=12.000&to_km=12.008"),
            dir);
   EXPECT_EQ(r.status, 200) << r.body;

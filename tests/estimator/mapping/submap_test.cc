@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include "api/las.h"
 #include "api/stream.h"
 #include "estimator/mapping/map_export.h"
 #include "estimator/mapping/submap_builder.h"
@@ -181,10 +182,12 @@ TEST_P(MapExport, RoundTripKeepsUtmCoordinatesWithinAMillimetre) {
   ASSERT_TRUE(ReadMapFile(path, &points, &intensities, &comment, &error)) << error;
   EXPECT_NE(comment.find("UTM zone 50N"), std::string::npos) << comment;
   ASSERT_EQ(points.size(), s.points.size());
+  // LAS holds whole intensities: 3.5 is rounded.
+  const float intensity = std::string(GetParam()) == "las" ? 4.f : 3.5f;
   for (size_t i = 0; i < points.size(); ++i) {
     const Eigen::Vector3d expected = s.origin + s.points[i].cast<double>();
     EXPECT_LT((points[i] - expected).norm(), 1e-3);
-    EXPECT_EQ(intensities[i], 3.5f);
+    EXPECT_EQ(intensities[i], intensity);
   }
   // Truth independent of the codec: the first point is body (2, 0, 0) of the first keyframe.
   const Eigen::Vector3d first =
@@ -218,12 +221,36 @@ TEST_P(MapExport, VoxelAndBoxThinTheMap) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Formats, MapExport, ::testing::Values("ply", "pcd"));
+INSTANTIATE_TEST_SUITE_P(Formats, MapExport, ::testing::Values("ply", "pcd", "las"));
+
+TEST(MapExportLas, NamesItsUtmZoneForGisToolsOrNoneWhenLocal) {
+  const test::ScratchDir dir("raillomer_map_export_");
+  for (const bool georeferenced : {true, false}) {
+    const std::string path = (dir.path() / "map.las").string();
+    api::Submap s = SampleSubmap();
+    s.georeferenced = georeferenced;
+    if (!georeferenced) s.utm_zone.clear();
+    std::string error;
+    std::unique_ptr<MapExporter> map = MapExporter::Open(path, MapExportOptions(), &error);
+    ASSERT_TRUE(map) << error;
+    map->Add(s);
+    ASSERT_TRUE(map->Close(&error)) << error;
+    std::ifstream in(path, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    api::las::Contents las;
+    ASSERT_TRUE(api::las::Decode(bytes, &las, &error)) << error;
+    EXPECT_EQ(las.points.size(), map->points());
+    EXPECT_EQ(las.epsg, georeferenced ? 32650 : 0);
+    EXPECT_EQ(las.system_identifier,
+              georeferenced ? "RailLoMer UTM zone 50N" : "RailLoMer local odometry frame");
+    EXPECT_EQ(bytes.substr(58, 19), "raillomer-estimator");
+  }
+}
 
 TEST(MapExportErrors, NameWhatIsWrong) {
   std::string error;
-  EXPECT_FALSE(MapExporter::Open("/tmp/map.las", MapExportOptions(), &error));
-  EXPECT_NE(error.find(".ply or .pcd"), std::string::npos) << error;
+  EXPECT_FALSE(MapExporter::Open("/tmp/map.xyz", MapExportOptions(), &error));
+  EXPECT_NE(error.find(".ply, .pcd or .las"), std::string::npos) << error;
   EXPECT_FALSE(MapExporter::Open("/nonexistent/dir/map.ply", MapExportOptions(), &error));
   EXPECT_NE(error.find("/nonexistent/dir/map.ply"), std::string::npos) << error;
   const test::ScratchDir dir("raillomer_map_export_");

@@ -450,9 +450,9 @@ TEST_F(EstimatorCli, UsageErrorsAreClear) {
                ShellQuote((Dir() / "y").string()));
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("/nonexistent/run.bag"), std::string::npos) << r.err;
-  r = Estimate("--sim demo --out " + ShellQuote((Dir() / "m").string()) + " --map map.las");
+  r = Estimate("--sim demo --out " + ShellQuote((Dir() / "m").string()) + " --map map.xyz");
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_NE(r.err.find(".ply or .pcd"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(".ply, .pcd or .las"), std::string::npos) << r.err;
   r = Estimate("--sim demo --out " + ShellQuote((Dir() / "m").string()) + " --map-voxel 0.5");
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("need --map"), std::string::npos) << r.err;

@@ -1,0 +1,102 @@
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "api/las.h"
+
+namespace raillomer::api {
+namespace {
+
+TEST(Las, EpsgCodesOfUtmZones) {
+  EXPECT_EQ(las::EpsgOfUtmZone("50N"), 32650);
+  EXPECT_EQ(las::EpsgOfUtmZone("33S"), 32733);
+  EXPECT_EQ(las::EpsgOfUtmZone("1N"), 32601);
+  EXPECT_EQ(las::EpsgOfUtmZone("60S"), 32760);
+  for (const char* bad : {"", "61N", "0N", "50", "50X", "50NN", "N50"})
+    EXPECT_EQ(las::EpsgOfUtmZone(bad), 0) << bad;
+}
+
+TEST(Las, PointsRoundTripToTheMillimetreWithTheirZone) {
+  const Eigen::Vector3d a(432000.1234, 3585000.9876, 30.2004), b(432950.0, 3586200.5, -12.25);
+  las::Header header;
+  header.points = 2;
+  header.min = a.cwiseMin(b);
+  header.max = a.cwiseMax(b);
+  header.utm_zone = "50N";
+  header.software = "a test";
+  std::string bytes, error;
+  ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
+  const Eigen::Vector3d offset = las::OffsetFor(header.min);
+  EXPECT_EQ(offset, Eigen::Vector3d(432000.0, 3585000.0, -13.0));
+  las::AppendRecord(&bytes, a, offset, 17);
+  las::AppendRecord(&bytes, b, offset, 65535);
+  las::Contents back;
+  ASSERT_TRUE(las::Decode(bytes, &back, &error)) << error;
+  ASSERT_EQ(back.points.size(), 2u);
+  EXPECT_LE((back.points[0] - a).cwiseAbs().maxCoeff(), 0.0005);
+  EXPECT_LE((back.points[1] - b).cwiseAbs().maxCoeff(), 0.0005);
+  EXPECT_EQ(back.intensities[0], 17);
+  EXPECT_EQ(back.intensities[1], 65535);
+  EXPECT_EQ(back.epsg, 32650);
+  EXPECT_EQ(back.system_identifier, "RailLoMer UTM zone 50N");
+  // The header's bounds (max x, min x, max y, ... from byte 179) and its fixed layout.
+  double bounds[6];
+  std::memcpy(bounds, bytes.data() + 179, sizeof(bounds));
+  EXPECT_EQ(bounds[0], b.x());
+  EXPECT_EQ(bounds[1], a.x());
+  EXPECT_EQ(bounds[4], a.z());
+  EXPECT_EQ(bounds[5], b.z());
+  EXPECT_EQ(bytes.substr(0, 4), "LASF");
+  EXPECT_EQ(bytes[24], 1);
+  EXPECT_EQ(bytes[25], 2);
+  uint32_t point_offset = 0;
+  std::memcpy(&point_offset, bytes.data() + 96, sizeof(point_offset));
+  EXPECT_EQ(bytes.size(), point_offset + 2 * las::kRecordBytes);
+}
+
+TEST(Las, ALocalFrameHasNoCoordinateSystem) {
+  las::Header header;
+  std::string bytes, error;
+  ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
+  EXPECT_EQ(bytes.size(), 227u);  // the public header alone, no key record
+  las::Contents back;
+  ASSERT_TRUE(las::Decode(bytes, &back, &error)) << error;
+  EXPECT_TRUE(back.points.empty());
+  EXPECT_EQ(back.epsg, 0);
+  EXPECT_EQ(back.system_identifier, "RailLoMer local odometry frame");
+}
+
+TEST(Las, WhatLas12CannotHoldIsRefusedByName) {
+  las::Header header;
+  header.points = uint64_t{1} << 32;
+  std::string bytes, error;
+  EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
+  EXPECT_NE(error.find("at most 4294967295 points"), std::string::npos) << error;
+  header.points = 2;
+  header.max = Eigen::Vector3d(3.0e6, 0.0, 0.0);
+  EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
+  EXPECT_NE(error.find("3000000 m"), std::string::npos) << error;
+  header.max = Eigen::Vector3d(std::nan(""), 0.0, 0.0);
+  EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
+  EXPECT_NE(error.find("not finite"), std::string::npos) << error;
+}
+
+TEST(Las, ACutFileIsNamed) {
+  las::Header header;
+  header.points = 3;
+  header.utm_zone = "33S";
+  std::string bytes, error;
+  ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
+  for (int i = 0; i < 2; ++i) las::AppendRecord(&bytes, Eigen::Vector3d::Zero(), {0, 0, 0}, 0);
+  las::Contents back;
+  EXPECT_FALSE(las::Decode(bytes, &back, &error));
+  EXPECT_NE(error.find("truncated"), std::string::npos) << error;
+  EXPECT_FALSE(las::Decode("PLY", &back, &error));
+  EXPECT_NE(error.find("not a LAS file"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace raillomer::api
