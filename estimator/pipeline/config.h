@@ -84,7 +84,7 @@ struct EstimatorOptions {
   int map_points_per_voxel = 10;   ///< local map cap per voxel
   /// A frame's features go into the local map once this many newer states have refined its
   /// pose (at the latest when it leaves the window); 0: at once, at its first single-frame
-  /// estimate. Not the default: see the README ("Where the estimator stands") for what it gains
+  /// estimate. Not the default: see estimator/RESULTS.md for what it gains
   /// on the feature-poor runs and costs on the 20 km one.
   int map_insert_lag = 0;
   double map_radius_m = 200.0;  ///< voxels farther from the vehicle are dropped
@@ -92,8 +92,8 @@ struct EstimatorOptions {
   /// sensor's 2 cm: a frame's thousands of residuals share their errors (the map is built from
   /// the same trajectory, the deskew from the same prediction), and weighted as independent
   /// 0.1 m measurements they outvote the IMU and odometer so far that a pitch error grows by
-  /// feedback through the map at 100 km/h and above (RailLoMer README, "Where the estimator
-  /// stands").
+  /// feedback through the map at 100 km/h and above (README, the pipeline under
+  /// raillomer-estimator).
   double plane_sigma_m = 0.3;
   double edge_sigma_m = 0.45;
   double max_correspondence_m = 1.0;  ///< neighbour search radius
@@ -101,7 +101,8 @@ struct EstimatorOptions {
   /// their line (0: no such check, LOAM's eigenvalue ratio only). Curvature picks edge points
   /// around a soft crease (a ballast shoulder) at places that shift with range; matched to the
   /// scattered far points of the map they turn each frame (0.041 deg of yaw per frame at true
-  /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see the README.
+  /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see
+  /// estimator/RESULTS.md.
   double edge_max_spread_m = 0.0;
   /// When > 0, an edge of the LiDAR looking down at the track whose map neighbours lie further
   /// than this RMS from their line (a soft crease of ballast or embankment, not a corner) drops
