@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <limits>
 
 namespace raillomer::api {
@@ -18,7 +19,8 @@ constexpr uint16_t kGeoKeyDirectory = 34735;
 // GeoTIFF keys (GeoTIFF 1.0, section 6.2) and their values.
 constexpr uint16_t kGtModelType = 1024, kGtRasterType = 1025, kProjectedCsType = 3072,
                    kProjLinearUnits = 3076, kVerticalUnits = 4099;
-constexpr uint16_t kModelTypeProjected = 1, kRasterPixelIsArea = 1, kLinearMetre = 9001;
+constexpr uint16_t kModelTypeProjected = 1, kRasterPixelIsArea = 1, kLinearMetre = 9001,
+                   kUserDefined = 32767;
 
 // Writes a value at a byte offset of a buffer that already has the room.
 template <typename T>
@@ -67,37 +69,23 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
              " m, beyond what LAS 1.2 holds at 1 mm (2147 km)";
     return false;
   }
+  // The GeoTIFF key directory (mandatory in LAS 1.2): its own header (version 1.1.0 and the
+  // number of keys), then one entry per key, sorted, each four shorts (key, location 0: the value
+  // is in the entry, count 1, value). A frame that is no UTM zone is a user-defined projected
+  // system in metres.
   const int epsg = EpsgOfUtmZone(header.utm_zone);
-  // The GeoTIFF key directory: its own header, then one entry per key, each four shorts.
-  std::vector<uint16_t> keys;
-  if (epsg != 0) {
-    keys = {1,
-            1,
-            0,
-            5,  // version 1.1.0, five keys
-            kGtModelType,
-            0,
-            1,
-            kModelTypeProjected,  // a projected system
-            kGtRasterType,
-            0,
-            1,
-            kRasterPixelIsArea,  //
-            kProjectedCsType,
-            0,
-            1,
-            static_cast<uint16_t>(epsg),  // WGS 84 / UTM
-            kProjLinearUnits,
-            0,
-            1,
-            kLinearMetre,  // metres
-            kVerticalUnits,
-            0,
-            1,
-            kLinearMetre};  // ellipsoidal height in metres
-  }
+  std::vector<uint16_t> keys = {1, 1, 0, 0};
+  auto key = [&](uint16_t id, uint16_t value) {
+    keys.insert(keys.end(), {id, 0, 1, value});
+    ++keys[3];
+  };
+  key(kGtModelType, kModelTypeProjected);
+  key(kGtRasterType, kRasterPixelIsArea);
+  key(kProjectedCsType, static_cast<uint16_t>(epsg != 0 ? epsg : kUserDefined));
+  key(kProjLinearUnits, kLinearMetre);
+  key(kVerticalUnits, kLinearMetre);  // ellipsoidal height in metres
   const size_t key_bytes = keys.size() * sizeof(uint16_t);
-  const size_t header_bytes = kLasHeader + (epsg != 0 ? kLasVlrHeader + key_bytes : 0);
+  const size_t header_bytes = kLasHeader + kLasVlrHeader + key_bytes;
   out->assign(header_bytes, '\0');
   std::memcpy(&(*out)[0], "LASF", 4);
   (*out)[24] = 1;  // version 1.2
@@ -105,31 +93,40 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
   PutText(out,
           26,
           32,
-          epsg != 0 ? "RailLoMer UTM zone " + header.utm_zone
-                    : std::string("RailLoMer local odometry frame"));
+          header.utm_zone.empty() ? std::string("RailLoMer local odometry frame")
+                                  : "RailLoMer UTM zone " + header.utm_zone);
   PutText(out, 58, 32, header.software);
+  if (header.created > 0) {
+    std::tm utc{};
+    gmtime_r(&header.created, &utc);
+    PutAt(out, 90, static_cast<uint16_t>(utc.tm_yday + 1));  // 1 January is day 1
+    PutAt(out, 92, static_cast<uint16_t>(utc.tm_year + 1900));
+  }
   const uint32_t n = static_cast<uint32_t>(header.points);
-  PutAt(out, 94, static_cast<uint16_t>(kLasHeader));          // header size
-  PutAt(out, 96, static_cast<uint32_t>(header_bytes));        // offset to the points
-  PutAt(out, 100, static_cast<uint32_t>(epsg != 0 ? 1 : 0));  // variable-length records
-  (*out)[104] = 0;                                            // point format 0
-  PutAt(out, 105, static_cast<uint16_t>(kRecordBytes));       // record length
-  PutAt(out, 107, n);                                         // legacy point count
-  PutAt(out, 111, n);                                         // points by return (first return)
+  PutAt(out, 94, static_cast<uint16_t>(kLasHeader));     // header size
+  PutAt(out, 96, static_cast<uint32_t>(header_bytes));   // offset to the points
+  PutAt(out, 100, static_cast<uint32_t>(1));             // variable-length records
+  (*out)[104] = 0;                                       // point format 0
+  PutAt(out, 105, static_cast<uint16_t>(kRecordBytes));  // record length
+  PutAt(out, 107, n);                                    // legacy point count
+  PutAt(out, 111, n);                                    // points by return (first return)
   for (int a = 0; a < 3; ++a) PutAt(out, 131 + 8 * a, kScale);
   for (int a = 0; a < 3; ++a) PutAt(out, 155 + 8 * a, offset[a]);
+  // The bounds of the points as stored (rounded to the millimetre), so that every point read
+  // back lies within them.
   for (int a = 0; a < 3; ++a) {
-    PutAt(out, 179 + 16 * a, header.max[a]);
-    PutAt(out, 187 + 16 * a, header.min[a]);
+    auto stored = [&](double v) {
+      return offset[a] + kScale * static_cast<double>(std::llround((v - offset[a]) / kScale));
+    };
+    PutAt(out, 179 + 16 * a, stored(header.max[a]));
+    PutAt(out, 187 + 16 * a, stored(header.min[a]));
   }
-  if (epsg != 0) {
-    // The record's header: reserved, user id, record id, length after the header, description.
-    PutText(out, kLasHeader + 2, 16, "LASF_Projection");
-    PutAt(out, kLasHeader + 18, kGeoKeyDirectory);
-    PutAt(out, kLasHeader + 20, static_cast<uint16_t>(key_bytes));
-    PutText(out, kLasHeader + 22, 32, "GeoKeyDirectoryTag");
-    std::memcpy(&(*out)[kLasHeader + kLasVlrHeader], keys.data(), key_bytes);
-  }
+  // The key record's header: reserved, user id, record id, length after the header, description.
+  PutText(out, kLasHeader + 2, 16, "LASF_Projection");
+  PutAt(out, kLasHeader + 18, kGeoKeyDirectory);
+  PutAt(out, kLasHeader + 20, static_cast<uint16_t>(key_bytes));
+  PutText(out, kLasHeader + 22, 32, "GeoKeyDirectoryTag");
+  std::memcpy(&(*out)[kLasHeader + kLasVlrHeader], keys.data(), key_bytes);
   return true;
 }
 
@@ -159,6 +156,12 @@ bool Decode(const std::string& bytes, Contents* contents, std::string* error) {
     return *error = "the LAS file is truncated", false;
   contents->system_identifier = TextAt(bytes, 26, 32);
   contents->epsg = 0;
+  contents->creation_day = ReadRaw<uint16_t>(bytes, 90);
+  contents->creation_year = ReadRaw<uint16_t>(bytes, 92);
+  for (int a = 0; a < 3; ++a) {
+    contents->max[a] = ReadRaw<double>(bytes, 179 + 16 * a);
+    contents->min[a] = ReadRaw<double>(bytes, 187 + 16 * a);
+  }
   size_t at = header_size;
   for (uint32_t r = 0; r < records && at + kLasVlrHeader <= offset; ++r) {
     const uint16_t id = ReadRaw<uint16_t>(bytes, at + 18),

@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <ctime>
 #include <string>
 #include <vector>
 
@@ -23,18 +24,20 @@ constexpr size_t kRecordBytes = 20;  ///< point format 0
 struct Header {
   uint64_t points = 0;
   Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();
-  /// "50N": the system identifier names it and a GeoTIFF key record gives its EPSG code
+  /// "50N": the system identifier names it and the GeoTIFF key record gives its EPSG code
   /// (WGS 84 / UTM, 326zz north, 327zz south), so GIS tools place the points. Empty for a
-  /// local frame (no coordinate system).
+  /// local frame, a user-defined system (32767) in metres.
   std::string utm_zone;
   std::string software = "raillomer";  ///< generating software (up to 32 characters)
+  std::time_t created = 0;             ///< the file's creation day (UTC); 0 leaves it unset
 };
 
 /// The offset that the records of points with this minimum corner are relative to.
 Eigen::Vector3d OffsetFor(const Eigen::Vector3d& min);
 /// The EPSG code of WGS 84 / UTM for "50N" or "33S"; 0 if the text is no UTM zone.
 int EpsgOfUtmZone(const std::string& utm_zone);
-/// The public header and the GeoTIFF key record. False with a message if LAS 1.2 cannot hold
+/// The public header (bounds as the points are stored, to the millimetre) and the GeoTIFF key
+/// record. False with a message if LAS 1.2 cannot hold
 /// the points (over 2^32 - 1 of them, or farther than 2^31 mm from the offset).
 bool EncodeHeader(const Header& header, std::string* out, std::string* error);
 /// Appends one point record (first of one return, never classified).
@@ -43,13 +46,16 @@ void AppendRecord(std::string* out,
                   const Eigen::Vector3d& offset,
                   uint16_t intensity);
 
-/// A whole LAS file read back: its points, intensities, system identifier and EPSG code (0
-/// when it has no GeoTIFF key record). False with a message otherwise.
+/// A whole LAS file read back: its points, intensities, system identifier, the projected
+/// system's EPSG code from its GeoTIFF key record (0 without one, 32767 user-defined) and its
+/// creation day. False with a message otherwise.
 struct Contents {
   std::vector<Eigen::Vector3d> points;
   std::vector<uint16_t> intensities;
   std::string system_identifier;
   int epsg = 0;
+  int creation_year = 0, creation_day = 0;
+  Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();  ///< header bounds
 };
 bool Decode(const std::string& bytes, Contents* contents, std::string* error);
 

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <ctime>
 #include <sstream>
 
 namespace raillomer::mapstore {
@@ -68,6 +69,7 @@ std::string EncodeExport(const std::vector<ExportPoint>& points,
     header.points = n;
     header.utm_zone = utm_zone;
     header.software = "raillomer-server";
+    header.created = std::time(nullptr);
     if (n > 0) {
       header.min = header.max = points[0].p;
       for (const ExportPoint& p : points) {

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -133,6 +134,7 @@ bool MapExporter::Close(std::string* error) {
     las.max = max_;
     if (georeferenced_) las.utm_zone = utm_zone_;
     las.software = "raillomer-estimator";
+    las.created = std::time(nullptr);
     if (!api::las::EncodeHeader(las, &header, error)) {
       *error = "--map " + path_ + ": " + *error + "; write .ply or .pcd, or thin with --map-voxel";
       std::remove(body_path_.c_str());
@@ -158,7 +160,13 @@ bool MapExporter::Close(std::string* error) {
   {
     std::ofstream out(tmp, std::ios::binary);
     std::ifstream body(body_path_, std::ios::binary);
+    if (!body) {
+      *error = "cannot read back " + body_path_;
+      std::remove(body_path_.c_str());
+      return false;
+    }
     out << header;
+    uint64_t converted = 0;
     if (format_ == Format::kLas) {
       // The records are relative to an offset at the map's minimum corner, known only now.
       const Eigen::Vector3d offset = api::las::OffsetFor(min_);
@@ -178,6 +186,13 @@ bool MapExporter::Close(std::string* error) {
           api::las::AppendRecord(&records, p, offset, static_cast<uint16_t>(std::lround(clamped)));
         }
         out.write(records.data(), static_cast<std::streamsize>(records.size()));
+        converted += n;
+      }
+      if (converted != points_) {
+        *error = "read back " + std::to_string(converted) + " of the " + std::to_string(points_) +
+                 " points from " + body_path_;
+        std::remove(body_path_.c_str());
+        return false;
       }
     } else if (points_ > 0) {
       out << body.rdbuf();

@@ -20,13 +20,16 @@ TEST(Las, EpsgCodesOfUtmZones) {
 }
 
 TEST(Las, PointsRoundTripToTheMillimetreWithTheirZone) {
-  const Eigen::Vector3d a(432000.1234, 3585000.9876, 30.2004), b(432950.0, 3586200.5, -12.25);
+  // b's x and a's z round up to the next millimetre, b's z down: the header's bounds must still
+  // enclose every point as stored.
+  const Eigen::Vector3d a(432000.1234, 3585000.9876, 30.2006), b(432950.0006, 3586200.5, -12.2496);
   las::Header header;
   header.points = 2;
   header.min = a.cwiseMin(b);
   header.max = a.cwiseMax(b);
   header.utm_zone = "50N";
   header.software = "a test";
+  header.created = 1767225600 + 40 * 86400;  // 10 February 2026, 00:00 UTC
   std::string bytes, error;
   ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
   const Eigen::Vector3d offset = las::OffsetFor(header.min);
@@ -42,31 +45,36 @@ TEST(Las, PointsRoundTripToTheMillimetreWithTheirZone) {
   EXPECT_EQ(back.intensities[1], 65535);
   EXPECT_EQ(back.epsg, 32650);
   EXPECT_EQ(back.system_identifier, "RailLoMer UTM zone 50N");
-  // The header's bounds (max x, min x, max y, ... from byte 179) and its fixed layout.
-  double bounds[6];
-  std::memcpy(bounds, bytes.data() + 179, sizeof(bounds));
-  EXPECT_EQ(bounds[0], b.x());
-  EXPECT_EQ(bounds[1], a.x());
-  EXPECT_EQ(bounds[4], a.z());
-  EXPECT_EQ(bounds[5], b.z());
+  EXPECT_EQ(back.creation_year, 2026);
+  EXPECT_EQ(back.creation_day, 41);
+  for (const Eigen::Vector3d& p : back.points) {
+    EXPECT_TRUE((p.array() >= back.min.array()).all()) << p.transpose();
+    EXPECT_TRUE((p.array() <= back.max.array()).all()) << p.transpose();
+  }
+  EXPECT_NEAR(back.max.x(), 432950.001, 1e-9);
+  EXPECT_NEAR(back.max.z(), 30.201, 1e-9);
+  EXPECT_NEAR(back.min.z(), -12.250, 1e-9);
+  // The fixed layout: signature, version 1.2, the points right after the key record.
   EXPECT_EQ(bytes.substr(0, 4), "LASF");
   EXPECT_EQ(bytes[24], 1);
   EXPECT_EQ(bytes[25], 2);
   uint32_t point_offset = 0;
   std::memcpy(&point_offset, bytes.data() + 96, sizeof(point_offset));
+  EXPECT_EQ(point_offset, 227u + 54u + 48u);
   EXPECT_EQ(bytes.size(), point_offset + 2 * las::kRecordBytes);
 }
 
-TEST(Las, ALocalFrameHasNoCoordinateSystem) {
+TEST(Las, ALocalFrameIsAUserDefinedSystem) {
   las::Header header;
   std::string bytes, error;
   ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
-  EXPECT_EQ(bytes.size(), 227u);  // the public header alone, no key record
+  EXPECT_EQ(bytes.size(), 227u + 54u + 48u);  // the key record is there: LAS 1.2 requires it
   las::Contents back;
   ASSERT_TRUE(las::Decode(bytes, &back, &error)) << error;
   EXPECT_TRUE(back.points.empty());
-  EXPECT_EQ(back.epsg, 0);
+  EXPECT_EQ(back.epsg, 32767);
   EXPECT_EQ(back.system_identifier, "RailLoMer local odometry frame");
+  EXPECT_EQ(back.creation_year, 0);  // not set
 }
 
 TEST(Las, WhatLas12CannotHoldIsRefusedByName) {

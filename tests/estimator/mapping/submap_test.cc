@@ -223,7 +223,7 @@ TEST_P(MapExport, VoxelAndBoxThinTheMap) {
 
 INSTANTIATE_TEST_SUITE_P(Formats, MapExport, ::testing::Values("ply", "pcd", "las"));
 
-TEST(MapExportLas, NamesItsUtmZoneForGisToolsOrNoneWhenLocal) {
+TEST(MapExportLas, NamesItsUtmZoneForGisToolsOrAUserDefinedSystemWhenLocal) {
   const test::ScratchDir dir("raillomer_map_export_");
   for (const bool georeferenced : {true, false}) {
     const std::string path = (dir.path() / "map.las").string();
@@ -240,7 +240,8 @@ TEST(MapExportLas, NamesItsUtmZoneForGisToolsOrNoneWhenLocal) {
     api::las::Contents las;
     ASSERT_TRUE(api::las::Decode(bytes, &las, &error)) << error;
     EXPECT_EQ(las.points.size(), map->points());
-    EXPECT_EQ(las.epsg, georeferenced ? 32650 : 0);
+    EXPECT_EQ(las.epsg, georeferenced ? 32650 : 32767);  // 32767: user-defined
+    EXPECT_GE(las.creation_year, 2026);
     EXPECT_EQ(las.system_identifier,
               georeferenced ? "RailLoMer UTM zone 50N" : "RailLoMer local odometry frame");
     EXPECT_EQ(bytes.substr(58, 19), "raillomer-estimator");
