@@ -57,13 +57,13 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
     *error = "LAS 1.2 holds at most 4294967295 points, not " + std::to_string(header.points);
     return false;
   }
-  const Eigen::Vector3d offset = OffsetFor(header.min);
-  const double reach = std::max((header.max - offset).cwiseAbs().maxCoeff(),
-                                (header.min - offset).cwiseAbs().maxCoeff());
-  if (!std::isfinite(reach)) {
+  if (!header.min.allFinite() || !header.max.allFinite()) {
     *error = "the points' bounds are not finite";
     return false;
   }
+  const Eigen::Vector3d offset = OffsetFor(header.min);
+  const double reach = std::max((header.max - offset).cwiseAbs().maxCoeff(),
+                                (header.min - offset).cwiseAbs().maxCoeff());
   if (reach / kScale >= std::numeric_limits<int32_t>::max()) {
     *error = "the points span " + std::to_string(static_cast<int64_t>(reach)) +
              " m, beyond what LAS 1.2 holds at 1 mm (2147 km)";

@@ -90,6 +90,9 @@ TEST(Las, WhatLas12CannotHoldIsRefusedByName) {
   header.max = Eigen::Vector3d(std::nan(""), 0.0, 0.0);
   EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
   EXPECT_NE(error.find("not finite"), std::string::npos) << error;
+  header.max = Eigen::Vector3d(1.0, std::nan(""), 0.0);  // not only in the first coordinate
+  EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
+  EXPECT_NE(error.find("not finite"), std::string::npos) << error;
 }
 
 TEST(Las, ACutFileIsNamed) {
