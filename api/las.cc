@@ -42,7 +42,19 @@ std::string TextAt(const std::string& in, size_t at, size_t width) {
 
 namespace las {
 
-Eigen::Vector3d OffsetFor(const Eigen::Vector3d& min) { return min.array().floor().matrix(); }
+namespace {
+
+// The bounds as written: zero when there are no points.
+Eigen::Vector3d MinOf(const Header& header) {
+  return header.bounds.isEmpty() ? Eigen::Vector3d::Zero() : header.bounds.min();
+}
+Eigen::Vector3d MaxOf(const Header& header) {
+  return header.bounds.isEmpty() ? Eigen::Vector3d::Zero() : header.bounds.max();
+}
+
+}  // namespace
+
+Eigen::Vector3d OffsetOf(const Header& header) { return MinOf(header).array().floor().matrix(); }
 
 int EpsgOfUtmZone(const std::string& utm_zone) {
   int zone = 0;
@@ -57,13 +69,14 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
     *error = "LAS 1.2 holds at most 4294967295 points, not " + std::to_string(header.points);
     return false;
   }
-  if (!header.min.allFinite() || !header.max.allFinite()) {
+  const Eigen::Vector3d min = MinOf(header), max = MaxOf(header);
+  if (!min.allFinite() || !max.allFinite()) {
     *error = "the points' bounds are not finite";
     return false;
   }
-  const Eigen::Vector3d offset = OffsetFor(header.min);
-  const double reach = std::max((header.max - offset).cwiseAbs().maxCoeff(),
-                                (header.min - offset).cwiseAbs().maxCoeff());
+  const Eigen::Vector3d offset = OffsetOf(header);
+  const double reach =
+      std::max((max - offset).cwiseAbs().maxCoeff(), (min - offset).cwiseAbs().maxCoeff());
   if (reach / kScale >= std::numeric_limits<int32_t>::max()) {
     *error = "the points span " + std::to_string(static_cast<int64_t>(reach)) +
              " m, beyond what LAS 1.2 holds at 1 mm (2147 km)";
@@ -118,8 +131,8 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
     auto stored = [&](double v) {
       return offset[a] + kScale * static_cast<double>(std::llround((v - offset[a]) / kScale));
     };
-    PutAt(out, 179 + 16 * a, stored(header.max[a]));
-    PutAt(out, 187 + 16 * a, stored(header.min[a]));
+    PutAt(out, 179 + 16 * a, stored(max[a]));
+    PutAt(out, 187 + 16 * a, stored(min[a]));
   }
   // The key record's header: reserved, user id, record id, length after the header, description.
   PutText(out, kLasHeader + 2, 16, "LASF_Projection");

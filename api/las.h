@@ -10,6 +10,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 namespace raillomer::api {
 
@@ -23,7 +24,7 @@ constexpr size_t kRecordBytes = 20;  ///< point format 0
 /// What the header says of the points.
 struct Header {
   uint64_t points = 0;
-  Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();
+  Eigen::AlignedBox3d bounds;  ///< of the points (extend it with each); empty for none
   /// "50N": the system identifier names it and the GeoTIFF key record gives its EPSG code
   /// (WGS 84 / UTM, 326zz north, 327zz south), so GIS tools place the points. Empty for a
   /// local frame, a user-defined system (32767) in metres.
@@ -32,8 +33,9 @@ struct Header {
   std::time_t created = 0;             ///< the file's creation day (UTC); 0 leaves it unset
 };
 
-/// The offset that the records of points with this minimum corner are relative to.
-Eigen::Vector3d OffsetFor(const Eigen::Vector3d& min);
+/// The offset that the records of the header's points are relative to: their minimum corner,
+/// whole metres.
+Eigen::Vector3d OffsetOf(const Header& header);
 /// The EPSG code of WGS 84 / UTM for "50N" or "33S"; 0 if the text is no UTM zone.
 int EpsgOfUtmZone(const std::string& utm_zone);
 /// The public header (bounds as the points are stored, to the millimetre) and the GeoTIFF key

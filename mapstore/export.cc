@@ -70,16 +70,10 @@ std::string EncodeExport(const std::vector<ExportPoint>& points,
     header.utm_zone = utm_zone;
     header.software = "raillomer-server";
     header.created = std::time(nullptr);
-    if (n > 0) {
-      header.min = header.max = points[0].p;
-      for (const ExportPoint& p : points) {
-        header.min = header.min.cwiseMin(p.p);
-        header.max = header.max.cwiseMax(p.p);
-      }
-    }
+    for (const ExportPoint& p : points) header.bounds.extend(p.p);
     std::string error;
     if (!api::las::EncodeHeader(header, &out, &error)) return std::string();
-    const Eigen::Vector3d offset = api::las::OffsetFor(header.min);
+    const Eigen::Vector3d offset = api::las::OffsetOf(header);
     out.reserve(out.size() + api::las::kRecordBytes * n);
     for (const ExportPoint& p : points) api::las::AppendRecord(&out, p.p, offset, p.intensity);
   }

@@ -81,12 +81,7 @@ void MapExporter::Add(const api::Submap& s) {
     std::memcpy(record, p.data(), 3 * sizeof(double));
     std::memcpy(record + 3 * sizeof(double), &intensity, sizeof(float));
     std::fwrite(record, 1, kRecordBytes, body_);
-    if (points_ == 0) {
-      min_ = max_ = p;
-    } else {
-      min_ = min_.cwiseMin(p);
-      max_ = max_.cwiseMax(p);
-    }
+    bounds_.extend(p);
     ++points_;
   };
   if (options_.voxel_m <= 0.0) {
@@ -127,11 +122,10 @@ bool MapExporter::Close(std::string* error) {
     return false;
   }
   std::string header;
+  api::las::Header las;
   if (format_ == Format::kLas) {
-    api::las::Header las;
     las.points = points_;
-    las.min = min_;
-    las.max = max_;
+    las.bounds = bounds_;
     if (georeferenced_) las.utm_zone = utm_zone_;
     las.software = "raillomer-estimator";
     las.created = std::time(nullptr);
@@ -169,7 +163,7 @@ bool MapExporter::Close(std::string* error) {
     uint64_t converted = 0;
     if (format_ == Format::kLas) {
       // The records are relative to an offset at the map's minimum corner, known only now.
-      const Eigen::Vector3d offset = api::las::OffsetFor(min_);
+      const Eigen::Vector3d offset = api::las::OffsetOf(las);
       std::vector<char> chunk(kLasChunkRecords * kRecordBytes);
       std::string records;
       while (body.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) ||

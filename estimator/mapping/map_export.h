@@ -9,6 +9,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "api/stream.h"
 
@@ -52,7 +53,7 @@ class MapExporter {
   MapExportOptions options_;
   std::FILE* body_ = nullptr;
   uint64_t points_ = 0, skipped_submaps_ = 0;
-  Eigen::Vector3d min_ = Eigen::Vector3d::Zero(), max_ = Eigen::Vector3d::Zero();
+  Eigen::AlignedBox3d bounds_;  ///< of the points written
   bool have_frame_ = false, georeferenced_ = false;
   std::string utm_zone_;
   std::deque<std::unordered_set<uint64_t>> recent_voxels_;

@@ -25,14 +25,14 @@ TEST(Las, PointsRoundTripToTheMillimetreWithTheirZone) {
   const Eigen::Vector3d a(432000.1234, 3585000.9876, 30.2006), b(432950.0006, 3586200.5, -12.2496);
   las::Header header;
   header.points = 2;
-  header.min = a.cwiseMin(b);
-  header.max = a.cwiseMax(b);
+  header.bounds.extend(a);
+  header.bounds.extend(b);
   header.utm_zone = "50N";
   header.software = "a test";
   header.created = 1767225600 + 40 * 86400;  // 10 February 2026, 00:00 UTC
   std::string bytes, error;
   ASSERT_TRUE(las::EncodeHeader(header, &bytes, &error)) << error;
-  const Eigen::Vector3d offset = las::OffsetFor(header.min);
+  const Eigen::Vector3d offset = las::OffsetOf(header);
   EXPECT_EQ(offset, Eigen::Vector3d(432000.0, 3585000.0, -13.0));
   las::AppendRecord(&bytes, a, offset, 17);
   las::AppendRecord(&bytes, b, offset, 65535);
@@ -84,13 +84,14 @@ TEST(Las, WhatLas12CannotHoldIsRefusedByName) {
   EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
   EXPECT_NE(error.find("at most 4294967295 points"), std::string::npos) << error;
   header.points = 2;
-  header.max = Eigen::Vector3d(3.0e6, 0.0, 0.0);
+  header.bounds = Eigen::AlignedBox3d(Eigen::Vector3d::Zero(), Eigen::Vector3d(3.0e6, 0.0, 0.0));
   EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
   EXPECT_NE(error.find("3000000 m"), std::string::npos) << error;
-  header.max = Eigen::Vector3d(std::nan(""), 0.0, 0.0);
+  header.bounds.max() = Eigen::Vector3d(std::nan(""), 0.0, 0.0);
   EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
   EXPECT_NE(error.find("not finite"), std::string::npos) << error;
-  header.max = Eigen::Vector3d(1.0, std::nan(""), 0.0);  // not only in the first coordinate
+  header.bounds.max() =
+      Eigen::Vector3d(1.0, std::nan(""), 0.0);  // not only in the first coordinate
   EXPECT_FALSE(las::EncodeHeader(header, &bytes, &error));
   EXPECT_NE(error.find("not finite"), std::string::npos) << error;
 }
