@@ -297,7 +297,6 @@ void GnssFusion::Align(const std::vector<Pair>& pairs, bool resolve) {
   m << std::fixed;
   if (resolve) {
     ++stats_.realignments;
-    step_allowed_ = true;
     m << "GNSS alignment re-solved on " << a.inliers << " fixes: the position moved by "
       << (correction_.Apply(pairs.back().antenna_odom) - before).norm() << " m";
   } else {
@@ -317,10 +316,6 @@ void GnssFusion::AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu) {
   n.t_s = pair.t_s;
   n.fix_enu = fix_enu;
   n.antenna_levelled = Rz(-n.yaw_odom) * T_odom_body.linear() * options_.p_body_antenna;
-  // No factor for more than a period and a half: the receiver was out (a tunnel, a station
-  // roof), and this node corrects drift the graph could not see.
-  if (!nodes_.empty() && n.t_s - nodes_.back().t_s > 1.5 * options_.factor_period_s)
-    step_allowed_ = true;
   const Eigen::Isometry3d T = correction_.Apply(T_odom_body);
   n.x[0] = T.translation().x();
   n.x[1] = T.translation().y();
@@ -445,7 +440,7 @@ Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, doub
   if (published_ && options_.continuity_length_m > 0.0) {
     const Eigen::Isometry3d now = ToEnu(published_odom_, published_t_s_);
     const Eigen::Vector3d dp = published_enu_.translation() - now.translation();
-    if (!step_allowed_ || dp.norm() <= options_.continuity_max_step_m) {
+    if (dp.norm() <= options_.continuity_max_step_m) {
       // Positions only: holding a yaw difference on the orientation while the positions follow
       // the graph would skew the body against its own path (crabbing), and every keyframe
       // cloud with it.
@@ -453,7 +448,6 @@ Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, doub
       T.translation() += std::exp(-travel / options_.continuity_length_m) * dp;
     }
   }
-  step_allowed_ = false;
   published_ = true;
   published_t_s_ = t_s;
   published_odom_ = T_odom_body;
