@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """Runs raillomer-estimator with GNSS on simulated scenarios and scores each run in UTM against
 the truth with no post-alignment (raillomer-eval --align none): ATE RMSE and MAX, the largest
-error inside GNSS outages, and beside them the GNSS bound of the run. It also scores each run's
+error inside GNSS outages, the largest step of the trajectory between two poses (what the truth
+does not move), and beside them the GNSS bound of the run. It also scores each run's
 map (raillomer-eval --scenario --submaps): the spread normal to the corridor's known planes
 (every patch by submap in <run>/planes.csv) and the rail-head height difference between
 submaps (every segment by submap in <run>/rails.csv).
@@ -125,6 +126,19 @@ def outage_max(estimate, truth, fixes):
     return worst
 
 
+def largest_step(estimate, truth):
+    """Largest change between consecutive poses (at most 0.5 s apart) of the estimate that the
+    truth does not have (m, 3D): a step in the published trajectory."""
+    ti = Interpolator(truth)
+    worst = 0.0
+    for (t0, a), (t1, b) in zip(estimate, estimate[1:]):
+        qa, qb = ti.at(t0), ti.at(t1)
+        if t1 - t0 > 0.5 or qa is None or qb is None:
+            continue
+        worst = max(worst, math.dist([b[k] - a[k] for k in range(3)], [qb[k] - qa[k] for k in range(3)]))
+    return worst
+
+
 def antenna_up(scenario_yaml_text):
     """The simulator's antenna height above the body origin (gnss.antenna_m: [0, 0, h]; default 0.3)."""
     for line in scenario_yaml_text.splitlines():
@@ -167,7 +181,7 @@ def run_one(build, out_root, scenario, seed, duration):
                          capture_output=True, text=True).stdout if not scenario.endswith(".yaml") else open(scenario).read()
     bound = gnss_bound(truth, fixes, antenna_up(scenario_text))
     row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
-               outage_max_m=outage_max(estimate, truth, fixes),
+               outage_max_m=outage_max(estimate, truth, fixes), step_m=largest_step(estimate, truth),
                bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None,
                plane_rms_m=e["map"]["plane_rms_m"] if e["map"]["plane_patches"] else None,
                rail_p95_m=e["map"]["rail_spread_p95_m"],
@@ -185,16 +199,17 @@ def cm(v):
 
 
 def markdown(rows):
-    lines = ["| scenario | distance (km) | ATE RMSE (m) | MAX (m) | MAX in outage (m) | GNSS bound RMSE / MAX (m) "
-             "| map planes RMS (cm) | rail heads p95 / max (cm) | GNSS factors | multipath rejected | RTF "
-             "| peak RSS (MB) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scenario | distance (km) | ATE RMSE (m) | MAX (m) | MAX in outage (m) | largest step (cm) "
+             "| GNSS bound RMSE / MAX (m) | map planes RMS (cm) | rail heads p95 / max (cm) | GNSS factors "
+             "| multipath rejected | RTF | peak RSS (MB) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['scenario']} | failed: {' '.join(r['error'])} | | | | | | | | | | |")
+            lines.append(f"| {r['scenario']} | failed: {' '.join(r['error'])} | | | | | | | | | | | |")
             continue
         lines.append(f"| {r['scenario']} | {r['distance_m'] / 1000:.2f} | {r['ate_m']:.2f} | {r['max_m']:.2f} | "
-                     f"{fmt(r['outage_max_m'])} | {fmt(r['bound_ate_m'])} / {fmt(r['bound_max_m'])} | "
+                     f"{fmt(r['outage_max_m'])} | {cm(r['step_m'])} | "
+                     f"{fmt(r['bound_ate_m'])} / {fmt(r['bound_max_m'])} | "
                      f"{cm(r['plane_rms_m'])} | {100 * r['rail_p95_m']:.1f} / {100 * r['rail_max_m']:.1f} | "
                      f"{r['gnss'].get('factors', 0)} | {r['gnss'].get('outliers', 0)} | {r['rtf']:.2f} | "
                      f"{r['peak_rss_mb']:.0f} |")
@@ -223,6 +238,7 @@ def main():
         else:
             print(f"{row['scenario']:34s} {row['distance_m'] / 1000:6.2f} km  ATE {row['ate_m']:.2f} m  "
                   f"MAX {row['max_m']:.2f} m  outage MAX {fmt(row['outage_max_m'])} m  "
+                  f"step {cm(row['step_m'])} cm  "
                   f"bound {fmt(row['bound_ate_m'])} / {fmt(row['bound_max_m'])} m  "
                   f"planes {cm(row['plane_rms_m'])} cm  rails {100 * row['rail_max_m']:.1f} cm  "
                   f"RTF {row['rtf']:.2f}", flush=True)
