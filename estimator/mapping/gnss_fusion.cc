@@ -297,6 +297,7 @@ void GnssFusion::Align(const std::vector<Pair>& pairs, bool resolve) {
   m << std::fixed;
   if (resolve) {
     ++stats_.realignments;
+    published_.step_allowed = true;
     m << "GNSS alignment re-solved on " << a.inliers << " fixes: the position moved by "
       << (correction_.Apply(pairs.back().antenna_odom) - before).norm() << " m";
   } else {
@@ -316,6 +317,10 @@ void GnssFusion::AddNode(const Pair& pair, const Eigen::Vector3d& fix_enu) {
   n.t_s = pair.t_s;
   n.fix_enu = fix_enu;
   n.antenna_levelled = Rz(-n.yaw_odom) * T_odom_body.linear() * options_.p_body_antenna;
+  // No factor for more than a period and a half: the receiver was out (a tunnel, a station
+  // roof), and this node corrects drift the graph could not see.
+  if (!nodes_.empty() && n.t_s - nodes_.back().t_s > 1.5 * options_.factor_period_s)
+    published_.step_allowed = true;
   const Eigen::Isometry3d T = correction_.Apply(T_odom_body);
   n.x[0] = T.translation().x();
   n.x[1] = T.translation().y();
@@ -435,24 +440,37 @@ Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double
   return T;
 }
 
-Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, double t_s) {
+Eigen::Isometry3d GnssFusion::Continue(const Eigen::Isometry3d& T_odom_body,
+                                       double t_s,
+                                       bool step_always,
+                                       Continuity* c) {
   Eigen::Isometry3d T = ToEnu(T_odom_body, t_s);
-  if (published_ && options_.continuity_length_m > 0.0) {
-    const Eigen::Isometry3d now = ToEnu(published_odom_, published_t_s_);
-    const Eigen::Vector3d dp = published_enu_.translation() - now.translation();
-    if (dp.norm() <= options_.continuity_max_step_m) {
+  if (c->valid && options_.continuity_length_m > 0.0) {
+    const Eigen::Isometry3d now = ToEnu(c->odom, c->t_s);
+    const Eigen::Vector3d dp = c->enu.translation() - now.translation();
+    const bool step = step_always || c->step_allowed;
+    if (!step || dp.norm() <= options_.continuity_max_step_m) {
       // Positions only: holding a yaw difference on the orientation while the positions follow
       // the graph would skew the body against its own path (crabbing), and every keyframe
       // cloud with it.
-      const double travel = (T_odom_body.translation() - published_odom_.translation()).norm();
+      const double travel = (T_odom_body.translation() - c->odom.translation()).norm();
       T.translation() += std::exp(-travel / options_.continuity_length_m) * dp;
     }
   }
-  published_ = true;
-  published_t_s_ = t_s;
-  published_odom_ = T_odom_body;
-  published_enu_ = T;
+  c->valid = true;
+  c->step_allowed = false;
+  c->t_s = t_s;
+  c->odom = T_odom_body;
+  c->enu = T;
   return T;
+}
+
+Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, double t_s) {
+  return Continue(T_odom_body, t_s, false, &published_);
+}
+
+Eigen::Isometry3d GnssFusion::MapTarget(const Eigen::Isometry3d& T_odom_body, double t_s) {
+  return Continue(T_odom_body, t_s, true, &map_target_);
 }
 
 double GnssFusion::settled_until_s() const {

@@ -88,7 +88,7 @@ void SubmapBuilder::RegisterKeyframes(const Eigen::Vector3d& origin,
       (*P)[k] = r.T_target_source;
       ++stats_.icp_odometry;
     } else {
-      // The paper's fallback: the GNSS (published) pose as the initial guess.
+      // The paper's fallback: the GNSS pose as the initial guess.
       Eigen::Isometry3d gnss_guess = open_[k].T_world_body;
       gnss_guess.translation() -= origin;
       const Registration g =

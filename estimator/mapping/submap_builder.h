@@ -109,7 +109,8 @@ struct SubmapOptions {
 /// One keyframe for the submap builder.
 struct SubmapKeyframe {
   int64_t stamp_ns = 0;
-  /// The published pose: UTM when georeferenced, else the local odometry frame.
+  /// Where GNSS puts it (GnssFusion::MapTarget), the pose the chain is pulled towards: UTM when
+  /// georeferenced, else the local odometry frame.
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
   /// The odometry's own pose, without GNSS corrections: locally the most consistent.
   Eigen::Isometry3d T_odom_body = Eigen::Isometry3d::Identity();

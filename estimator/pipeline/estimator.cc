@@ -827,6 +827,7 @@ void Estimator::Emit(std::unique_ptr<NodeExtras> extras) {
       Keyframe k;
       k.stamp_ns = result.stamp_ns;
       k.T_world_body = result.T_world_body;
+      k.T_world_gnss = result.T_world_body;
       k.T_odom_body = result.T_world_body;
       k.points_body = std::move(extras->cloud);
       k.intensities = std::move(extras->intensities);
@@ -877,12 +878,15 @@ void Estimator::ReleaseHeld(bool flush) {
     HeldOutput& h = gnss_held_.front();
     const double t = StampSeconds(h.frame.stamp_ns);
     if (t > settled_s && !flush && newest_s - t < config_.options.gnss_max_latency_s) break;
-    h.frame.T_world_body = gnss_->Publish(h.frame.T_world_body, t);
+    const Eigen::Isometry3d T_odom_body = h.frame.T_world_body;
+    const Eigen::Isometry3d T_map_target = gnss_->MapTarget(T_odom_body, t);
+    h.frame.T_world_body = gnss_->Publish(T_odom_body, t);
     h.frame.georeferenced = true;
     h.frame.origin_utm = gnss_->origin_utm();
     h.frame.utm_zone = gnss_->zone().Name();
     if (h.keyframe) {
       h.keyframe->T_world_body = h.frame.T_world_body;  // the keyframe is this frame
+      h.keyframe->T_world_gnss = T_map_target;
       h.keyframe->odometry_scale = gnss_->odometry_scale();
       h.keyframe->georeferenced = true;
       h.keyframe->origin_utm = h.frame.origin_utm;
@@ -911,7 +915,7 @@ void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyfram
   if (!keyframe) return;
   SubmapKeyframe k;
   k.stamp_ns = keyframe->stamp_ns;
-  k.T_world_body = keyframe->T_world_body;
+  k.T_world_body = keyframe->T_world_gnss;
   if (keyframe->georeferenced) k.T_world_body.translation() += keyframe->origin_utm;
   k.T_odom_body = keyframe->T_odom_body;
   k.odometry_scale = keyframe->odometry_scale;

@@ -71,6 +71,10 @@ struct FrameResult {
 struct Keyframe {
   int64_t stamp_ns = 0;
   Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();  ///< frame as FrameResult's
+  /// Where GNSS puts the keyframe for the submap chain (GnssFusion::MapTarget), in the same
+  /// frame: T_world_body fades every re-solve of the GNSS graph, this takes the large ones at
+  /// once.
+  Eigen::Isometry3d T_world_gnss = Eigen::Isometry3d::Identity();
   /// The odometry's own pose, before any GNSS correction (submaps are built from it).
   Eigen::Isometry3d T_odom_body = Eigen::Isometry3d::Identity();
   /// The odometry's scale error as GNSS sees it (true distance = scale x odometry), or 1.
