@@ -112,9 +112,8 @@ class GnssFusion {
   Eigen::Isometry3d Publish(const Eigen::Isometry3d& T_odom_body, double t_s);
   /// Where the submap chain is pulled for the odometry pose at time t_s (time order, every
   /// pose): as Publish, but any move above continuity_max_step_m is taken at once. The chain
-  /// smooths the pull itself, and a fade under it as well lagged the map's height behind the
-  /// graph: with Publish's pose, two suite runs' worst rail segments went from 2.0 and 2.6 cm
-  /// to 3.3 cm. Valid once aligned.
+  /// smooths the pull itself (SubmapOptions); pulled towards Publish's faded pose instead, two
+  /// suite runs' worst rail segments went from 2.0 and 2.6 cm to 3.3 cm. Valid once aligned.
   Eigen::Isometry3d MapTarget(const Eigen::Isometry3d& T_odom_body, double t_s);
   /// The odometry's scale error as the graph estimates it: true distance = scale x odometry.
   double odometry_scale() const { return std::exp(drift_[0]); }
