@@ -9,7 +9,7 @@
 #include <ctime>
 #include <limits>
 
-namespace raillomer::api {
+namespace raillomer::api::las {
 namespace {
 
 constexpr size_t kLasHeader = 227;    // the LAS 1.2 public header block
@@ -37,12 +37,6 @@ std::string TextAt(const std::string& in, size_t at, size_t width) {
   std::string text = in.substr(at, width);
   return text.substr(0, text.find('\0'));
 }
-
-}  // namespace
-
-namespace las {
-
-namespace {
 
 // The bounds as written: zero when there are no points.
 Eigen::Vector3d MinOf(const Header& header) {
@@ -207,6 +201,4 @@ bool Decode(const std::string& bytes, Contents* contents, std::string* error) {
   return true;
 }
 
-}  // namespace las
-
-}  // namespace raillomer::api
+}  // namespace raillomer::api::las

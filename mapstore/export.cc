@@ -39,7 +39,8 @@ const char* ExtensionOf(ExportFormat format) {
 
 std::string EncodeExport(const std::vector<ExportPoint>& points,
                          ExportFormat format,
-                         const std::string& utm_zone) {
+                         const std::string& utm_zone,
+                         std::string* error) {
   std::string out;
   const size_t n = points.size();
   if (format == ExportFormat::kPly || format == ExportFormat::kPcd) {
@@ -71,8 +72,11 @@ std::string EncodeExport(const std::vector<ExportPoint>& points,
     header.software = "raillomer-server";
     header.created = std::time(nullptr);
     for (const ExportPoint& p : points) header.bounds.extend(p.p);
-    std::string error;
-    if (!api::las::EncodeHeader(header, &out, &error)) return std::string();
+    std::string why;
+    if (!api::las::EncodeHeader(header, &out, &why)) {
+      if (error) *error = why;
+      return std::string();
+    }
     const Eigen::Vector3d offset = api::las::OffsetOf(header);
     out.reserve(out.size() + api::las::kRecordBytes * n);
     for (const ExportPoint& p : points) api::las::AppendRecord(&out, p.p, offset, p.intensity);

@@ -22,11 +22,12 @@ struct ExportPoint {
 /// The points as a file: binary PLY (double x y z, uchar intensity), binary PCD (x y z as F 8,
 /// intensity as U 1) or LAS 1.2 (point format 0, 1 mm scale, the offset at the points' minimum
 /// corner, the UTM zone in the header's system identifier and as a GeoTIFF key). Coordinates are
-/// UTM in every case, so every tool places them without a transform. Empty if LAS 1.2 cannot hold
-/// the points (see api::las::EncodeHeader).
+/// UTM in every case, so every tool places them without a transform. Empty, with the reason in
+/// `error` if given, when LAS 1.2 cannot hold the points (see api::las::EncodeHeader).
 std::string EncodeExport(const std::vector<ExportPoint>& points,
                          ExportFormat format,
-                         const std::string& utm_zone);
+                         const std::string& utm_zone,
+                         std::string* error = nullptr);
 
 /// Reads back what EncodeExport wrote (for tests and tools); false with a message otherwise.
 bool DecodeExport(const std::string& bytes,

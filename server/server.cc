@@ -949,14 +949,14 @@ void Server::Impl::Routes() {
         std::string zone;
         const mapstore::Result r = store_->Export(request, &points, &zone);
         if (!r) return SendResult(res, r);
-        std::string body = mapstore::EncodeExport(points, format, zone);
+        std::string why;
+        std::string body = mapstore::EncodeExport(points, format, zone, &why);
         if (body.empty())
           return SendError(res,
                            413,
                            "too_large",
-                           std::to_string(points.size()) +
-                               " points are beyond what LAS 1.2 holds (2^32 - 1 points within "
-                               "2147 km at 1 mm): ask for ply or pcd, or a smaller box");
+                           std::to_string(points.size()) + " points: " + why +
+                               "; ask for ply or pcd, or a smaller box");
         res.set_header("Content-Disposition",
                        "attachment; filename=\"run-" + std::to_string(id) + "." +
                            mapstore::ExtensionOf(format) + "\"");

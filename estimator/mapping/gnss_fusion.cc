@@ -442,13 +442,12 @@ Eigen::Isometry3d GnssFusion::ToEnu(const Eigen::Isometry3d& T_odom_body, double
 
 Eigen::Isometry3d GnssFusion::Continue(const Eigen::Isometry3d& T_odom_body,
                                        double t_s,
-                                       bool step_always,
                                        Continuity* c) {
   Eigen::Isometry3d T = ToEnu(T_odom_body, t_s);
   if (c->valid && options_.continuity_length_m > 0.0) {
     const Eigen::Isometry3d now = ToEnu(c->odom, c->t_s);
     const Eigen::Vector3d dp = c->enu.translation() - now.translation();
-    const bool step = step_always || c->step_allowed;
+    const bool step = c->step_always || c->step_allowed;
     if (!step || dp.norm() <= options_.continuity_max_step_m) {
       // Positions only: holding a yaw difference on the orientation while the positions follow
       // the graph would skew the body against its own path (crabbing), and every keyframe
@@ -466,11 +465,11 @@ Eigen::Isometry3d GnssFusion::Continue(const Eigen::Isometry3d& T_odom_body,
 }
 
 Eigen::Isometry3d GnssFusion::Publish(const Eigen::Isometry3d& T_odom_body, double t_s) {
-  return Continue(T_odom_body, t_s, false, &published_);
+  return Continue(T_odom_body, t_s, &published_);
 }
 
 Eigen::Isometry3d GnssFusion::MapTarget(const Eigen::Isometry3d& T_odom_body, double t_s) {
-  return Continue(T_odom_body, t_s, true, &map_target_);
+  return Continue(T_odom_body, t_s, &map_target_);
 }
 
 double GnssFusion::settled_until_s() const {

@@ -200,6 +200,9 @@ class GnssFusion {
 
   /// The last pose handed out, for a consumer's continuity (Publish, MapTarget).
   struct Continuity {
+    /// Any move above continuity_max_step_m is taken at once (MapTarget's); else only where
+    /// step_allowed (Publish's).
+    bool step_always = false;
     bool valid = false;
     /// The graph has moved for a reason a fade would hide (GNSS back after a gap, a re-solved
     /// alignment): the next pose may step by more than continuity_max_step_m.
@@ -210,12 +213,9 @@ class GnssFusion {
   };
   /// ToEnu(T_odom_body, t_s) plus the fading part of how far the graph has moved c's last pose
   /// since it went out; a move above continuity_max_step_m is taken at once where c allows a
-  /// step or `step_always`.
-  Eigen::Isometry3d Continue(const Eigen::Isometry3d& T_odom_body,
-                             double t_s,
-                             bool step_always,
-                             Continuity* c);
-  Continuity published_, map_target_;
+  /// step.
+  Eigen::Isometry3d Continue(const Eigen::Isometry3d& T_odom_body, double t_s, Continuity* c);
+  Continuity published_, map_target_{/*step_always=*/true};
 };
 
 }  // namespace raillomer
