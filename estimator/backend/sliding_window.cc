@@ -92,7 +92,7 @@ void SlidingWindow::Push(double t_s,
   node->t_s = t_s;
   ToBlocks(state, node->pose, node->speed_bias, node->scale);
   if (nodes_.empty() && !has_prior_) {
-    AddAnchorPriors(node.get());
+    AddAnchorPriors(node.get(), options_.initial_accel_bias_sigma);
   } else if (options_.use_imu && preintegration && !nodes_.empty()) {
     Node& prev = *nodes_.back();
     node->preintegration = preintegration;
@@ -127,7 +127,7 @@ void SlidingWindow::ClearUnaryFactors() {
   for (auto& n : nodes_) n->unary.clear();
 }
 
-void SlidingWindow::AddAnchorPriors(Node* node) const {
+void SlidingWindow::AddAnchorPriors(Node* node, double accel_bias_sigma) const {
   // The anchor state holds the frame: its pose tightly (roll and pitch loosely when the IMU
   // observes them through gravity), velocity and biases loosely.
   node->priors.push_back(
@@ -137,7 +137,7 @@ void SlidingWindow::AddAnchorPriors(Node* node) const {
   if (!options_.use_imu) return;
   Eigen::VectorXd sigma(9);
   sigma << Eigen::Vector3d::Constant(options_.initial_velocity_sigma_mps),
-      Eigen::Vector3d::Constant(options_.initial_accel_bias_sigma),
+      Eigen::Vector3d::Constant(accel_bias_sigma),
       Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
   node->priors.push_back({DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
   node->priors.push_back(
@@ -161,7 +161,7 @@ void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old) {
   }
   has_prior_ = false;
   prior_term_ = WindowTerm();
-  if (!nodes_.empty()) AddAnchorPriors(nodes_.front().get());
+  if (!nodes_.empty()) AddAnchorPriors(nodes_.front().get(), options_.relevelled_accel_bias_sigma);
 }
 
 std::vector<WindowTerm> SlidingWindow::AllTerms() const {

@@ -80,6 +80,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("odometer_sway_time_constant_s", &o->odometer_sway_time_constant_s);
   r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
   r.Read("initial_accel_bias_sigma", &o->initial_accel_bias_sigma);
+  r.Read("relevelled_accel_bias_sigma", &o->relevelled_accel_bias_sigma);
   r.Read("initial_gyro_bias_sigma", &o->initial_gyro_bias_sigma);
   r.Read("initial_scale_sigma", &o->initial_scale_sigma);
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
@@ -249,8 +250,9 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("rail-plane sigmas must be > 0");
   }
   if (!(initial_velocity_sigma_mps > 0.0) || !(initial_accel_bias_sigma > 0.0) ||
-      !(initial_gyro_bias_sigma > 0.0) || !(initial_scale_sigma > 0.0)) {
-    return fail("initial_*_sigma values must be > 0");
+      !(relevelled_accel_bias_sigma > 0.0) || !(initial_gyro_bias_sigma > 0.0) ||
+      !(initial_scale_sigma > 0.0)) {
+    return fail("initial_*_sigma and relevelled_accel_bias_sigma must be > 0");
   }
   if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
     return fail("keyframe thresholds must be > 0");
@@ -324,8 +326,9 @@ std::string EstimatorConfig::Describe() const {
     s << "not matched\n";
   }
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
-    << o.initial_accel_bias_sigma << " m/s^2, gyro bias " << o.initial_gyro_bias_sigma
-    << " rad/s, odometer scale " << o.initial_scale_sigma << "\n";
+    << o.initial_accel_bias_sigma << " m/s^2 (after re-levelling " << o.relevelled_accel_bias_sigma
+    << "), gyro bias " << o.initial_gyro_bias_sigma << " rad/s, odometer scale "
+    << o.initial_scale_sigma << "\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
     << "; solution remapping below " << o.degeneracy_projection << "; heading remapping below "

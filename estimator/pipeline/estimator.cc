@@ -141,6 +141,7 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   w.estimate_scale = o.switches.use_odometer;
   w.initial_velocity_sigma_mps = o.initial_velocity_sigma_mps;
   w.initial_accel_bias_sigma = o.initial_accel_bias_sigma;
+  w.relevelled_accel_bias_sigma = o.relevelled_accel_bias_sigma;
   w.initial_gyro_bias_sigma = o.initial_gyro_bias_sigma;
   w.initial_scale_sigma = o.initial_scale_sigma;
   window_ = std::make_unique<SlidingWindow>(w);
