@@ -26,8 +26,8 @@ struct SlidingWindowOptions {
   double initial_velocity_sigma_mps = 1.0;
   double initial_accel_bias_sigma = 3.0e-2;  ///< m/s^2: also takes up a residual tilt of ~0.2 deg
   /// m/s^2: the accelerometer bias prior after RotateWorld. The re-levelling took the bias as
-  /// zero, so the tilt is known to the bias; a loose prior here lets a bias of 1 mrad of pitch
-  /// per 0.01 m/s^2 take the place of gravity, and the pitch drifts with the LiDAR's own.
+  /// zero, so the tilt is as uncertain as the true bias; a loose prior here lets a bias (1 mrad of
+  /// pitch per 0.01 m/s^2) take the place of gravity, and the pitch drifts with the LiDARs.
   double relevelled_accel_bias_sigma = 3.0e-3;
   double initial_gyro_bias_sigma = 2.0e-4;  ///< rad/s, about 5x an MTi-680G turn-on bias
   double initial_scale_sigma = 0.02;
