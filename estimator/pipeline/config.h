@@ -149,10 +149,11 @@ struct EstimatorOptions {
   /// origin (InertialBuffer::SwayAt, the gyro's angles high-passed): that roll does not swing the
   /// odometer's lever arm over the rail, and that pitch does not tilt the wheels' path, which
   /// follows the track. Slower rotation is the track's (cant, grade). 0: the body's whole
-  /// rotation is the track's. rich_high_mixed_b 0.220 -> 0.177 % end drift (3.0 -> 2.2 m down),
-  /// rich_high_town_a 0.103 -> 0.060 %; at 1 s 0.199 and 0.069 % (README, "Where the estimator
-  /// stands").
-  double odometer_sway_time_constant_s = 2.0;
+  /// rotation is the track's. At 2 s a grade change (6 permille over 2 s) left the pitch's second
+  /// high-pass 0.8 mrad below zero for seconds, the path tilted against the body, and rail heads
+  /// seen from two submaps 3 cm apart; 0.5 s still keeps 94 % of the body's 1.3 Hz pitch
+  /// (estimator/RESULTS.md, 2026-11-25).
+  double odometer_sway_time_constant_s = 0.5;
   /// Priors of the first state (and of the window after re-levelling, but the accelerometer
   /// bias's: relevelled_accel_bias_sigma).
   double initial_velocity_sigma_mps = 1.0;

@@ -246,6 +246,10 @@ std::string Simulator::RigYaml() const {
   out << YAML::Key << "gravity_mps2" << YAML::Value << s.gravity_mps2;
   out << YAML::EndMap;
   out << YAML::Key << "odometer" << YAML::Value << YAML::BeginMap;
+  // The wheel meets the rail at the track's centre line, below the body origin: the body, high
+  // above it, swings sideways over it when the track cants.
+  out << YAML::Key << "translation_m" << YAML::Value << YAML::Flow
+      << std::vector<double>{0.0, 0.0, -s.body_height_m};
   out << YAML::Key << "topic" << YAML::Value << s.odometer_topic;
   out << YAML::Key << "joint_name" << YAML::Value << "wheel";
   out << YAML::Key << "wheel_diameter_m" << YAML::Value << s.wheel_diameter_m;

@@ -39,7 +39,8 @@ TEST(EstimatorConfig, ReadsTheSimulatorsRig) {
   EXPECT_EQ(config.rig.pulses_per_rev, 100);
   EXPECT_DOUBLE_EQ(config.rig.body_above_rail_top_m, 3.8);
   EXPECT_DOUBLE_EQ(config.options.rail.body_above_rail_top_m, 3.8);
-  EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d::Zero());
+  // The simulated wheel meets the rail at the track's centre line, 3.8 m below the body.
+  EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d(0.0, 0.0, -3.8));
   EXPECT_NE(config.Describe().find("window_size"), std::string::npos);
 }
 
@@ -77,15 +78,21 @@ TEST(EstimatorConfig, ReadsTheImuGapMotionAndRejectsItNegative) {
   EXPECT_NE(error.find("imu.gap_rate_sigma_radps must be >= 0"), std::string::npos) << error;
 }
 
-TEST(EstimatorConfig, AnOdometerPointGivenIsKept) {
-  std::string yaml = DemoRigYaml();
-  const size_t at = yaml.find("odometer:\n");
+TEST(EstimatorConfig, AnOdometerPointGivenIsKeptAndDefaultsToTheBodyOrigin) {
+  const std::string sim_line = "  translation_m: [0, 0, -3.8]\n";
+  const std::string demo = DemoRigYaml();
+  const size_t at = demo.find(sim_line);
   ASSERT_NE(at, std::string::npos);
-  yaml.insert(at + 10, "  translation_m: [1.5, 0, -3.4]\n");
   EstimatorConfig config;
   std::string error;
+  std::string yaml = demo;
+  yaml.replace(at, sim_line.size(), "  translation_m: [1.5, 0, -3.4]\n");
   ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
   EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d(1.5, 0.0, -3.4));
+  yaml = demo;
+  yaml.erase(at, sim_line.size());
+  ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
+  EXPECT_EQ(config.rig.p_body_odometer, Eigen::Vector3d::Zero());
 }
 
 TEST(EstimatorConfig, RejectsUnknownKeysWithTheirLine) {

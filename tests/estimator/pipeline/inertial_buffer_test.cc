@@ -220,5 +220,24 @@ TEST(InertialBufferSway, SplitsTheBodysSwayFromTheTracksTurns) {
   }
 }
 
+// A grade change (6 mrad over 2 s, 0 to -6 permille at 110 km/h) is the track's, not the body's
+// sway. Twice high-passed, it leaves the pitch past zero for a few time constants; at the
+// default time constant that must be over 2 s after the grade is reached. At 2 s it stayed
+// 0.8 mrad below zero for seconds: the wheels' path tilted against the body, and two submaps
+// saw the same rail heads 3 cm apart (rich_high_mixed_b).
+TEST(InertialBufferSway, AGradeChangeLeavesThePitchSwaySoon) {
+  InertialBuffer buffer;
+  buffer.sway_time_constant_s = EstimatorOptions().odometer_sway_time_constant_s;
+  const double dt = 0.005;
+  double late = 0.0;
+  for (int k = 0; k <= static_cast<int>(20.0 / dt); ++k) {
+    const double t = k * dt;
+    const double pitch_rate = t > 1.0 && t < 3.0 ? -0.003 : 0.0;
+    buffer.AddImu(t, Eigen::Vector3d(0.0, pitch_rate, 0.0), Eigen::Vector3d(0.0, 0.0, 9.81));
+    if (t >= 5.0) late = std::max(late, std::fabs(buffer.SwayAt(t).pitch));
+  }
+  EXPECT_LT(late, 2e-4) << "the grade change still taken as sway 2 s after it";
+}
+
 }  // namespace
 }  // namespace raillomer
