@@ -3,6 +3,10 @@
 #include <ceres/ceres.h>
 #include <ceres/normal_prior.h>
 
+#include <memory>
+#include <mutex>
+#include <vector>
+
 #include "estimator/factors/imu_odometer_factor.h"
 #include "estimator/factors/marginalization.h"
 #include "estimator/factors/pose_manifold.h"
@@ -45,7 +49,7 @@ class PosePriorFactor : public ceres::SizedCostFunction<6, 7> {
   Eigen::Vector3d wq_;
 };
 
-void ToBlocks(const NavState& s, double* pose, double* speed_bias, double* scale) {
+void ToBlocks(const NavState& s, double* pose, double* speed_bias, double* odometer) {
   const Eigen::Quaterniond q = s.q.normalized();
   for (int k = 0; k < 3; ++k) {
     pose[k] = s.p[k];
@@ -57,7 +61,9 @@ void ToBlocks(const NavState& s, double* pose, double* speed_bias, double* scale
   pose[4] = q.y();
   pose[5] = q.z();
   pose[6] = q.w();
-  scale[0] = s.c;
+  odometer[0] = s.c;
+  odometer[1] = s.m.x();
+  odometer[2] = s.m.y();
 }
 
 std::shared_ptr<ceres::CostFunction> DiagonalPrior(const double* values,
@@ -70,11 +76,31 @@ std::shared_ptr<ceres::CostFunction> DiagonalPrior(const double* values,
 
 }  // namespace
 
+/// The odometer block's manifold: Euclidean, with the scale held when it is not estimated and
+/// each misalignment component held when its prior is 0; null when all are free (or all held).
+ceres::Manifold* OdometerManifold(const SlidingWindowOptions& o) {
+  static std::vector<std::unique_ptr<ceres::SubsetManifold>> manifolds(8);
+  const int held = (o.estimate_scale ? 0 : 1) |
+                   (o.initial_misalignment_sigma_rad.x() > 0.0 ? 0 : 2) |
+                   (o.initial_misalignment_sigma_rad.y() > 0.0 ? 0 : 4);
+  // All held: the block is set constant instead.
+  if (held == 0 || held == 7) return nullptr;
+  static std::mutex mutex;
+  const std::lock_guard<std::mutex> lock(mutex);
+  if (!manifolds[held]) {
+    std::vector<int> constant;
+    for (int k = 0; k < kOdometerBlockSize; ++k)
+      if (held & (1 << k)) constant.push_back(k);
+    manifolds[held] = std::make_unique<ceres::SubsetManifold>(kOdometerBlockSize, constant);
+  }
+  return manifolds[held].get();
+}
+
 struct SlidingWindow::Node {
   double t_s = 0.0;
   double pose[kPoseSize];
   double speed_bias[kSpeedBiasSize];
-  double scale[kScaleSize];
+  double odometer[kOdometerBlockSize];
   std::shared_ptr<Preintegration> preintegration;  ///< from the previous state to this one
   std::vector<WindowTerm> lidar;                   ///< unary, on pose: none or one
   std::vector<WindowTerm> unary;                   ///< other factors on pose alone
@@ -90,16 +116,20 @@ void SlidingWindow::Push(double t_s,
                          std::shared_ptr<Preintegration> preintegration) {
   auto node = std::make_unique<Node>();
   node->t_s = t_s;
-  ToBlocks(state, node->pose, node->speed_bias, node->scale);
+  ToBlocks(state, node->pose, node->speed_bias, node->odometer);
   if (nodes_.empty() && !has_prior_) {
     AddAnchorPriors(node.get(), options_.initial_accel_bias_sigma);
   } else if (options_.use_imu && preintegration && !nodes_.empty()) {
     Node& prev = *nodes_.back();
     node->preintegration = preintegration;
-    node->links.push_back(
-        {std::make_shared<ImuOdometerFactor>(preintegration),
-         nullptr,
-         {prev.pose, prev.speed_bias, prev.scale, node->pose, node->speed_bias, node->scale}});
+    node->links.push_back({std::make_shared<ImuOdometerFactor>(preintegration),
+                           nullptr,
+                           {prev.pose,
+                            prev.speed_bias,
+                            prev.odometer,
+                            node->pose,
+                            node->speed_bias,
+                            node->odometer}});
   }
   nodes_.push_back(std::move(node));
 }
@@ -140,10 +170,25 @@ void SlidingWindow::AddAnchorPriors(Node* node, double accel_bias_sigma) const {
       Eigen::Vector3d::Constant(accel_bias_sigma),
       Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
   node->priors.push_back({DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
+  // The scale, and each misalignment component that is estimated (OdometerManifold holds the
+  // others).
+  std::vector<Eigen::RowVectorXd> rows;
+  Eigen::RowVectorXd row = Eigen::RowVectorXd::Zero(kOdometerBlockSize);
+  row(0) = 1.0 / options_.initial_scale_sigma;
+  rows.push_back(row);
+  for (int k = 0; k < 2; ++k) {
+    if (!(options_.initial_misalignment_sigma_rad[k] > 0.0)) continue;
+    row.setZero();
+    row(1 + k) = 1.0 / options_.initial_misalignment_sigma_rad[k];
+    rows.push_back(row);
+  }
+  Eigen::MatrixXd A(static_cast<Eigen::Index>(rows.size()), kOdometerBlockSize);
+  for (size_t k = 0; k < rows.size(); ++k) A.row(static_cast<Eigen::Index>(k)) = rows[k];
   node->priors.push_back(
-      {DiagonalPrior(node->scale, 1, Eigen::VectorXd::Constant(1, options_.initial_scale_sigma)),
+      {std::make_shared<ceres::NormalPrior>(
+           A, Eigen::Map<const Eigen::VectorXd>(node->odometer, kOdometerBlockSize)),
        nullptr,
-       {node->scale}});
+       {node->odometer}});
 }
 
 void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old) {
@@ -188,8 +233,8 @@ WindowSummary SlidingWindow::Optimize() {
     Eigen::Map<const Eigen::Vector3d> ba(prev.speed_bias + 3), bg(prev.speed_bias + 6);
     if ((ba - n.preintegration->linearized_ba()).norm() > 0.05 ||
         (bg - n.preintegration->linearized_bg()).norm() > 2e-3 ||
-        std::abs(prev.scale[0] - n.preintegration->linearized_c()) > 0.01) {
-      n.preintegration->Repropagate(ba, bg, prev.scale[0]);
+        std::abs(prev.odometer[0] - n.preintegration->linearized_c()) > 0.01) {
+      n.preintegration->Repropagate(ba, bg, prev.odometer[0]);
       n.links.front().cost = std::make_shared<ImuOdometerFactor>(n.preintegration);
     }
   }
@@ -205,8 +250,10 @@ WindowSummary SlidingWindow::Optimize() {
     problem.AddParameterBlock(n->pose, kPoseSize, &manifold);
     if (options_.use_imu) {
       problem.AddParameterBlock(n->speed_bias, kSpeedBiasSize);
-      problem.AddParameterBlock(n->scale, kScaleSize);
-      if (!options_.estimate_scale) problem.SetParameterBlockConstant(n->scale);
+      problem.AddParameterBlock(n->odometer, kOdometerBlockSize, OdometerManifold(options_));
+      if (!options_.estimate_scale &&
+          !(options_.initial_misalignment_sigma_rad.array() > 0.0).any())
+        problem.SetParameterBlockConstant(n->odometer);
     }
   }
   if (!options_.use_imu) {
@@ -242,7 +289,7 @@ NavState SlidingWindow::PopOldest(double* t_s) {
   if (t_s) *t_s = oldest.t_s;
   if (nodes_.size() >= 2 && options_.use_imu) {
     auto info = std::make_shared<MarginalizationInfo>();
-    const std::vector<double*> dropped = {oldest.pose, oldest.speed_bias, oldest.scale};
+    const std::vector<double*> dropped = {oldest.pose, oldest.speed_bias, oldest.odometer};
     auto add = [&](const WindowTerm& t) {
       MarginalizationTerm m;
       m.cost_function = t.cost;
@@ -283,7 +330,8 @@ NavState SlidingWindow::State(int index) const {
   s.v = Eigen::Map<const Eigen::Vector3d>(n.speed_bias);
   s.ba = Eigen::Map<const Eigen::Vector3d>(n.speed_bias + 3);
   s.bg = Eigen::Map<const Eigen::Vector3d>(n.speed_bias + 6);
-  s.c = n.scale[0];
+  s.c = n.odometer[0];
+  s.m = Eigen::Vector2d(n.odometer[1], n.odometer[2]);
   return s;
 }
 

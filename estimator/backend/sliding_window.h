@@ -31,6 +31,9 @@ struct SlidingWindowOptions {
   double relevelled_accel_bias_sigma = 3.0e-3;
   double initial_gyro_bias_sigma = 2.0e-4;  ///< rad/s, about 5x an MTi-680G turn-on bias
   double initial_scale_sigma = 0.02;
+  /// rad: prior of the odometer's misalignment (NavState::m: pitch, yaw) on the first state; a
+  /// component of 0 is held at zero (the wheels' path is the odometer's x axis, as in the paper).
+  Eigen::Vector2d initial_misalignment_sigma_rad = Eigen::Vector2d(3.0e-3, 0.0);
   int num_threads = 2;
 };
 
@@ -50,7 +53,7 @@ struct WindowSummary {
   bool converged = false;
 };
 
-/// The keyframe sliding window of eq. (2): states x_i = [p, v, q, b_a, b_g, c^O] linked by
+/// The keyframe sliding window of eq. (2): states x_i = [p, v, q, b_a, b_g, c^O, m] linked by
 /// IMU/odometer preintegration factors, with LiDAR, rail-plane and height-descriptor factors,
 /// and a Schur-complement prior carrying what marginalised states knew.
 class SlidingWindow {

@@ -1,5 +1,6 @@
 #include "estimator/factors/imu_odometer_factor.h"
 
+#include <algorithm>
 #include <cmath>
 #include <utility>
 
@@ -20,14 +21,15 @@ Matrix3d QleftQrightVec(const Quaterniond& a, const Quaterniond& b) {
   return -a.vec() * b.vec().transpose() + left * right;
 }
 
-NavState ReadState(const double* pose, const double* speed_bias, const double* scale) {
+NavState ReadState(const double* pose, const double* speed_bias, const double* odometer) {
   NavState s;
   s.p = Eigen::Map<const Vector3d>(pose);
   s.q = Eigen::Map<const Quaterniond>(pose + 3);
   s.v = Eigen::Map<const Vector3d>(speed_bias);
   s.ba = Eigen::Map<const Vector3d>(speed_bias + 3);
   s.bg = Eigen::Map<const Vector3d>(speed_bias + 6);
-  s.c = scale[0];
+  s.c = odometer[0];
+  s.m = Eigen::Map<const Eigen::Vector2d>(odometer + 1);
   return s;
 }
 
@@ -47,12 +49,20 @@ Matrix3d PhiScaling(const Preintegration& pre, double c_i) {
 ImuOdometerFactor::ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration)
     : preintegration_(std::move(preintegration)),
       sqrt_information_(preintegration_->SqrtInformation()),
-      revision_(preintegration_->revision()) {}
+      misalignment_weight_(0.0),
+      revision_(preintegration_->revision()) {
+  const double walk = preintegration_->noise().odometer_misalignment_walk;
+  const double dt = std::max(preintegration_->sum_dt(), 1e-6);
+  // Without a walk the misalignment is one constant: held equal to 1 urad.
+  misalignment_weight_ = walk > 0.0 ? 1.0 / (walk * std::sqrt(dt)) : 1e6;
+}
 
-Eigen::Matrix<double, 19, 1> ImuOdometerFactor::Residual(const NavState& i,
+Eigen::Matrix<double, 21, 1> ImuOdometerFactor::Residual(const NavState& i,
                                                          const NavState& j) const {
-  Eigen::Matrix<double, 19, 1> r = preintegration_->Evaluate(i, j);
+  Eigen::Matrix<double, 21, 1> r;
+  r.head<19>() = preintegration_->Evaluate(i, j);
   r.segment<3>(kPhi) = PhiScaling(*preintegration_, i.c) * r.segment<3>(kPhi);
+  r.segment<2>(kMisalignment) = j.m - i.m;
   return r;
 }
 
@@ -71,10 +81,11 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
   }
   const Eigen::Matrix<double, 19, 19>& sqrt_info = *sqrt_info_ptr;
 
-  // Eq. (19) with the odometer row in odometer units, whitened.
-  const Eigen::Matrix<double, 19, 1> error = Residual(i, j);
-  Eigen::Map<Eigen::Matrix<double, 19, 1>> r(residuals);
-  r = sqrt_info * error;
+  // Eq. (19) with the odometer row in odometer units, whitened, and the misalignment's walk.
+  const Eigen::Matrix<double, 21, 1> error = Residual(i, j);
+  Eigen::Map<Eigen::Matrix<double, 21, 1>> r(residuals);
+  r.head<19>() = sqrt_info * error.head<19>();
+  r.tail<2>() = misalignment_weight_ * error.tail<2>();
   if (jacobians == nullptr) return true;
   // The Jacobians of the metre residual go through the same odometer-unit scaling.
   Eigen::Matrix<double, 19, 19> whitening = sqrt_info;
@@ -100,9 +111,9 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kTheta, 3) = -QleftQrightVec(gamma.conjugate(), qij);
     d.block<3, 3>(kPhi, 0) = -Ri_t;
     d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p - i.p)) + pre.LeverTermJacobianI(R_ij);
-    Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[0]);
-    out.leftCols<6>() = whitening * d;
-    out.col(6).setZero();
+    Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobians[0]);
+    out.setZero();
+    out.topLeftCorner<19, 6>() = whitening * d;
   }
   if (jacobians[1] != nullptr) {
     Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
@@ -116,18 +127,23 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kBa, 3) = -Matrix3d::Identity();
     d.block<3, 3>(kBg, 6) = -Matrix3d::Identity();
     d.block<3, 6>(kPhi, 3) = -J.block<3, 6>(kPhi, kBa);
-    Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[1]);
-    out = whitening * d;
+    Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobians[1]);
+    out.setZero();
+    out.topRows<19>() = whitening * d;
   }
   if (jacobians[2] != nullptr) {
     Eigen::Matrix<double, 19, 1> d = -J.col(kC);
     d(kC) = -1.0;
-    Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[2]);
+    Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobians[2]);
+    out.setZero();
     // The scaled row also depends on c_i through c_lin / c_i: d/dc_i of (c_lin / c_i) e is
     // -(scaled row) / c_i.
     const Vector3d axis = pre.R_body_odo().col(0);
     const Vector3d along = axis * axis.dot(error.segment<3>(kPhi));
-    out = whitening * d - sqrt_info.middleCols<3>(kPhi) * along / i.c;
+    out.block<19, 1>(0, 0) = whitening * d - sqrt_info.middleCols<3>(kPhi) * along / i.c;
+    // d_phi = ... - phi_misalignment m_i.
+    out.block<19, 2>(0, 1) = -whitening.middleCols<3>(kPhi) * pre.phi_misalignment();
+    out.block<2, 2>(kMisalignment, 1) = -misalignment_weight_ * Eigen::Matrix2d::Identity();
   }
   if (jacobians[3] != nullptr) {
     Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
@@ -135,21 +151,24 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
     d.block<3, 3>(kTheta, 3) = e.w() * Matrix3d::Identity() + Skew(e.vec());
     d.block<3, 3>(kPhi, 0) = Ri_t;
     d.block<3, 3>(kPhi, 3) = pre.LeverTermJacobianJ(R_ij);
-    Eigen::Map<Eigen::Matrix<double, 19, 7, Eigen::RowMajor>> out(jacobians[3]);
-    out.leftCols<6>() = whitening * d;
-    out.col(6).setZero();
+    Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobians[3]);
+    out.setZero();
+    out.topLeftCorner<19, 6>() = whitening * d;
   }
   if (jacobians[4] != nullptr) {
     Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
     d.block<3, 3>(kBeta, 0) = Ri_t;
     d.block<3, 3>(kBa, 3).setIdentity();
     d.block<3, 3>(kBg, 6).setIdentity();
-    Eigen::Map<Eigen::Matrix<double, 19, 9, Eigen::RowMajor>> out(jacobians[4]);
-    out = whitening * d;
+    Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobians[4]);
+    out.setZero();
+    out.topRows<19>() = whitening * d;
   }
   if (jacobians[5] != nullptr) {
-    Eigen::Map<Eigen::Matrix<double, 19, 1>> out(jacobians[5]);
-    out = whitening.col(kC);
+    Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobians[5]);
+    out.setZero();
+    out.block<19, 1>(0, 0) = whitening.col(kC);
+    out.block<2, 2>(kMisalignment, 1) = misalignment_weight_ * Eigen::Matrix2d::Identity();
   }
   return true;
 }

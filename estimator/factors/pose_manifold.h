@@ -12,11 +12,13 @@ namespace raillomer {
 /// Parameter block layouts shared by every factor (all doubles):
 ///   pose        [7]: p_world_body (x, y, z), q_world_body (x, y, z, w; Eigen's coeffs order)
 ///   speed_bias  [9]: v_world (3), accelerometer bias (3), gyroscope bias (3)
-///   scale       [1]: odometer scale factor c^O (eq. 9)
+///   odometer    [3]: odometer scale factor c^O (eq. 9), then the misalignment of the wheels'
+///                    path against the odometer's x axis: pitch and yaw (rad, about the
+///                    odometer's y and z axes; NavState::m)
 inline constexpr int kPoseSize = 7;
 inline constexpr int kPoseTangentSize = 6;
 inline constexpr int kSpeedBiasSize = 9;
-inline constexpr int kScaleSize = 1;
+inline constexpr int kOdometerBlockSize = 3;
 
 /// Skew-symmetric matrix [v]x.
 inline Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {

@@ -214,6 +214,10 @@ void Preintegration::Integrate(const Step& s) {
     // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
     Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
     Gr.block<3, 2>(kRowPhi, kNl) = -0.5 * dt * (R0 + R1) * R_body_odo_.rightCols<2>();
+    // The axis turned by the misalignment m: d u / d m = [-z_odo, y_odo].
+    Eigen::Matrix<double, 3, 2> du_dm;
+    du_dm << -R_body_odo_.col(2), R_body_odo_.col(1);
+    phi_m_ += 0.5 * dt * c_ * (R0 * s.speed0 + R1 * s.speed1) * du_dm;
   }
 
   // Continuous densities to the variances of one step: white noise averaged over dt has
@@ -270,6 +274,7 @@ void Preintegration::Repropagate(const Vector3d& ba, const Vector3d& bg, double 
   beta_.setZero();
   gamma_.setIdentity();
   phi_.setZero();
+  phi_m_.setZero();
   jacobian_.setIdentity();
   covariance_.setZero();
   step_start_deltas_.clear();
@@ -323,7 +328,8 @@ Eigen::Matrix<double, 19, 1> Preintegration::Evaluate(const NavState& i, const N
   r.segment<3>(kTheta) = 2.0 * (d.gamma.conjugate() * (qi_inv * j.q)).vec();
   r.segment<3>(kBa) = j.ba - i.ba;
   r.segment<3>(kBg) = j.bg - i.bg;
-  r.segment<3>(kPhi) = qi_inv * (j.p - i.p) + LeverTerm((qi_inv * j.q).toRotationMatrix()) - d.phi;
+  r.segment<3>(kPhi) =
+      qi_inv * (j.p - i.p) + LeverTerm((qi_inv * j.q).toRotationMatrix()) - d.phi - phi_m_ * i.m;
   r(kC) = j.c - i.c;
   return r;
 }

@@ -19,6 +19,10 @@ struct PreintegrationNoise {
   /// a looser walk lets gravity leaking through a small pitch error drag the scale along on
   /// long stretches at constant speed, where nothing else observes it.
   double odometer_scale_walk = 3.0e-5;
+  /// rad/sqrt(s): random walk of the odometer's misalignment (NavState::m). The car body's pitch
+  /// against the track shifts with load, speed and traction, and a wheel's path is never
+  /// exactly the IMU's x axis.
+  double odometer_misalignment_walk = 1.0e-5;
   /// m/s/sqrt(Hz): velocity of the body across the odometer's axis, sideways. The car body
   /// sways on its suspension while the wheel rolls along the rail, so the body does not move
   /// exactly along its x axis; without this term phi would pin the attitude to the suspension's
@@ -66,6 +70,11 @@ struct NavState {
   Eigen::Vector3d ba = Eigen::Vector3d::Zero();
   Eigen::Vector3d bg = Eigen::Vector3d::Zero();
   double c = 1.0;  ///< odometer scale factor
+  /// rad: the wheels' path against the odometer's x axis, pitch and yaw (about the odometer's y
+  /// and z axes): the path runs along R_body_odo Exp((0, m0, m1)) x. A car body sitting 1.6 mrad
+  /// nose-down on its suspension, taken to move along its x axis, drove the pitch 12 mrad off
+  /// and the distance 0.6 % long (estimator/RESULTS.md, 2026-11-25).
+  Eigen::Vector2d m = Eigen::Vector2d::Zero();
 };
 
 /// IMU / odometer preintegration between two window states (eq. 11-18).
@@ -141,6 +150,9 @@ class Preintegration {
   const Eigen::Vector3d& beta() const { return beta_; }
   const Eigen::Quaterniond& gamma() const { return gamma_; }
   const Eigen::Vector3d& phi() const { return phi_; }
+  /// d phi / d m (3 x 2), at the linearisation scale: phi is integrated with m = 0 and
+  /// corrected to first order (Evaluate).
+  const Eigen::Matrix<double, 3, 2>& phi_misalignment() const { return phi_m_; }
   const Eigen::Vector3d& linearized_ba() const { return ba_; }
   const Eigen::Vector3d& linearized_bg() const { return bg_; }
   double linearized_c() const { return c_; }
@@ -153,6 +165,7 @@ class Preintegration {
   /// Upper-triangular L with L^T L = covariance^-1 (phi rows zero when !odometer_used()).
   Eigen::Matrix<double, 19, 19> SqrtInformation() const;
   double gravity_mps2() const { return gravity_mps2_; }
+  const PreintegrationNoise& noise() const { return noise_; }
   const Eigen::Matrix3d& R_body_odo() const { return R_body_odo_; }
   const Eigen::Vector3d& p_body_odo() const { return p_body_odo_; }
   /// The lever-arm term of the phi residual for the relative rotation R_ij = R_i^T R_j: the
@@ -225,6 +238,7 @@ class Preintegration {
   Eigen::Vector3d beta_ = Eigen::Vector3d::Zero();
   Eigen::Quaterniond gamma_ = Eigen::Quaterniond::Identity();
   Eigen::Vector3d phi_ = Eigen::Vector3d::Zero();
+  Eigen::Matrix<double, 3, 2> phi_m_ = Eigen::Matrix<double, 3, 2>::Zero();
   Eigen::Matrix<double, 19, 19> jacobian_ = Eigen::Matrix<double, 19, 19>::Identity();
   Eigen::Matrix<double, 19, 19> covariance_ = Eigen::Matrix<double, 19, 19>::Zero();
   std::vector<Step> steps_;

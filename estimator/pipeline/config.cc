@@ -78,11 +78,14 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("degeneracy_projection", &o->degeneracy_projection);
   r.Read("heading_projection", &o->heading_projection);
   r.Read("odometer_sway_time_constant_s", &o->odometer_sway_time_constant_s);
+  r.Read("deskew_step_s", &o->deskew_step_s);
   r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
   r.Read("initial_accel_bias_sigma", &o->initial_accel_bias_sigma);
   r.Read("relevelled_accel_bias_sigma", &o->relevelled_accel_bias_sigma);
   r.Read("initial_gyro_bias_sigma", &o->initial_gyro_bias_sigma);
   r.Read("initial_scale_sigma", &o->initial_scale_sigma);
+  r.Read("odometer_pitch_sigma_rad", &o->odometer_pitch_sigma_rad);
+  r.Read("odometer_yaw_sigma_rad", &o->odometer_yaw_sigma_rad);
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
@@ -118,6 +121,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   }
   r.Read("odometer_speed_density", &noise->odometer_speed_density);
   r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
+  r.Read("odometer_misalignment_walk", &noise->odometer_misalignment_walk);
   r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
   r.Read("odometer_vertical_density", &noise->odometer_vertical_density);
   if (r.Has("preprocess")) {
@@ -254,6 +258,11 @@ bool EstimatorOptions::IsValid(std::string* error) const {
       !(initial_scale_sigma > 0.0)) {
     return fail("initial_*_sigma and relevelled_accel_bias_sigma must be > 0");
   }
+  if (!(odometer_pitch_sigma_rad >= 0.0 && odometer_pitch_sigma_rad <= 0.1) ||
+      !(odometer_yaw_sigma_rad >= 0.0 && odometer_yaw_sigma_rad <= 0.1))
+    return fail(
+        "odometer_pitch_sigma_rad and odometer_yaw_sigma_rad must be in [0, 0.1] rad (0 = "
+        "held at zero)");
   if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
     return fail("keyframe thresholds must be > 0");
   }
@@ -265,6 +274,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)");
   if (!(odometer_sway_time_constant_s >= 0.0 && odometer_sway_time_constant_s <= 60.0))
     return fail("odometer_sway_time_constant_s must be in [0, 60] s (0 = off)");
+  if (!(deskew_step_s >= 0.0 && deskew_step_s <= 0.1))
+    return fail("deskew_step_s must be in [0, 0.1] s (0 = linear from end to end)");
   std::string stage;
   if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
@@ -293,7 +304,9 @@ std::string EstimatorConfig::Describe() const {
     << rig.p_body_odometer.transpose() << "] m, speed noise " << rig.noise.odometer_speed_density
     << ", across-axis noise " << rig.noise.odometer_lateral_density << " sideways, "
     << rig.noise.odometer_vertical_density << " vertically, scale walk "
-    << rig.noise.odometer_scale_walk << ", pulse " << rig.noise.odometer_resolution_m << " m\n";
+    << rig.noise.odometer_scale_walk << ", misalignment walk "
+    << rig.noise.odometer_misalignment_walk << ", pulse " << rig.noise.odometer_resolution_m
+    << " m\n";
   s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
     << " m\n";
   const EstimatorOptions& o = options;
@@ -328,7 +341,8 @@ std::string EstimatorConfig::Describe() const {
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
     << o.initial_accel_bias_sigma << " m/s^2 (after re-levelling " << o.relevelled_accel_bias_sigma
     << "), gyro bias " << o.initial_gyro_bias_sigma << " rad/s, odometer scale "
-    << o.initial_scale_sigma << "\n";
+    << o.initial_scale_sigma << ", odometer misalignment pitch " << o.odometer_pitch_sigma_rad
+    << " yaw " << o.odometer_yaw_sigma_rad << " rad\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
     << "; solution remapping below " << o.degeneracy_projection << "; heading remapping below "
@@ -339,6 +353,12 @@ std::string EstimatorConfig::Describe() const {
       << " s is its own, not the track's\n";
   } else {
     s << "off (the body's whole rotation is the track's)\n";
+  }
+  s << "deskew: ";
+  if (o.deskew_step_s > 0.0) {
+    s << "the gyro's rotation every " << o.deskew_step_s << " s within a frame\n";
+  } else {
+    s << "linear from the frame's start to its end\n";
   }
   s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
     << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
@@ -491,7 +511,8 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
       {"imu.accel_bias_walk", n.accel_bias_walk},
       {"imu.gap_rate_sigma_radps", n.gap_rate_sigma_radps},
       {"imu.gap_accel_sigma_mps2", n.gap_accel_sigma_mps2},
-      {"estimator.odometer_scale_walk", n.odometer_scale_walk}};
+      {"estimator.odometer_scale_walk", n.odometer_scale_walk},
+      {"estimator.odometer_misalignment_walk", n.odometer_misalignment_walk}};
   for (const auto& [key, value] : densities) {
     if (!(value > 0.0 && std::isfinite(value))) {
       if (error) *error = source_name + ": " + key + " must be > 0";

@@ -154,6 +154,12 @@ struct EstimatorOptions {
   /// seen from two submaps 3 cm apart; 0.5 s still keeps 94 % of the body's 1.3 Hz pitch
   /// (estimator/RESULTS.md, 2026-11-25).
   double odometer_sway_time_constant_s = 0.5;
+  /// s: each LiDAR point is moved to the frame end by the gyro's rotation up to its own time,
+  /// sampled this often (and the translation lerped), so that the car body's pitch and roll on
+  /// its suspension within a frame (a rail joint's dip: 1-2 mrad in 0.1 s) does not smear the
+  /// points. 0: the paper's deskew (IV.C), the frame's end-to-end increment interpolated
+  /// linearly, as without the IMU.
+  double deskew_step_s = 0.0025;
   /// Priors of the first state (and of the window after re-levelling, but the accelerometer
   /// bias's: relevelled_accel_bias_sigma).
   double initial_velocity_sigma_mps = 1.0;
@@ -165,10 +171,19 @@ struct EstimatorOptions {
   double relevelled_accel_bias_sigma = 3.0e-3;
   double initial_gyro_bias_sigma = 5.0e-5;  ///< rad/s: an MTi-680G's bias stability
   double initial_scale_sigma = 0.02;        ///< odometer scale
-  double keyframe_distance_m = 2.0;         ///< keyframes for mapping: distance since the last
-  double keyframe_angle_deg = 5.0;          ///< ... or rotation since the last
-  double imu_gap_warn_s = 0.05;             ///< IMU gaps longer than this are reported
-  double init_gravity_s = 4.0;  ///< IMU and odometer data for the initial roll and pitch
+  /// rad: priors of the odometer's misalignment (the pitch and the yaw of the wheels' path against
+  /// the odometer's x axis, NavState::m), estimated with the state; 0 holds one at zero, the
+  /// paper's model. Held at zero, a body sitting 1.6 mrad nose-down on its suspension drove the
+  /// pitch 12 mrad off and the distance 0.6 % long (estimator/RESULTS.md, 2026-11-25). The yaw is
+  /// held by default: a body yawed 1.6 mrad did no harm, and estimated, the yaw took up the
+  /// LiDARs' sideways pull (-0.4 to -0.9 mrad where the truth is 0; tunnel_gnss_outage 0.122 ->
+  /// 0.188 %).
+  double odometer_pitch_sigma_rad = 3.0e-3;
+  double odometer_yaw_sigma_rad = 0.0;
+  double keyframe_distance_m = 2.0;  ///< keyframes for mapping: distance since the last
+  double keyframe_angle_deg = 5.0;   ///< ... or rotation since the last
+  double imu_gap_warn_s = 0.05;      ///< IMU gaps longer than this are reported
+  double init_gravity_s = 4.0;       ///< IMU and odometer data for the initial roll and pitch
   /// After this long, gravity is re-estimated from the IMU against the estimated trajectory and
   /// the world frame re-levelled once (a start at speed levels the first second poorly); poses
   /// are held back until then. 0 disables.

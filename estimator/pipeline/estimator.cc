@@ -51,6 +51,33 @@ Eigen::Isometry3d Interpolate(const Eigen::Isometry3d& a, const Eigen::Isometry3
   return T;
 }
 
+/// The body's motion over a LiDAR frame for deskewing, to the body at the preintegration's end
+/// (the frame end): the rotation integrated from the gyro (the preintegration's, which starts
+/// `offset_s` before the frame), sampled every `step_s` of the frame's period, and the
+/// translation lerped from `translation_end_start` at the frame start to zero at its end.
+FrameMotion GyroFrameMotion(const Preintegration& pre,
+                            double offset_s,
+                            double period_s,
+                            double step_s,
+                            const Eigen::Vector3d& translation_end_start) {
+  const auto rotation_at = [&pre](double t) {
+    return Eigen::Matrix3d(
+        pre.RelativePoseAt(t, Eigen::Vector3d::Zero(), Eigen::Quaterniond::Identity()).linear());
+  };
+  const Eigen::Matrix3d R_end_start = rotation_at(pre.sum_dt()).transpose();
+  const int n = std::max(1, static_cast<int>(std::ceil(period_s / step_s - 1e-9)));
+  FrameMotion motion;
+  for (int k = 0; k <= n; ++k) {
+    const double u = period_s * k / n;
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = R_end_start * rotation_at(offset_s + u);
+    T.translation() = (1.0 - u / period_s) * translation_end_start;
+    motion.t_s.push_back(u);
+    motion.T_end_t.push_back(T);
+  }
+  return motion;
+}
+
 double StampSeconds(int64_t stamp_ns) { return static_cast<double>(stamp_ns) * 1e-9; }
 
 std::string Seconds(double t) {
@@ -144,6 +171,8 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   w.relevelled_accel_bias_sigma = o.relevelled_accel_bias_sigma;
   w.initial_gyro_bias_sigma = o.initial_gyro_bias_sigma;
   w.initial_scale_sigma = o.initial_scale_sigma;
+  w.initial_misalignment_sigma_rad =
+      Eigen::Vector2d(o.odometer_pitch_sigma_rad, o.odometer_yaw_sigma_rad);
   window_ = std::make_unique<SlidingWindow>(w);
   edge_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
   plane_map_ = std::make_unique<LocalMap>(o.map_voxel_m, o.map_points_per_voxel);
@@ -444,7 +473,15 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     } else if (first) {
       T_end_start.translation() = -prev.v.norm() * lidar_period * Eigen::Vector3d::UnitX();
     }
-    Deskew(lidar.T_body_lidar, T_end_start, &scan);
+    if (pre && o.deskew_step_s > 0.0) {
+      Deskew(
+          lidar.T_body_lidar,
+          GyroFrameMotion(
+              *pre, start - last_node_t_, lidar_period, o.deskew_step_s, T_end_start.translation()),
+          &scan);
+    } else {
+      Deskew(lidar.T_body_lidar, T_end_start, &scan);
+    }
     out.features = ExtractLoamFeatures(o.loam, scan);
     out.points_body.reserve(scan.points.size());
     for (const ScanPoint& p : scan.points) out.points_body.push_back(p.p);
@@ -676,6 +713,7 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   result.T_world_body = T_newest;
   result.v_world = newest.v;
   result.odometer_scale = newest.c;
+  result.odometer_misalignment = newest.m;
   latest_ = extras_.back()->result;
   if (gravity_pending_ && t_end >= next_gravity_try_s_) AlignGravity(false);
   while (window_->Full()) {
@@ -797,6 +835,7 @@ void Estimator::EmitOldest() {
   result.T_world_body = PoseOf(s);
   result.v_world = s.v;
   result.odometer_scale = s.c;
+  result.odometer_misalignment = s.m;
   result.gyro_bias = s.bg;
   result.accel_bias = s.ba;
   if (gravity_pending_) {

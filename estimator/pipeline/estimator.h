@@ -48,6 +48,7 @@ struct FrameResult {
   std::string utm_zone;  ///< "50N" when georeferenced
   Eigen::Vector3d v_world = Eigen::Vector3d::Zero();
   double odometer_scale = 1.0;
+  Eigen::Vector2d odometer_misalignment = Eigen::Vector2d::Zero();  ///< NavState::m (rad)
   Eigen::Vector3d gyro_bias = Eigen::Vector3d::Zero();
   Eigen::Vector3d accel_bias = Eigen::Vector3d::Zero();
   double frontend_ms = 0.0;  ///< preprocessing, deskewing, features, rails, descriptor

@@ -79,7 +79,9 @@ bool RunWriter::Open(const std::string& out_dir,
                  lidar,
                  lidar);
   }
-  std::fprintf(timing_, ",bed_shift_m,heading_information,heading_projected,straight_hold\n");
+  std::fprintf(timing_,
+               ",bed_shift_m,heading_information,heading_projected,straight_hold,"
+               "odometer_pitch_mrad,odometer_yaw_mrad\n");
   return true;
 }
 
@@ -200,10 +202,12 @@ void RunWriter::WriteFrame(const FrameResult& f) {
     std::fprintf(timing_, ",");
   }
   std::fprintf(timing_,
-               ",%.3f,%d,%d\n",
+               ",%.3f,%d,%d,%.4f,%.4f\n",
                f.heading_information,
                f.heading_projected ? 1 : 0,
-               f.straight_hold ? 1 : 0);
+               f.straight_hold ? 1 : 0,
+               f.odometer_misalignment.x() * 1e3,
+               f.odometer_misalignment.y() * 1e3);
   if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
 }
 

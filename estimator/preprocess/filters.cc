@@ -259,22 +259,60 @@ void Deskew(const Eigen::Isometry3d& T_body_lidar,
             const Eigen::Isometry3d& T_end_start,
             Scan* scan) {
   // Paper IV.C, the IMU/odometer increment with linear interpolation: T_end_t runs from
-  // T_end_start (weight 1, t = 0) to identity (weight 0, t = duration), the rotation turning
-  // about its fixed axis at a constant rate (slerp) and the translation lerped.
-  const Eigen::AngleAxisd rotation(T_end_start.linear());
-  const double angle = rotation.angle();
-  const Eigen::Vector3d axis = rotation.axis();
-  const Eigen::Vector3d translation = T_end_start.translation();
+  // T_end_start (t = 0) to identity (t = duration), the rotation turning about its fixed axis at
+  // a constant rate (slerp) and the translation lerped.
+  FrameMotion motion;
+  if (scan->duration_s > 0.0) {
+    motion.t_s = {0.0, scan->duration_s};
+    motion.T_end_t = {T_end_start, Eigen::Isometry3d::Identity()};
+  }
+  Deskew(T_body_lidar, motion, scan);
+}
+
+void Deskew(const Eigen::Isometry3d& T_body_lidar, const FrameMotion& motion, Scan* scan) {
   const Eigen::Matrix3d R_body_lidar = T_body_lidar.linear();
   const Eigen::Vector3d t_body_lidar = T_body_lidar.translation();
-  const double rate = scan->duration_s > 0.0 ? 1.0 / scan->duration_s : 0.0;
+  const size_t n = std::min(motion.t_s.size(), motion.T_end_t.size());
+  if (n < 2) {
+    const Eigen::Isometry3d T =
+        (n == 1 ? motion.T_end_t[0] : Eigen::Isometry3d::Identity()) * T_body_lidar;
+    for (ScanPoint& point : scan->points) point.p = (T * point.p.cast<double>()).cast<float>();
+    return;
+  }
+  // Each segment: its start pose, and the rotation and translation on to its end.
+  struct Segment {
+    double t0, rate;
+    Eigen::Quaterniond q0;
+    Eigen::Vector3d axis, p0, dp;
+    double angle;
+  };
+  std::vector<Segment> segments(n - 1);
+  for (size_t k = 0; k + 1 < n; ++k) {
+    const Eigen::Isometry3d& a = motion.T_end_t[k];
+    const Eigen::Isometry3d& b = motion.T_end_t[k + 1];
+    const Eigen::AngleAxisd turn(a.linear().transpose() * b.linear());
+    const double dt = motion.t_s[k + 1] - motion.t_s[k];
+    segments[k] = {motion.t_s[k],
+                   dt > 0.0 ? 1.0 / dt : 0.0,
+                   Eigen::Quaterniond(a.linear()),
+                   turn.axis(),
+                   a.translation(),
+                   b.translation() - a.translation(),
+                   turn.angle()};
+  }
   for (ScanPoint& point : scan->points) {
-    const double w = scan->duration_s > 0.0 ? 1.0 - point.time_s * rate : 0.0;
-    const Eigen::Vector3d p_body = R_body_lidar * point.p.cast<double>() + t_body_lidar;
-    const double half = 0.5 * w * angle;
+    // The segment holding the point's time; the first and last extend beyond the samples.
+    const auto it = std::upper_bound(
+        motion.t_s.begin() + 1, motion.t_s.begin() + (n - 1), static_cast<double>(point.time_s));
+    const Segment& seg = segments[static_cast<size_t>(it - (motion.t_s.begin() + 1))];
+    const double f = (point.time_s - seg.t0) * seg.rate;
+    const double half = 0.5 * f * seg.angle;
     const double s = std::sin(half);
-    const Eigen::Quaterniond q(std::cos(half), s * axis.x(), s * axis.y(), s * axis.z());
-    point.p = (q * p_body + w * translation).cast<float>();
+    const Eigen::Quaterniond q =
+        seg.q0 *
+        Eigen::Quaterniond(std::cos(half), s * seg.axis.x(), s * seg.axis.y(), s * seg.axis.z());
+    const Eigen::Vector3d p_body = R_body_lidar * point.p.cast<double>() + t_body_lidar;
+    point.p = (q * p_body + seg.p0 + f * seg.dp).cast<float>();
   }
 }
 

@@ -1,6 +1,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -78,5 +79,19 @@ PreprocessStats Preprocess(const PreprocessOptions& options, Scan* scan);
 void Deskew(const Eigen::Isometry3d& T_body_lidar,
             const Eigen::Isometry3d& T_end_start,
             Scan* scan);
+
+/// The body's motion over a frame, sampled: T_end_t (the body at the frame end <- the body at
+/// time t) at times t_s (seconds from the frame start, strictly increasing).
+struct FrameMotion {
+  std::vector<double> t_s;
+  std::vector<Eigen::Isometry3d> T_end_t;
+};
+
+/// As above, with the motion known finely (the gyro's rotation between the frame's ends: the
+/// car body's pitch and roll on its suspension within a frame, which a single interpolation
+/// from end to end misses). Between samples the pose is interpolated (slerp and lerp); before
+/// the first and after the last it is extrapolated from the nearest pair. With one sample only
+/// that pose is applied; with none, only the extrinsic.
+void Deskew(const Eigen::Isometry3d& T_body_lidar, const FrameMotion& motion, Scan* scan);
 
 }  // namespace raillomer

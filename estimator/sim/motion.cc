@@ -63,7 +63,9 @@ TruthMotion::TruthMotion(const Scenario& scenario, const Alignment& alignment, u
       profile_(scenario),
       start_m_(scenario.start_m),
       body_height_m_(scenario.body_height_m),
-      vibration_scale_(scenario.vibration_scale) {
+      vibration_scale_(scenario.vibration_scale),
+      body_pitch_rad_(scenario.body_pitch_rad),
+      body_yaw_rad_(scenario.body_yaw_rad) {
   std::mt19937 rng(seed * 7919u + 17u);
   std::uniform_real_distribution<double> phase(0.0, 2.0 * M_PI);
   for (int i = 0; i < 8; ++i) phases_.push_back(phase(rng));
@@ -110,8 +112,8 @@ void TruthMotion::Vibration(double t,
                      0.0001 * std::sin(w * 11.0 * t + phases_[3]));
   rpy->x() = g * (0.0015 * std::sin(w * 0.8 * t + phases_[4]) +
                   0.0005 * std::sin(w * 1.9 * t + phases_[5]));
-  rpy->y() = g * 0.0010 * std::sin(w * 1.3 * t + phases_[6]);
-  rpy->z() = g * 0.0003 * std::sin(w * 0.7 * t + phases_[7]);
+  rpy->y() = body_pitch_rad_ + g * 0.0010 * std::sin(w * 1.3 * t + phases_[6]);
+  rpy->z() = body_yaw_rad_ + g * 0.0003 * std::sin(w * 0.7 * t + phases_[7]);
 
   // Rail-joint impulses: a damped 6 Hz oscillation after each passage.
   if (joint_times_.empty()) return;

@@ -51,7 +51,8 @@ class TruthMotion {
                 double window_s = 0.005) const;
 
  private:
-  /// Vibration offset (track frame) and small rotation (roll, pitch, yaw) at time t.
+  /// Vibration offset (track frame) and small rotation (roll, pitch, yaw) at time t, the
+  /// rotation with the body's standing pitch and yaw.
   void Vibration(double t, double speed, Eigen::Vector3d* offset, Eigen::Vector3d* rpy) const;
 
   const Alignment& alignment_;
@@ -59,6 +60,7 @@ class TruthMotion {
   double start_m_;
   double body_height_m_;
   double vibration_scale_;
+  double body_pitch_rad_, body_yaw_rad_;
   std::vector<double> phases_;       ///< random phases of the vibration modes
   std::vector<double> joint_times_;  ///< when the body passes a rail joint
   std::vector<double> joint_gain_;   ///< impulse amplitude per passage (speed dependent)

@@ -166,6 +166,15 @@ void ParseMotion(MapReader& root, Scenario* s) {
   }
   r.Read("vibration_scale", &s->vibration_scale);
   r.Read("body_height_m", &s->body_height_m);
+  for (const auto& [key, value] :
+       {std::pair<const char*, double*>{"body_pitch_mrad", &s->body_pitch_rad},
+        {"body_yaw_mrad", &s->body_yaw_rad}}) {
+    if (!r.Has(key)) continue;
+    double mrad = 0.0;
+    r.Read(key, &mrad);
+    Require(std::fabs(mrad) <= 50.0, r, r.Node(key), std::string(key) + " beyond +-50");
+    *value = mrad * 1e-3;
+  }
   if (r.Has("phases")) s->phases.clear();
   ForEachMap(r, "phases", [&](MapReader& p, const YAML::Node& node) {
     MotionPhase phase;

@@ -143,6 +143,10 @@ struct Scenario {
   std::vector<MotionPhase> phases;
   double vibration_scale = 1.0;
   double body_height_m = 3.8;  ///< body (IMU) frame above the rail-top plane
+  /// rad: the car body's (IMU's) standing pitch (positive nose down) and yaw (positive to the
+  /// left) against the track, from load or mounting: the wheels' path is not its x axis.
+  double body_pitch_rad = 0.0;
+  double body_yaw_rad = 0.0;
 
   // Sensors.
   std::vector<LidarConfig> lidars;

@@ -19,8 +19,9 @@ using Eigen::Quaterniond;
 using Eigen::Vector3d;
 
 constexpr double kGravity = 9.81;
-constexpr int kBlockSizes[6] = {7, 9, 1, 7, 9, 1};
-constexpr int kTangentSizes[6] = {6, 9, 1, 6, 9, 1};
+constexpr int kBlockSizes[6] = {7, 9, 3, 7, 9, 3};
+constexpr int kTangentSizes[6] = {6, 9, 3, 6, 9, 3};
+constexpr int kRows = 21;
 
 /// A 0.3 s preintegration of smooth synthetic IMU and odometer data (not a consistent
 /// trajectory: the Jacobians do not need one).
@@ -48,8 +49,8 @@ std::shared_ptr<Preintegration> MakePreintegration(bool odometer_valid = true,
   return pre;
 }
 
-/// The six parameter blocks at a non-trivial state: rotated poses, biases and scales away from
-/// the linearisation point, state j away from the prediction.
+/// The six parameter blocks at a non-trivial state: rotated poses, biases, scales and
+/// misalignments away from the linearisation point, state j away from the prediction.
 std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
   NavState i;
   i.p = Vector3d(10.0, -4.0, 2.0);
@@ -58,6 +59,7 @@ std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
   i.ba = pre.linearized_ba() + Vector3d(0.02, -0.01, 0.03);
   i.bg = pre.linearized_bg() + Vector3d(1e-3, -2e-3, 1.5e-3);
   i.c = 1.03;
+  i.m = Eigen::Vector2d(2e-3, -1e-3);
   NavState j = pre.Predict(i);
   j.p += Vector3d(0.1, -0.2, 0.05);
   j.q = j.q * ExpQuaternion(Vector3d(0.02, -0.01, 0.03));
@@ -65,13 +67,14 @@ std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
   j.ba += Vector3d(0.001, 0.002, -0.003);
   j.bg += Vector3d(-1e-4, 2e-4, 1e-4);
   j.c = 1.05;
+  j.m = Eigen::Vector2d(2.3e-3, -0.6e-3);
   std::array<std::vector<double>, 6> blocks;
   for (int k = 0; k < 2; ++k) {
     const NavState& s = k == 0 ? i : j;
     blocks[3 * k] = {s.p.x(), s.p.y(), s.p.z(), s.q.x(), s.q.y(), s.q.z(), s.q.w()};
     blocks[3 * k + 1] = {
         s.v.x(), s.v.y(), s.v.z(), s.ba.x(), s.ba.y(), s.ba.z(), s.bg.x(), s.bg.y(), s.bg.z()};
-    blocks[3 * k + 2] = {s.c};
+    blocks[3 * k + 2] = {s.c, s.m.x(), s.m.y()};
   }
   return blocks;
 }
@@ -86,6 +89,7 @@ NavState ToState(const std::array<std::vector<double>, 6>& blocks, int k) {
   s.ba = Vector3d(sb[3], sb[4], sb[5]);
   s.bg = Vector3d(sb[6], sb[7], sb[8]);
   s.c = blocks[3 * k + 2][0];
+  s.m = Eigen::Vector2d(blocks[3 * k + 2][1], blocks[3 * k + 2][2]);
   return s;
 }
 
@@ -105,16 +109,26 @@ std::array<std::vector<double>, 6> Perturb(const std::array<std::vector<double>,
   return out;
 }
 
-using Jacobian = Eigen::Matrix<double, 19, Eigen::Dynamic>;
+using Jacobian = Eigen::Matrix<double, kRows, Eigen::Dynamic>;
+using Residual = Eigen::Matrix<double, kRows, 1>;
+
+/// The factor's whole whitening: eq. (19)'s, then the misalignment walk's.
+Eigen::Matrix<double, kRows, kRows> Whitening(const ImuOdometerFactor& factor,
+                                              const Preintegration& pre) {
+  Eigen::Matrix<double, kRows, kRows> L = Eigen::Matrix<double, kRows, kRows>::Zero();
+  L.topLeftCorner<19, 19>() = pre.SqrtInformation();
+  L.bottomRightCorner<2, 2>().diagonal().setConstant(factor.misalignment_weight());
+  return L;
+}
 
 std::array<Jacobian, 6> AnalyticJacobians(const ImuOdometerFactor& factor,
                                           const std::array<std::vector<double>, 6>& blocks,
-                                          Eigen::Matrix<double, 19, 1>* residual) {
-  std::array<Eigen::Matrix<double, 19, Eigen::Dynamic, Eigen::RowMajor>, 6> storage;
+                                          Residual* residual) {
+  std::array<Eigen::Matrix<double, kRows, Eigen::Dynamic, Eigen::RowMajor>, 6> storage;
   double* jacobians[6];
   const double* parameters[6];
   for (int b = 0; b < 6; ++b) {
-    storage[b].setConstant(19, kBlockSizes[b], std::nan(""));
+    storage[b].setConstant(kRows, kBlockSizes[b], std::nan(""));
     jacobians[b] = storage[b].data();
     parameters[b] = blocks[b].data();
   }
@@ -131,10 +145,10 @@ void ExpectWhitenedResidual(const ImuOdometerFactor& factor,
                             const Blocks& blocks) {
   const double* parameters[6];
   for (int b = 0; b < 6; ++b) parameters[b] = blocks[b].data();
-  Eigen::Matrix<double, 19, 1> r;
+  Residual r;
   ASSERT_TRUE(factor.Evaluate(parameters, r.data(), nullptr));
-  const Eigen::Matrix<double, 19, 1> expected =
-      pre.SqrtInformation() * factor.Residual(ToState(blocks, 0), ToState(blocks, 1));
+  const Residual expected =
+      Whitening(factor, pre) * factor.Residual(ToState(blocks, 0), ToState(blocks, 1));
   EXPECT_LT((r - expected).norm(), 1e-9 * expected.norm());
 }
 
@@ -144,6 +158,29 @@ TEST(ImuOdometerFactorTest, ResidualIsWhitenedPreintegrationResidual) {
   const auto blocks = MakeParameters(*pre);
   ExpectWhitenedResidual(factor, *pre, blocks);
   EXPECT_EQ(factor.sqrt_information(), pre->SqrtInformation());
+  EXPECT_NEAR(factor.misalignment_weight(),
+              1.0 / (pre->noise().odometer_misalignment_walk * std::sqrt(pre->sum_dt())),
+              1e-9);
+}
+
+// The misalignment m turns the wheels' path off the odometer's axis: phi moves by
+// phi_misalignment() m, and the last two rows are its walk, m_j - m_i.
+TEST(ImuOdometerFactorTest, MisalignmentTurnsThePathAndWalks) {
+  const auto pre = MakePreintegration();
+  const ImuOdometerFactor factor(pre);
+  const auto blocks = MakeParameters(*pre);
+  NavState i = ToState(blocks, 0);
+  const NavState j = ToState(blocks, 1);
+  const Residual r = factor.Residual(i, j);
+  EXPECT_LT((r.tail<2>() - (j.m - i.m)).norm(), 1e-15);
+  const Eigen::Vector2d m = i.m;
+  i.m.setZero();
+  const Eigen::Matrix<double, 19, 1> straight = pre->Evaluate(i, j);
+  i.m = m;
+  const Eigen::Matrix<double, 19, 1> turned = pre->Evaluate(i, j);
+  const int phi = preintegration_index::kPhi;
+  EXPECT_LT(((straight - turned).segment<3>(phi) - pre->phi_misalignment() * m).norm(), 1e-12);
+  EXPECT_GT((pre->phi_misalignment() * m).norm(), 1e-3);  // 25 m/s for 0.3 s at 2 mrad
 }
 
 // The residual is eq. (19) but for the odometer-axis component of d_phi, which is in odometer
@@ -155,7 +192,7 @@ TEST(ImuOdometerFactorTest, OdometerAxisRowIsInOdometerUnits) {
   const auto blocks = MakeParameters(*pre);
   const NavState i = ToState(blocks, 0), j = ToState(blocks, 1);
   const Eigen::Matrix<double, 19, 1> metres = pre->Evaluate(i, j);
-  const Eigen::Matrix<double, 19, 1> r = factor.Residual(i, j);
+  const Residual r = factor.Residual(i, j);
   ASSERT_GT(std::abs(i.c - pre->linearized_c()), 1e-3);  // a state off the linearisation scale
   const int phi = preintegration_index::kPhi;
   const Vector3d axis = pre->R_body_odo().col(0);
@@ -186,14 +223,14 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
   EXPECT_EQ(pre->odometer_used(), GetParam().odometer_valid);
   const ImuOdometerFactor factor(pre);
   const auto blocks = MakeParameters(*pre);
-  Eigen::Matrix<double, 19, 1> residual;
+  Residual residual;
   const std::array<Jacobian, 6> analytic = AnalyticJacobians(factor, blocks, &residual);
   EXPECT_GT(residual.norm(), 1.0);  // a non-trivial state
 
-  const Eigen::Matrix<double, 19, 19> L = factor.sqrt_information();
+  const Eigen::Matrix<double, kRows, kRows> L = Whitening(factor, *pre);
   // L^-1 on the rows with information (phi rows are zero without odometer data).
   std::vector<int> rows;
-  for (int k = 0; k < 19; ++k) {
+  for (int k = 0; k < kRows; ++k) {
     if (GetParam().odometer_valid || k < 15 || k > 17) rows.push_back(k);
   }
   const int n = static_cast<int>(rows.size());
@@ -205,7 +242,7 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
   auto whitened = [&](const std::array<std::vector<double>, 6>& x) {
     const double* parameters[6];
     for (int b = 0; b < 6; ++b) parameters[b] = x[b].data();
-    Eigen::Matrix<double, 19, 1> r;
+    Residual r;
     factor.Evaluate(parameters, r.data(), nullptr);
     return r;
   };
@@ -216,7 +253,7 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
   const double h = 1e-6;
   for (int b = 0; b < 6; ++b) {
     const int m = kTangentSizes[b];
-    Jacobian numeric_whitened(19, m), numeric_raw(19, m);
+    Jacobian numeric_whitened(kRows, m), numeric_raw(kRows, m);
     for (int d = 0; d < m; ++d) {
       const auto plus = Perturb(blocks, b, d, h);
       const auto minus = Perturb(blocks, b, d, -h);

@@ -22,6 +22,9 @@ namespace {
 
 using Pose = std::array<double, kPoseSize>;
 using SpeedBias = std::array<double, kSpeedBiasSize>;
+/// The synthetic window's states carry a scale alone (the estimator's odometer block also holds
+/// the misalignment; marginalisation does not care what a Euclidean block means).
+constexpr int kScaleSize = 1;
 using Scale = std::array<double, kScaleSize>;
 using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 

@@ -499,6 +499,38 @@ TEST(PreintegrationTest, BiasAndScaleJacobiansAreFirstOrderExact) {
   }
 }
 
+// The misalignment m is first-order exact: phi integrated along the axis turned by m (the
+// odometer frame R_body_odo Exp((0, m0, m1))) against phi + phi_misalignment() m.
+TEST(PreintegrationTest, MisalignmentJacobianIsFirstOrderExact) {
+  const TrainTrajectory traj(false);
+  const double t0 = 0.7;
+  Preintegration pre = MakePreintegration(traj);
+  AddSamples(traj, t0, 0, 200, &pre);
+  double previous_error = 0.0;
+  for (double scale : {1.0, 0.5}) {
+    const Eigen::Vector2d m = scale * Eigen::Vector2d(3e-3, -2e-3);
+    const Matrix3d R_turned =
+        traj.R_body_odo() * ExpQuaternion(Vector3d(0.0, m.x(), m.y())).toRotationMatrix();
+    Preintegration turned(traj.ba(),
+                          traj.bg(),
+                          traj.c(),
+                          R_turned,
+                          traj.p_body_odo(),
+                          PreintegrationNoise(),
+                          kGravity);
+    AddSamples(traj, t0, 0, 200, &turned);
+    const Vector3d change = turned.phi() - pre.phi();
+    const double error = (change - pre.phi_misalignment() * m).norm();
+    std::printf("scale %.1f: change %.3e, first-order error %.3e\n", scale, change.norm(), error);
+    EXPECT_GT(change.norm(), 0.05 * scale);  // about 20 m at 3.6 mrad
+    EXPECT_LT(error, 0.01 * change.norm());
+    if (scale < 1.0) {
+      EXPECT_NEAR(previous_error / error, 4.0, 0.6);
+    }
+    previous_error = error;
+  }
+}
+
 // Eq. (17): the propagated covariance against the sample covariance of noisy runs. The noise
 // densities are raised so that every term (white noise and random walks) is visible. With 400
 // runs a sample variance has a relative standard error of 7 %, so 25 % is a 3.5 sigma bound.

@@ -115,6 +115,9 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"degeneracy_projection: -1", "degeneracy_projection must be in [0, 1)"},
       {"heading_projection: -5", "heading_projection must be in [0, 1e6)"},
       {"odometer_sway_time_constant_s: -1", "odometer_sway_time_constant_s must be in [0, 60]"},
+      {"odometer_yaw_sigma_rad: -0.001", "odometer_yaw_sigma_rad must be in [0, 0.1] rad"},
+      {"odometer_misalignment_walk: -1e-5", "estimator.odometer_misalignment_walk must be >= 0"},
+      {"deskew_step_s: 0.5", "deskew_step_s must be in [0, 0.1] s"},
       {"edge_max_spread_m: -0.1", "edge_max_spread_m must be >= 0"},
       {"down_edge_soft_spread_m: -1", "down_edge_soft_spread_m must be >= 0"},
       {"map_insert_lag: -1", "map_insert_lag must be >= 0"},
@@ -162,6 +165,8 @@ TEST(EstimatorConfig, OverridesTunables) {
       "  submap_gnss_pull_along_excess: 0.25\n  "
       "submap_chain_reset_m: 5\n"
       "  rail_line_sigma_m: 0.2\n  rail_line_max_forward_m: 12\n"
+      "  odometer_pitch_sigma_rad: 0.001\n  odometer_yaw_sigma_rad: 0.002\n"
+      "  odometer_misalignment_walk: 2e-5\n  deskew_step_s: 0\n"
       "  preprocess:\n"
       "    min_range_m: 3.5\n"
       "  track_bed:\n"
@@ -189,6 +194,16 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
   EXPECT_DOUBLE_EQ(config.options.rail_line_sigma_m, 0.2);
   EXPECT_DOUBLE_EQ(config.options.rail_line_max_forward_m, 12.0);
+  EXPECT_DOUBLE_EQ(config.options.odometer_pitch_sigma_rad, 0.001);
+  EXPECT_DOUBLE_EQ(config.options.odometer_yaw_sigma_rad, 0.002);
+  EXPECT_DOUBLE_EQ(config.rig.noise.odometer_misalignment_walk, 2e-5);
+  EXPECT_DOUBLE_EQ(config.options.deskew_step_s, 0.0);
+  EXPECT_NE(config.Describe().find("odometer misalignment pitch 0.001 yaw 0.002 rad"),
+            std::string::npos)
+      << config.Describe();
+  EXPECT_NE(config.Describe().find("deskew: linear from the frame's start to its end"),
+            std::string::npos)
+      << config.Describe();
   EXPECT_DOUBLE_EQ(config.options.track_bed.sigma_m, 0.02);
   EXPECT_EQ(config.options.track_bed.history_frames, 4);
   EXPECT_NE(config.Describe().find("track bed (sleepers): sigma 0.02 m"), std::string::npos)

@@ -292,6 +292,23 @@ TEST(TruthMotion, BodyRidesAtBodyHeightAboveTheRailTop) {
   }
 }
 
+// The body's standing pitch and yaw against the track (motion.body_pitch_mrad, body_yaw_mrad)
+// hold at rest and at speed: the body's x axis leaves the track's by them.
+TEST(TruthMotion, AStandingPitchAndYawTurnTheBodyOffTheTrack) {
+  Scenario s = CurvedRun();
+  s.vibration_scale = 0.0;
+  s.body_pitch_rad = 1.6e-3;
+  s.body_yaw_rad = -0.8e-3;
+  const Alignment alignment(s);
+  const TruthMotion truth(s, alignment, 2);
+  for (double t = 0.0; t <= truth.duration_s(); t += 0.37) {
+    const Eigen::Matrix3d R_track = alignment.At(truth.Chainage(t)).Rotation();
+    const Eigen::Vector3d x = R_track.transpose() * truth.Pose(t).linear().col(0);
+    EXPECT_NEAR(x.z(), -1.6e-3, 1e-8) << "t " << t;  // nose down
+    EXPECT_NEAR(x.y(), -0.8e-3, 1e-8) << "t " << t;  // to the right
+  }
+}
+
 TEST(TruthMotion, VibrationGrowsWithSpeed) {
   Scenario s = CurvedRun();
   s.start_speed_mps = 0.0;
