@@ -3,10 +3,6 @@
 #include <ceres/ceres.h>
 #include <ceres/normal_prior.h>
 
-#include <memory>
-#include <mutex>
-#include <vector>
-
 #include "estimator/factors/imu_odometer_factor.h"
 #include "estimator/factors/marginalization.h"
 #include "estimator/factors/pose_manifold.h"
@@ -76,26 +72,6 @@ std::shared_ptr<ceres::CostFunction> DiagonalPrior(const double* values,
 
 }  // namespace
 
-/// The odometer block's manifold: Euclidean, with the scale held when it is not estimated and
-/// each misalignment component held when its prior is 0; null when all are free (or all held).
-ceres::Manifold* OdometerManifold(const SlidingWindowOptions& o) {
-  static std::vector<std::unique_ptr<ceres::SubsetManifold>> manifolds(8);
-  const int held = (o.estimate_scale ? 0 : 1) |
-                   (o.initial_misalignment_sigma_rad.x() > 0.0 ? 0 : 2) |
-                   (o.initial_misalignment_sigma_rad.y() > 0.0 ? 0 : 4);
-  // All held: the block is set constant instead.
-  if (held == 0 || held == 7) return nullptr;
-  static std::mutex mutex;
-  const std::lock_guard<std::mutex> lock(mutex);
-  if (!manifolds[held]) {
-    std::vector<int> constant;
-    for (int k = 0; k < kOdometerBlockSize; ++k)
-      if (held & (1 << k)) constant.push_back(k);
-    manifolds[held] = std::make_unique<ceres::SubsetManifold>(kOdometerBlockSize, constant);
-  }
-  return manifolds[held].get();
-}
-
 struct SlidingWindow::Node {
   double t_s = 0.0;
   double pose[kPoseSize];
@@ -108,7 +84,16 @@ struct SlidingWindow::Node {
   std::vector<WindowTerm> priors;  ///< initial priors of the first state
 };
 
-SlidingWindow::SlidingWindow(const SlidingWindowOptions& options) : options_(options) {}
+SlidingWindow::SlidingWindow(const SlidingWindowOptions& options) : options_(options) {
+  if (!options_.estimate_scale) odometer_held_.push_back(0);
+  for (int k = 0; k < 2; ++k) {
+    if (!(options_.initial_misalignment_sigma_rad[k] > 0.0)) odometer_held_.push_back(1 + k);
+  }
+  if (!odometer_held_.empty() && static_cast<int>(odometer_held_.size()) < kOdometerBlockSize) {
+    odometer_manifold_ =
+        std::make_unique<ceres::SubsetManifold>(kOdometerBlockSize, odometer_held_);
+  }
+}
 SlidingWindow::~SlidingWindow() = default;
 
 void SlidingWindow::Push(double t_s,
@@ -170,20 +155,15 @@ void SlidingWindow::AddAnchorPriors(Node* node, double accel_bias_sigma) const {
       Eigen::Vector3d::Constant(accel_bias_sigma),
       Eigen::Vector3d::Constant(options_.initial_gyro_bias_sigma);
   node->priors.push_back({DiagonalPrior(node->speed_bias, 9, sigma), nullptr, {node->speed_bias}});
-  // The scale, and each misalignment component that is estimated (OdometerManifold holds the
+  // The scale, and each misalignment component that is estimated (the manifold holds the
   // others).
-  std::vector<Eigen::RowVectorXd> rows;
-  Eigen::RowVectorXd row = Eigen::RowVectorXd::Zero(kOdometerBlockSize);
-  row(0) = 1.0 / options_.initial_scale_sigma;
-  rows.push_back(row);
-  for (int k = 0; k < 2; ++k) {
-    if (!(options_.initial_misalignment_sigma_rad[k] > 0.0)) continue;
-    row.setZero();
-    row(1 + k) = 1.0 / options_.initial_misalignment_sigma_rad[k];
-    rows.push_back(row);
+  const Eigen::Vector2d& sigma_m = options_.initial_misalignment_sigma_rad;
+  Eigen::MatrixXd A =
+      Eigen::MatrixXd::Zero(1 + (sigma_m.array() > 0.0).count(), kOdometerBlockSize);
+  A(0, 0) = 1.0 / options_.initial_scale_sigma;
+  for (int k = 0, row = 1; k < 2; ++k) {
+    if (sigma_m[k] > 0.0) A(row++, 1 + k) = 1.0 / sigma_m[k];
   }
-  Eigen::MatrixXd A(static_cast<Eigen::Index>(rows.size()), kOdometerBlockSize);
-  for (size_t k = 0; k < rows.size(); ++k) A.row(static_cast<Eigen::Index>(k)) = rows[k];
   node->priors.push_back(
       {std::make_shared<ceres::NormalPrior>(
            A, Eigen::Map<const Eigen::VectorXd>(node->odometer, kOdometerBlockSize)),
@@ -250,9 +230,8 @@ WindowSummary SlidingWindow::Optimize() {
     problem.AddParameterBlock(n->pose, kPoseSize, &manifold);
     if (options_.use_imu) {
       problem.AddParameterBlock(n->speed_bias, kSpeedBiasSize);
-      problem.AddParameterBlock(n->odometer, kOdometerBlockSize, OdometerManifold(options_));
-      if (!options_.estimate_scale &&
-          !(options_.initial_misalignment_sigma_rad.array() > 0.0).any())
+      problem.AddParameterBlock(n->odometer, kOdometerBlockSize, odometer_manifold_.get());
+      if (static_cast<int>(odometer_held_.size()) == kOdometerBlockSize)
         problem.SetParameterBlockConstant(n->odometer);
     }
   }

@@ -11,6 +11,7 @@
 namespace ceres {
 class CostFunction;
 class LossFunction;
+class Manifold;
 }  // namespace ceres
 
 namespace raillomer {
@@ -108,6 +109,11 @@ class SlidingWindow {
   void AddAnchorPriors(Node* node, double accel_bias_sigma) const;
 
   SlidingWindowOptions options_;
+  /// The odometer block's components held constant (the scale when not estimated, each
+  /// misalignment component whose prior is 0), and the manifold holding them (null when none
+  /// or all are held; all held, the block is set constant).
+  std::vector<int> odometer_held_;
+  std::unique_ptr<ceres::Manifold> odometer_manifold_;
   std::deque<std::unique_ptr<Node>> nodes_;
   WindowTerm prior_term_;
   bool has_prior_ = false;

@@ -44,18 +44,20 @@ Matrix3d PhiScaling(const Preintegration& pre, double c_i) {
   return Matrix3d::Identity() + (pre.linearized_c() / c_i - 1.0) * axis * axis.transpose();
 }
 
+/// Whitening of the misalignment's walk over the interval; without a walk the misalignment is
+/// one constant, held equal to 1 urad.
+double MisalignmentWeight(const Preintegration& pre) {
+  const double walk = pre.noise().odometer_misalignment_walk;
+  return walk > 0.0 ? 1.0 / (walk * std::sqrt(std::max(pre.sum_dt(), 1e-6))) : 1e6;
+}
+
 }  // namespace
 
 ImuOdometerFactor::ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration)
     : preintegration_(std::move(preintegration)),
       sqrt_information_(preintegration_->SqrtInformation()),
-      misalignment_weight_(0.0),
-      revision_(preintegration_->revision()) {
-  const double walk = preintegration_->noise().odometer_misalignment_walk;
-  const double dt = std::max(preintegration_->sum_dt(), 1e-6);
-  // Without a walk the misalignment is one constant: held equal to 1 urad.
-  misalignment_weight_ = walk > 0.0 ? 1.0 / (walk * std::sqrt(dt)) : 1e6;
-}
+      misalignment_weight_(MisalignmentWeight(*preintegration_)),
+      revision_(preintegration_->revision()) {}
 
 Eigen::Matrix<double, 21, 1> ImuOdometerFactor::Residual(const NavState& i,
                                                          const NavState& j) const {

@@ -72,7 +72,7 @@ struct NavState {
   double c = 1.0;  ///< odometer scale factor
   /// rad: the wheels' path against the odometer's x axis, pitch and yaw (about the odometer's y
   /// and z axes): the path runs along R_body_odo Exp((0, m0, m1)) x. A car body sitting 1.6 mrad
-  /// nose-down on its suspension, taken to move along its x axis, drove the pitch 12 mrad off
+  /// nose-up on its suspension, taken to move along its x axis, drove the pitch 12 mrad off
   /// and the distance 0.9 % long (estimator/RESULTS.md, 2026-11-25).
   Eigen::Vector2d m = Eigen::Vector2d::Zero();
 };

@@ -173,7 +173,7 @@ struct EstimatorOptions {
   double initial_scale_sigma = 0.02;        ///< odometer scale
   /// rad: priors of the odometer's misalignment (the pitch and the yaw of the wheels' path against
   /// the odometer's x axis, NavState::m), estimated with the state; 0 holds one at zero, the
-  /// paper's model. Held at zero, a body sitting 1.6 mrad nose-down on its suspension drove the
+  /// paper's model. Held at zero, a body sitting 1.6 mrad nose-up on its suspension drove the
   /// pitch 12 mrad off and the distance 0.9 % long (estimator/RESULTS.md, 2026-11-25). The yaw is
   /// held by default: a body yawed 1.6 mrad did no harm, and estimated, the yaw took up the
   /// LiDARs' sideways pull (-0.4 to -0.9 mrad where the truth is 0; tunnel_gnss_outage 0.122 ->

@@ -465,13 +465,21 @@ TEST(Deskew, SampledMotionFollowsAPitchDipWithinTheFrame) {
   Scan linear = raw;
   Deskew(T_body_lidar, T_end.inverse() * pose(0.0), &linear);
   EXPECT_GT(WorstDistance(world, linear, T_end), 0.02);
-  // Two samples, the frame's ends, are the linear deskew.
-  Scan two = raw;
-  Deskew(T_body_lidar,
-         FrameMotion{{0.0, 0.1}, {T_end.inverse() * pose(0.0), Eigen::Isometry3d::Identity()}},
-         &two);
-  for (size_t i = 0; i < two.points.size(); ++i)
-    ASSERT_LT((two.points[i].p - linear.points[i].p).norm(), 1e-5) << i;
+  // A linear motion sampled finely is the linear deskew: each point finds its segment, and the
+  // points stamped after the last sample extrapolate it.
+  const Eigen::Isometry3d T_end_start = T_end.inverse() * pose(0.0);
+  FrameMotion linear_sampled;
+  for (int k = 0; k <= 40; ++k) {
+    linear_sampled.t_s.push_back(0.0025 * k);
+    linear_sampled.T_end_t.push_back(Interpolate(T_end_start, 1.0 - 0.0025 * k / 0.1));
+  }
+  Scan late = raw;
+  for (ScanPoint& p : late.points) p.time_s *= 1.2f;  // the last sixth beyond the frame end
+  Scan by_samples = late;
+  Deskew(T_body_lidar, linear_sampled, &by_samples);
+  Deskew(T_body_lidar, T_end_start, &late);
+  for (size_t i = 0; i < late.points.size(); ++i)
+    ASSERT_LT((by_samples.points[i].p - late.points[i].p).norm(), 1e-4) << i;
 }
 
 /// Figures of the filters on simulated frames, per point kind.
