@@ -37,9 +37,17 @@ bool GnssPositionFactor::Evaluate(double const* const* parameters,
   return true;
 }
 
-FourDofBetweenFactor::FourDofBetweenFactor(
-    const Eigen::Vector3d& dp, double dyaw, double path_length_m, double sigma_p, double sigma_yaw)
-    : dp_(dp), dyaw_(dyaw), length_(path_length_m), wp_(1.0 / sigma_p), wyaw_(1.0 / sigma_yaw) {}
+FourDofBetweenFactor::FourDofBetweenFactor(const Eigen::Vector3d& dp,
+                                           double dyaw,
+                                           double path_length_m,
+                                           double sigma_horizontal_m,
+                                           double sigma_vertical_m,
+                                           double sigma_yaw)
+    : dp_(dp),
+      wp_(1.0 / sigma_horizontal_m, 1.0 / sigma_horizontal_m, 1.0 / sigma_vertical_m),
+      dyaw_(dyaw),
+      length_(path_length_m),
+      wyaw_(1.0 / sigma_yaw) {}
 
 bool FourDofBetweenFactor::Evaluate(double const* const* parameters,
                                     double* residuals,
@@ -58,33 +66,34 @@ bool FourDofBetweenFactor::Evaluate(double const* const* parameters,
   const Eigen::Vector3d turned(ch * dp_.x() - sh * dp_.y(), sh * dp_.x() + ch * dp_.y(), dp_.z());
   const Eigen::Vector3d predicted = scale * turned;
   Eigen::Map<Eigen::Vector4d> r(residuals);
-  r.head<3>() = wp_ * (local - predicted);
+  r.head<3>() = wp_.cwiseProduct(local - predicted);
   r(3) = wyaw_ * WrapAngle(xj[3] - xi[3] - dyaw_ - drift[1] * length_);
   if (jacobians) {
     Eigen::Matrix3d Rt;
     Rt << c, s, 0, -s, c, 0, 0, 0, 1;
+    const Eigen::Matrix3d W = wp_.asDiagonal();
     // d(local)/d(yaw_i): derivative of R_z(yaw)^T d.
     const Eigen::Vector3d dlocal_dyaw(-s * d.x() + c * d.y(), -c * d.x() - s * d.y(), 0.0);
     if (jacobians[0]) {
       Eigen::Map<Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> J(jacobians[0]);
       J.setZero();
-      J.block<3, 3>(0, 0) = -wp_ * Rt;
-      J.block<3, 1>(0, 3) = wp_ * dlocal_dyaw;
+      J.block<3, 3>(0, 0) = -W * Rt;
+      J.block<3, 1>(0, 3) = W * dlocal_dyaw;
       J(3, 3) = -wyaw_;
     }
     if (jacobians[1]) {
       Eigen::Map<Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> J(jacobians[1]);
       J.setZero();
-      J.block<3, 3>(0, 0) = wp_ * Rt;
+      J.block<3, 3>(0, 0) = W * Rt;
       J(3, 3) = wyaw_;
     }
     if (jacobians[2]) {
       Eigen::Map<Eigen::Matrix<double, 4, 2, Eigen::RowMajor>> J(jacobians[2]);
       J.setZero();
-      J.block<3, 1>(0, 0) = -wp_ * predicted;
+      J.block<3, 1>(0, 0) = -W * predicted;
       // d(turned)/d(half_turn) * d(half_turn)/dk
       const Eigen::Vector3d dturned(-sh * dp_.x() - ch * dp_.y(), ch * dp_.x() - sh * dp_.y(), 0.0);
-      J.block<3, 1>(0, 1) = -wp_ * scale * 0.5 * length_ * dturned;
+      J.block<3, 1>(0, 1) = -W * (scale * 0.5 * length_ * dturned);
       J(3, 1) = -wyaw_ * length_;
     }
   }

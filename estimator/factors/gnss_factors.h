@@ -31,22 +31,23 @@ class GnssPositionFactor : public ceres::SizedCostFunction<3, 4> {
 /// length L between the nodes, the odometry's displacement dp (in i's yaw-only frame) becomes
 /// s R_z(k L / 2) dp (a heading error growing along the path turns the chord by half its end
 /// value) and its yaw change dyaw + k L:
-/// r = [(R_z(yaw_i)^T (p_j - p_i) - s R_z(k L / 2) dp) / sigma_p;
+/// r = [(R_z(yaw_i)^T (p_j - p_i) - s R_z(k L / 2) dp) / [sigma_h, sigma_h, sigma_v];
 ///      wrap(yaw_j - yaw_i - dyaw - k L) / sigma_yaw].
 class FourDofBetweenFactor : public ceres::SizedCostFunction<4, 4, 4, 2> {
  public:
   FourDofBetweenFactor(const Eigen::Vector3d& dp,
                        double dyaw,
                        double path_length_m,
-                       double sigma_p,
+                       double sigma_horizontal_m,
+                       double sigma_vertical_m,
                        double sigma_yaw);
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override;
 
  private:
-  Eigen::Vector3d dp_;
-  double dyaw_, length_, wp_, wyaw_;
+  Eigen::Vector3d dp_, wp_;
+  double dyaw_, length_, wyaw_;
 };
 
 /// Wraps an angle to (-pi, pi].

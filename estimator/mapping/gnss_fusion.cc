@@ -370,15 +370,17 @@ void GnssFusion::Optimize() {
       Node& prev = nodes_[k - 1];
       const double dist = std::max(0.0, n.distance_m - prev.distance_m);
       const Eigen::Vector3d dp = Rz(-prev.yaw_odom) * (n.p_odom - prev.p_odom);
-      problem.AddResidualBlock(new FourDofBetweenFactor(dp,
-                                                        WrapAngle(n.yaw_odom - prev.yaw_odom),
-                                                        dist,
-                                                        options_.drift_fraction * dist + 0.05,
-                                                        options_.yaw_drift_rad_per_m * dist + 1e-4),
-                               nullptr,
-                               prev.x,
-                               n.x,
-                               drift_);
+      problem.AddResidualBlock(
+          new FourDofBetweenFactor(dp,
+                                   WrapAngle(n.yaw_odom - prev.yaw_odom),
+                                   dist,
+                                   options_.drift_fraction * dist + 0.05,
+                                   options_.vertical_drift_fraction * dist + 0.05,
+                                   options_.yaw_drift_rad_per_m * dist + 1e-4),
+          nullptr,
+          prev.x,
+          n.x,
+          drift_);
     }
     ceres::Solver::Options solver_options;
     solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
@@ -448,13 +450,18 @@ Eigen::Isometry3d GnssFusion::Continue(const Eigen::Isometry3d& T_odom_body,
     const Eigen::Isometry3d now = ToEnu(c->odom, c->t_s);
     const Eigen::Vector3d dp = c->enu.translation() - now.translation();
     const bool step = c->step_always || c->step_allowed;
-    if (!step || dp.norm() <= options_.continuity_max_step_m) {
-      // Positions only: holding a yaw difference on the orientation while the positions follow
-      // the graph would skew the body against its own path (crabbing), and every keyframe
-      // cloud with it.
-      const double travel = (T_odom_body.translation() - c->odom.translation()).norm();
-      T.translation() += std::exp(-travel / options_.continuity_length_m) * dp;
-    }
+    // What of the move still fades: all of it, unless a step is allowed and the move is above
+    // continuity_max_step_m. Published poses fade the height even then: the odometry's height
+    // holds through an outage, and what moves it is the receiver's wandering height (with the
+    // height linked tightly, lidar_blackout stepped 0.58 m down where GNSS came back).
+    Eigen::Vector3d fading = dp;
+    if (step && dp.norm() > options_.continuity_max_step_m)
+      fading = c->step_always ? Eigen::Vector3d::Zero() : Eigen::Vector3d(0.0, 0.0, dp.z());
+    // Positions only: holding a yaw difference on the orientation while the positions follow
+    // the graph would skew the body against its own path (crabbing), and every keyframe cloud
+    // with it.
+    const double travel = (T_odom_body.translation() - c->odom.translation()).norm();
+    T.translation() += std::exp(-travel / options_.continuity_length_m) * fading;
   }
   c->valid = true;
   c->step_allowed = false;

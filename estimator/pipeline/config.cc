@@ -111,6 +111,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("sigma_vertical_m", &o->gnss.sigma_vertical_m);
     g.Read("gate_m", &o->gnss.gate_m);
     g.Read("drift_fraction", &o->gnss.drift_fraction);
+    g.Read("vertical_drift_fraction", &o->gnss.vertical_drift_fraction);
     g.Read("align_distance_m", &o->gnss.alignment.min_extent_m);
     g.Read("max_hold_s", &o->gnss_max_hold_s);
     g.Read("max_latency_s", &o->gnss_max_latency_s);
@@ -209,6 +210,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(gnss.gate_m > 0.0)) return fail("gnss.gate_m must be > 0");
   if (!(gnss.drift_fraction >= 0.0 && gnss.drift_fraction < 0.5))
     return fail("gnss.drift_fraction must be in [0, 0.5)");
+  if (!(gnss.vertical_drift_fraction >= 0.0 && gnss.vertical_drift_fraction < 0.5))
+    return fail("gnss.vertical_drift_fraction must be in [0, 0.5)");
   if (!(gnss.alignment.min_extent_m >= 10.0)) return fail("gnss.align_distance_m must be >= 10 m");
   if (!(gnss_max_hold_s >= 10.0)) return fail("gnss.max_hold_s must be >= 10 s");
   if (!(gnss_max_latency_s >= 0.0 && gnss_max_latency_s <= 600.0))
@@ -390,9 +393,10 @@ std::string EstimatorConfig::Describe() const {
     << o.gravity_align_s << " s\n";
   s << "gnss: " << (o.switches.use_gnss ? "on" : "off") << ", a factor every "
     << o.gnss.factor_period_s << " s, sigma " << o.gnss.sigma_horizontal_m << " / "
-    << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, aligned after "
-    << o.gnss.alignment.min_extent_m << " m, poses held up to " << o.gnss_max_latency_s
-    << " s for smoothing\n";
+    << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, odometry drift "
+    << o.gnss.drift_fraction << " (height " << o.gnss.vertical_drift_fraction
+    << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held up to "
+    << o.gnss_max_latency_s << " s for smoothing\n";
   const SubmapOptions& m = o.submap;
   s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, icp "
     << (m.icp ? "on" : "off") << ", ndt " << (m.ndt ? "on" : "off") << "; gnss pull " << m.gnss_pull

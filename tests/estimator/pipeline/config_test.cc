@@ -138,6 +138,8 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"straight_track:\n    sigma_rad: -0.001", "straight_track: sigma_rad must be in [0, 0.1]"},
       {"straight_track:\n    detect_s: 0", "straight_track: detect_s must be in [0.5, 600]"},
       {"straight_track:\n    tolerance: 0.001", "unknown key 'estimator.straight_track.tolerance'"},
+      {"gnss:\n    vertical_drift_fraction: 0.5",
+       "gnss.vertical_drift_fraction must be in [0, 0.5)"},
   };
   EstimatorConfig config;
   std::string error;
