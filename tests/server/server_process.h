@@ -20,13 +20,19 @@ namespace raillomer::test {
 
 class ServerProcess {
  public:
-  /// Starts the server on `data` (on `port`, 0: the OS picks; extra flags appended) and waits
-  /// until it serves.
-  ServerProcess(const std::filesystem::path& data, const std::string& flags = "", int port = 0)
+  /// Starts the server on `data` (on `port` and `ws_port`, 0 for both: the OS picks; extra
+  /// flags appended) and waits until it serves. A restart on the same port passes the first
+  /// server's WebSocket port too: with ws_port 0 and a port given, the hub takes port + 1,
+  /// which another process may hold.
+  ServerProcess(const std::filesystem::path& data,
+                const std::string& flags = "",
+                int port = 0,
+                int ws_port = 0)
       : data_(data), log_(data.string() + ".log") {
     const std::string command = "exec " + (BinDir() / "raillomer-server").string() + " --data " +
                                 ShellQuote(data.string()) + " --port " + std::to_string(port) +
-                                " --ws-port 0 " + flags + " >" + ShellQuote(log_) + " 2>&1";
+                                " --ws-port " + std::to_string(ws_port) + " " + flags + " >" +
+                                ShellQuote(log_) + " 2>&1";
     pid_ = fork();
     if (pid_ == 0) {
       execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));

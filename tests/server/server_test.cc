@@ -577,7 +577,7 @@ TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
   const fs::path dir = scratch.path();
   auto server = std::make_unique<ServerProcess>(dir / "data");
   ASSERT_TRUE(server->ok()) << server->log();
-  const int port = server->port();
+  const int port = server->port(), ws_port = server->ws_port();
   // The estimator streams the simulated demo run (30 s of data, about 12 s of work) while the
   // server is killed and comes back on the same port 3 s later.
   const std::string command =
@@ -597,7 +597,7 @@ TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
   }
   server->Stop(SIGKILL);
   std::this_thread::sleep_for(std::chrono::seconds(3));
-  server = std::make_unique<ServerProcess>(dir / "data", "", port);
+  server = std::make_unique<ServerProcess>(dir / "data", "", port, ws_port);
   ASSERT_TRUE(server->ok()) << server->log();
   estimator.join();
   const std::string log = ReadText(dir / "estimator.log");
