@@ -171,15 +171,17 @@ void SlidingWindow::AddAnchorPriors(Node* node, double accel_bias_sigma) const {
        {node->odometer}});
 }
 
-void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old) {
+void SlidingWindow::RotateWorld(const Eigen::Matrix3d& R_new_old, bool forget_tilt_gyro_bias) {
   const Eigen::Quaterniond q_rot(R_new_old);
   for (auto& n : nodes_) {
-    Eigen::Map<Eigen::Vector3d> p(n->pose), v(n->speed_bias), ba(n->speed_bias + 3);
+    Eigen::Map<Eigen::Vector3d> p(n->pose), v(n->speed_bias), ba(n->speed_bias + 3),
+        bg(n->speed_bias + 6);
     Eigen::Map<Eigen::Quaterniond> q(n->pose + 3);
     p = R_new_old * p;
     q = (q_rot * q).normalized();
     v = R_new_old * v;
     ba.setZero();
+    if (forget_tilt_gyro_bias) bg.head<2>().setZero();
     n->lidar.clear();
     n->unary.clear();
     n->priors.clear();

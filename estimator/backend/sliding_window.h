@@ -97,10 +97,12 @@ class SlidingWindow {
 
   /// Re-levels the world frame: rotates every state (position, attitude, velocity) by
   /// R_new_old about the origin and zeroes the accelerometer biases, which had absorbed the
-  /// old frame's tilt. The LiDAR factors (tied to the old frame's map) are dropped and the
-  /// marginalisation prior is replaced by fresh priors on the oldest state; the unary factors
-  /// (held in the old frame) are dropped too.
-  void RotateWorld(const Eigen::Matrix3d& R_new_old);
+  /// old frame's tilt. With `forget_tilt_gyro_bias` the gyro's roll and pitch biases are zeroed
+  /// too: in a frame levelled far off, they had turned the states towards the tilt that the
+  /// odometer and the LiDARs asked for. The LiDAR factors (tied to the old frame's map) are
+  /// dropped and the marginalisation prior is replaced by fresh priors on the oldest state; the
+  /// unary factors (held in the old frame) are dropped too.
+  void RotateWorld(const Eigen::Matrix3d& R_new_old, bool forget_tilt_gyro_bias = false);
 
  private:
   struct Node;
