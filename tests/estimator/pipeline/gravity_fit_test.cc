@@ -21,6 +21,11 @@ struct MovingOff {
   int states = 101;
   Eigen::Vector3d Velocity(int k) const { return Eigen::Vector3d(0.5 * k * kDt, 0.0, 0.0); }
   Eigen::Vector3d Increment(int k) const { return Velocity(k) - Velocity(k - 1) + g * kDt; }
+  /// Feeds states first..last - 1 exactly, as one line.
+  void Feed(int first, int last, GravityFit* fit) const {
+    fit->Start(Velocity(first));
+    for (int k = first + 1; k < last; ++k) fit->Add(kDt, Increment(k), Velocity(k));
+  }
 };
 
 /// Angle between two gravity vectors (rad).
@@ -31,8 +36,7 @@ double Tilt(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
 TEST(GravityFit, RecoversGravityExactlyFromExactStates) {
   const MovingOff run;
   GravityFit fit;
-  fit.Start(run.Velocity(0));
-  for (int k = 1; k < run.states; ++k) fit.Add(kDt, run.Increment(k), run.Velocity(k));
+  run.Feed(0, run.states, &fit);
   Eigen::Vector3d g;
   ASSERT_TRUE(fit.Gravity(&g));
   EXPECT_LT((g - run.g).norm(), 1e-9);
@@ -83,10 +87,8 @@ TEST(GravityFit, AveragesTheStatesVelocityNoise) {
 TEST(GravityFit, AGapStartsANewLineWithTheSameSlope) {
   const MovingOff run;
   GravityFit fit;
-  fit.Start(run.Velocity(0));
-  for (int k = 1; k < 40; ++k) fit.Add(kDt, run.Increment(k), run.Velocity(k));
-  fit.Start(run.Velocity(60));  // 2 s without IMU data
-  for (int k = 61; k < run.states; ++k) fit.Add(kDt, run.Increment(k), run.Velocity(k));
+  run.Feed(0, 40, &fit);
+  run.Feed(60, run.states, &fit);  // after 2 s without IMU data
   Eigen::Vector3d g;
   ASSERT_TRUE(fit.Gravity(&g));
   EXPECT_LT((g - run.g).norm(), 1e-9);
