@@ -2,11 +2,14 @@
 
 namespace raillomer {
 
+void GravityFit::AddOpenLine(double* sxx, Eigen::Vector3d* sxy) const {
+  if (n_ < 2) return;
+  *sxx += sum_tt_ - sum_t_ * sum_t_ / n_;
+  *sxy += sum_ty_ - sum_t_ * sum_y_ / n_;
+}
+
 void GravityFit::CloseLine() {
-  if (n_ >= 2) {
-    sxx_ += sum_tt_ - sum_t_ * sum_t_ / n_;
-    sxy_ += sum_ty_ - sum_t_ * sum_y_ / n_;
-  }
+  AddOpenLine(&sxx_, &sxy_);
   n_ = 0;
   sum_t_ = sum_tt_ = 0.0;
   c_.setZero();
@@ -42,10 +45,7 @@ void GravityFit::Add(double dt_s,
 bool GravityFit::Gravity(Eigen::Vector3d* g) const {
   double sxx = sxx_;
   Eigen::Vector3d sxy = sxy_;
-  if (n_ >= 2) {
-    sxx += sum_tt_ - sum_t_ * sum_t_ / n_;
-    sxy += sum_ty_ - sum_t_ * sum_y_ / n_;
-  }
+  AddOpenLine(&sxx, &sxy);
   if (!(sxx > 0.0)) return false;
   *g = sxy / sxx;
   return true;

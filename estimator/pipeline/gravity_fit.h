@@ -19,7 +19,8 @@ class GravityFit {
   void Start(const Eigen::Vector3d& v);
   /// The next state on the line, dt_s after the previous one, with the IMU's velocity
   /// increment over the interval rotated into the world, R beta (m/s; gravity included, as the
-  /// accelerometer reads it), and the state's velocity v.
+  /// accelerometer reads it), and the state's velocity v. Before any Start() it starts the line
+  /// at v instead.
   void Add(double dt_s, const Eigen::Vector3d& world_increment, const Eigen::Vector3d& v);
   /// Time covered by the lines (s).
   double duration_s() const { return duration_s_; }
@@ -28,6 +29,8 @@ class GravityFit {
   bool Gravity(Eigen::Vector3d* g) const;
 
  private:
+  /// Adds the open line's centred sums (of t^2 and of t y) to *sxx and *sxy.
+  void AddOpenLine(double* sxx, Eigen::Vector3d* sxy) const;
   void CloseLine();
 
   // The open line's sums: states, t, t^2, y and t y, with y = c - v.
