@@ -1010,7 +1010,8 @@ void Estimator::AlignGravity(bool last_chance) {
       fit.Gravity(&g_est)) {
     const Eigen::Quaterniond q_fix =
         Eigen::Quaterniond::FromTwoVectors(g_est.normalized(), Eigen::Vector3d::UnitZ());
-    const double angle_deg = Eigen::AngleAxisd(q_fix).angle() * 180.0 / M_PI;
+    const double angle_rad = Eigen::AngleAxisd(q_fix).angle();
+    const double angle_deg = angle_rad * 180.0 / M_PI;
     if (std::abs(g_est.norm() - g_w.z()) < 0.03 * g_w.z() && angle_deg < 3.0) {
       const Eigen::Matrix3d R = q_fix.toRotationMatrix();
       // A frame levelled this far off (started at speed, the simulated runs re-level by 1.3-4.5
@@ -1019,7 +1020,7 @@ void Estimator::AlignGravity(bool last_chance) {
       // 0.6 mrad within 16 s of the re-levelling. From rest they were learnt standing still,
       // and are kept.
       constexpr double kForgetTiltGyroBiasRad = 1.0e-3;
-      window_->RotateWorld(R, Eigen::AngleAxisd(q_fix).angle() > kForgetTiltGyroBiasRad);
+      window_->RotateWorld(R, angle_rad > kForgetTiltGyroBiasRad);
       // The heading hold was in the old frame: the straight is recognised anew.
       straight_.Reset();
       straight_heading_.reset();
