@@ -43,6 +43,53 @@ bool Within(const Eigen::Isometry3d& guess,
 
 }  // namespace
 
+std::vector<Eigen::Isometry3d> WithoutSideSlip(const std::vector<Eigen::Isometry3d>& poses,
+                                               size_t anchor,
+                                               const Eigen::Vector3d& p_body_wheel,
+                                               double max_jump_m) {
+  std::vector<Eigen::Isometry3d> out = poses;
+  if (poses.size() < 2) return out;
+  anchor = std::min(anchor, poses.size() - 1);
+  auto wheel = [&p_body_wheel](const Eigen::Isometry3d& T) { return T * p_body_wheel; };
+  // The wheel point's steps in the pairs' mean axes.
+  const size_t n = poses.size();
+  std::vector<Eigen::Matrix3d> R(n - 1);
+  std::vector<Eigen::Vector3d> d(n - 1);
+  for (size_t k = 0; k + 1 < n; ++k) {
+    const Eigen::Quaterniond a(poses[k].linear()), b(poses[k + 1].linear());
+    R[k] = a.slerp(0.5, b).toRotationMatrix();
+    d[k] = R[k].transpose() * (wheel(poses[k + 1]) - wheel(poses[k]));
+  }
+  // The slip the steps share, sideways per metre forward: a least-squares fit (a reversal
+  // counts the same), fitted again without the steps that jump across by more than max_jump_m
+  // beside it.
+  std::vector<uint8_t> jump(n - 1, 0);
+  auto fit = [&]() {
+    double sideways = 0.0, forward = 0.0;
+    for (size_t k = 0; k + 1 < n; ++k) {
+      if (jump[k]) continue;
+      sideways += d[k].y() * d[k].x();
+      forward += d[k].x() * d[k].x();
+    }
+    return forward > 1e-12 ? sideways / forward : 0.0;
+  };
+  double slip = fit();
+  for (size_t k = 0; k + 1 < n; ++k) jump[k] = std::abs(d[k].y() - slip * d[k].x()) > max_jump_m;
+  slip = fit();
+  auto step = [&](size_t k) {
+    Eigen::Vector3d e = d[k];
+    e.y() = jump[k] ? 0.0 : e.y() - slip * e.x();
+    return Eigen::Vector3d(R[k] * e);
+  };
+  // Each body position follows its rebuilt wheel point.
+  auto place = [&](size_t k, const Eigen::Vector3d& w) {
+    out[k].translation() = w - poses[k].linear() * p_body_wheel;
+  };
+  for (size_t k = anchor; k + 1 < n; ++k) place(k + 1, wheel(out[k]) + step(k));
+  for (size_t k = anchor; k-- > 0;) place(k, wheel(out[k + 1]) - step(k));
+  return out;
+}
+
 SubmapBuilder::SubmapBuilder(const SubmapOptions& options) : options_(options) {
   options_.keyframes = std::max(1, options_.keyframes);
 }
@@ -373,8 +420,12 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   p.chained = chained;
   A.translation() -= s.origin;
   const Eigen::Isometry3d odom_anchor_inv = p.T_odom_anchor.inverse();
+  std::vector<Eigen::Isometry3d> odom(n);
+  for (size_t k = 0; k < n; ++k) odom[k] = open_[k].T_odom_body;
+  if (options_.remove_side_slip)
+    odom = WithoutSideSlip(odom, p.anchor, options_.p_body_odometer, options_.side_slip_max_jump_m);
   p.P.resize(n);
-  for (size_t k = 0; k < n; ++k) p.P[k] = A * (odom_anchor_inv * open_[k].T_odom_body);
+  for (size_t k = 0; k < n; ++k) p.P[k] = A * (odom_anchor_inv * odom[k]);
   if (options_.icp && n > 1) RegisterKeyframes(s.origin, &p.P);
 
   for (size_t k = 0; k < n; ++k) {

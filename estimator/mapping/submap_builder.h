@@ -18,6 +18,23 @@ namespace raillomer {
 struct SubmapOptions {
   int keyframes = 10;    ///< keyframes per submap
   double voxel_m = 0.1;  ///< one point (the centroid) per voxel; 0 keeps every point
+  /// Within a submap the keyframes' positions lose the sideways slip their steps share against
+  /// their headings (WithoutSideSlip): the wheels roll along the rails, but the odometry's
+  /// emitted positions can slide across the track where the LiDAR pulls the sliding window
+  /// sideways a few millimetres a frame: 1.3-2.3 mrad for seconds in poor_high_open_a's canted
+  /// curve (its velocity states within 0.5 mrad of the heading), 5 cm over one submap, and rail
+  /// heads seen from two submaps 3.4 cm apart (estimator/RESULTS.md, 2026-11-25). Each step
+  /// keeps the rest of its sideways part, the LiDAR's view of where the frame is: taking every
+  /// step's sideways part out put the heading's own errors into the positions (imu_loss's rail
+  /// heads 1.4 -> 2.3 cm). The body's swing as the cant rolls it about the rail (6 cm/s at 4 m
+  /// in a transition) is no slip, hence the steps are the wheels'.
+  bool remove_side_slip = true;
+  /// ...and a step's sideways part beyond the shared slip goes too when above this (m): where
+  /// the window jumps across as it takes a correction (long_20km at 558 s: 9 cm in one frame as
+  /// a mast came into view). A car body sways by millimetres.
+  double side_slip_max_jump_m = 0.02;
+  /// The wheels (odometer) in the body frame, for remove_side_slip; the estimator sets the rig's.
+  Eigen::Vector3d p_body_odometer = Eigen::Vector3d::Zero();
   /// Stage 1, scan-to-submap (paper: when the scan-to-map iterations hit their limit): a
   /// keyframe whose odometry solve hit its iteration limit is registered by ICP onto the
   /// submap built so far (about 0.3 s each), from its odometry pose and, if that fails too,
@@ -105,6 +122,20 @@ struct SubmapOptions {
   /// where the placement's GNSS-corrected heading is kept instead. 0 always uses NDT's turn.
   double ndt_min_turn_arm_m = 3.0;
 };
+
+/// Body poses with the sideways slip of the point `p_body_wheel` (fixed in the body: the
+/// wheels on the rail) taken out. Each step between neighbours k and k+1 is taken in the axes of
+/// the pair's mean orientation (their slerp halfway: for a pair on a circular curve the chord
+/// is that mean heading). The slip the steps share is the least-squares ratio of their y to
+/// their x parts, fitted again without the steps whose y part lies more than `max_jump_m` off
+/// it: those lose their whole y part (no car body steps sideways so far between two
+/// keyframes), the others slip times their x part. The pose at `anchor` stays; the others are
+/// rebuilt outwards from it, orientations kept. Poses in any one frame; fewer than two come
+/// back as they are.
+std::vector<Eigen::Isometry3d> WithoutSideSlip(const std::vector<Eigen::Isometry3d>& poses,
+                                               size_t anchor,
+                                               const Eigen::Vector3d& p_body_wheel,
+                                               double max_jump_m);
 
 /// One keyframe for the submap builder.
 struct SubmapKeyframe {

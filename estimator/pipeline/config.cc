@@ -92,6 +92,8 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_keyframes", &o->submap.keyframes);
   r.Read("submap_voxel_m", &o->submap.voxel_m);
   r.Read("submap_icp", &o->submap.icp);
+  r.Read("submap_remove_side_slip", &o->submap.remove_side_slip);
+  r.Read("submap_side_slip_max_jump_m", &o->submap.side_slip_max_jump_m);
   r.Read("submap_ndt", &o->submap.ndt);
   r.Read("submap_gnss_pull", &o->submap.gnss_pull);
   r.Read("submap_gnss_pull_vertical", &o->submap.gnss_pull_vertical);
@@ -224,6 +226,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(submap.gnss_pull >= 0.0 && submap.gnss_pull <= 1.0) ||
       !(submap.gnss_pull_vertical >= 0.0 && submap.gnss_pull_vertical <= 1.0))
     return fail("submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]");
+  if (!(submap.side_slip_max_jump_m > 0.0))
+    return fail("submap_side_slip_max_jump_m must be > 0 m");
   if (!(submap.gnss_pull_excess >= 0.0 && submap.gnss_pull_excess <= 1.0))
     return fail("submap_gnss_pull_excess must be in [0, 1]");
   if (!(submap.gnss_pull_along_excess >= 0.0 && submap.gnss_pull_along_excess <= 1.0))
@@ -398,14 +402,20 @@ std::string EstimatorConfig::Describe() const {
     << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held up to "
     << o.gnss_max_latency_s << " s for smoothing\n";
   const SubmapOptions& m = o.submap;
-  s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, icp "
-    << (m.icp ? "on" : "off") << ", ndt " << (m.ndt ? "on" : "off") << "; gnss pull " << m.gnss_pull
-    << " (vertical " << m.gnss_pull_vertical << ", along beyond " << 0.25 * m.chain_reset_m << " m "
-    << m.gnss_pull_along_excess << ", sideways beyond " << 0.75 * m.chain_reset_m << " m "
-    << m.gnss_pull_excess << "), height loop " << m.gnss_height_length_m << " m, heading loop "
-    << m.gnss_heading_length_m << " m at up to " << m.gnss_max_turn_rate_rad_per_m
-    << " rad/m, chain reset beyond " << m.chain_reset_m << " m across / " << 2.0 * m.chain_reset_m
-    << " m along; ndt's turn kept from a lever arm of " << m.ndt_min_turn_arm_m << " m\n";
+  s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, side slip ";
+  if (m.remove_side_slip) {
+    s << "removed (steps across of over " << m.side_slip_max_jump_m << " m taken as jumps)";
+  } else {
+    s << "kept";
+  }
+  s << ", icp " << (m.icp ? "on" : "off") << ", ndt " << (m.ndt ? "on" : "off") << "; gnss pull "
+    << m.gnss_pull << " (vertical " << m.gnss_pull_vertical << ", along beyond "
+    << 0.25 * m.chain_reset_m << " m " << m.gnss_pull_along_excess << ", sideways beyond "
+    << 0.75 * m.chain_reset_m << " m " << m.gnss_pull_excess << "), height loop "
+    << m.gnss_height_length_m << " m, heading loop " << m.gnss_heading_length_m << " m at up to "
+    << m.gnss_max_turn_rate_rad_per_m << " rad/m, chain reset beyond " << m.chain_reset_m
+    << " m across / " << 2.0 * m.chain_reset_m << " m along; ndt's turn kept from a lever arm of "
+    << m.ndt_min_turn_arm_m << " m\n";
   return s.str();
 }
 

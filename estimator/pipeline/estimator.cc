@@ -149,7 +149,9 @@ struct Estimator::NodeExtras {
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
     : config_(config), sinks_(std::move(sinks)), straight_(config.options.straight_track) {
   if (sinks_.stream) {
-    submaps_ = std::make_unique<SubmapWorker>(config.options.submap, [this](api::Submap s) {
+    SubmapOptions submap = config.options.submap;
+    submap.p_body_odometer = config.rig.p_body_odometer;  // the wheels follow the rails
+    submaps_ = std::make_unique<SubmapWorker>(submap, [this](api::Submap s) {
       std::lock_guard<std::mutex> lock(stream_mutex_);
       s.sequence = stream_sequence_++;
       sinks_.stream->OnSubmap(s);

@@ -6,18 +6,13 @@
 
 #include "estimator/factors/lidar_factors.h"
 #include "estimator/factors/pose_manifold.h"
+#include "tests/support/poses.h"
 
 namespace raillomer {
 namespace {
 
 Eigen::Isometry3d Pose(double x, double y, double z, double roll, double pitch, double yaw) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
-                   .toRotationMatrix();
-  T.translation() = Eigen::Vector3d(x, y, z);
-  return T;
+  return test::PoseYpr(Eigen::Vector3d(x, y, z), yaw, pitch, roll);
 }
 
 /// World: ground z = 0, walls y = +-6, a cross wall x = 40, and vertical poles (edges).

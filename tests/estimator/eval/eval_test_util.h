@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 
 #include "api/trajectory.h"
+#include "tests/support/poses.h"
 
 namespace raillomer::eval::testing {
 
@@ -35,13 +36,7 @@ inline Eigen::Isometry3d Pose(const Eigen::Vector3d& p,
                               double yaw,
                               double pitch = 0.0,
                               double roll = 0.0) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
-                   .toRotationMatrix();
-  T.translation() = p;
-  return T;
+  return test::PoseYpr(p, yaw, pitch, roll);
 }
 
 /// A curved 3D run: an arc of radius 150 m with a gentle up-and-down and pitching, 1 m per pose.

@@ -1,8 +1,12 @@
-// Submaps and the global map export: keyframes grouped in tens, points carried into UTM with a
-// double origin and float offsets, the submap file codec and the map file round trip.
+// Submaps and the global map export: keyframes grouped in tens, their positions rebuilt along
+// their headings (no sideways slip of the wheels), points carried into UTM with a double origin
+// and float offsets, the submap file codec and the map file round trip.
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -10,6 +14,7 @@
 #include "api/stream.h"
 #include "estimator/mapping/map_export.h"
 #include "estimator/mapping/submap_builder.h"
+#include "tests/support/poses.h"
 #include "tests/support/process.h"
 
 namespace raillomer {
@@ -47,6 +52,7 @@ SubmapOptions Plain(int keyframes, double voxel_m) {
   o.voxel_m = voxel_m;
   o.icp = false;
   o.ndt = false;
+  o.remove_side_slip = false;  // keyframes placed as given (WithoutSideSlip is tested apart)
   return o;
 }
 
@@ -119,6 +125,136 @@ TEST(SubmapBuilder, TheFrameChangingClosesTheOpenSubmap) {
   ASSERT_EQ(done.size(), 1u);
   EXPECT_FALSE(done[0].georeferenced);
   EXPECT_EQ(builder.Flush().at(0).utm_zone, "50N");
+}
+
+/// A body pose from its position and roll, pitch and yaw (rad).
+Eigen::Isometry3d BodyPose(const Eigen::Vector3d& p, double roll, double pitch, double yaw) {
+  return test::PoseYpr(p, yaw, pitch, roll);
+}
+
+double LargestMove(const std::vector<Eigen::Isometry3d>& a,
+                   const std::vector<Eigen::Isometry3d>& b) {
+  double worst = 0.0;
+  for (size_t k = 0; k < a.size(); ++k)
+    worst = std::max(worst, (a[k].translation() - b[k].translation()).norm());
+  return worst;
+}
+
+TEST(WithoutSideSlip, KeepsAPathAlongItsHeadingOnACurvedGrade) {
+  // Keyframes 3 m apart on a 500 m curve climbing at 10 permille, each heading along it, the
+  // wheels 3.8 m below the body on the rail.
+  const Eigen::Vector3d wheel(0.0, 0.0, -3.8);
+  std::vector<Eigen::Isometry3d> poses;
+  const double radius = 500.0, grade = 0.01;
+  for (int k = 0; k < 10; ++k) {
+    const double angle = 3.0 * k / radius;
+    Eigen::Isometry3d T = BodyPose(Eigen::Vector3d::Zero(), 0.0, -std::atan(grade), angle);
+    const Eigen::Vector3d rail(
+        radius * std::sin(angle), radius * (1.0 - std::cos(angle)), 3.0 * k * grade);
+    T.translation() = rail - T.linear() * wheel;
+    poses.push_back(T);
+  }
+  EXPECT_LT(LargestMove(poses, WithoutSideSlip(poses, 5, wheel, 0.02)), 1e-9);
+  EXPECT_TRUE(WithoutSideSlip({}, 0, Eigen::Vector3d::Zero(), 0.02).empty());
+}
+
+TEST(WithoutSideSlip, TakesOutASidewaysSlideAndKeepsTheRest) {
+  // Heading east on straight track, the positions sliding north by 2 mrad of the travel.
+  std::vector<Eigen::Isometry3d> poses;
+  for (int k = 0; k < 10; ++k)
+    poses.push_back(BodyPose(Eigen::Vector3d(3.0 * k, 0.002 * 3.0 * k, 0.0), 0.0, 0.0, 0.0));
+  const std::vector<Eigen::Isometry3d> out =
+      WithoutSideSlip(poses, 4, Eigen::Vector3d(0, 0, -3.8), 0.02);
+  for (size_t k = 0; k < poses.size(); ++k) {
+    EXPECT_NEAR(out[k].translation().x(), poses[k].translation().x(), 1e-9) << k;
+    EXPECT_NEAR(out[k].translation().y(), poses[4].translation().y(), 1e-9) << k;  // the anchor's
+    EXPECT_TRUE(out[k].linear().isApprox(poses[k].linear())) << k;
+  }
+  EXPECT_EQ(out[4].translation(), poses[4].translation());
+}
+
+TEST(WithoutSideSlip, KeepsWhatTheStepsDoNotShare) {
+  // Heading east, the positions zigzagging 5 mm either side over ten steps: no common slip,
+  // nothing moves.
+  const Eigen::Vector3d wheel(0.0, 0.0, -3.8);
+  std::vector<Eigen::Isometry3d> poses;
+  for (int k = 0; k < 11; ++k)
+    poses.push_back(BodyPose(Eigen::Vector3d(3.0 * k, k % 2 ? 0.005 : -0.005, 0.0), 0.0, 0.0, 0.0));
+  EXPECT_LT(LargestMove(poses, WithoutSideSlip(poses, 5, wheel, 0.02)), 1e-9);
+  // The same zigzag on a 2 mrad slide: the slide goes, the zigzag stays.
+  std::vector<Eigen::Isometry3d> sliding = poses;
+  for (int k = 0; k < 11; ++k) sliding[k].translation().y() += 0.006 * k;
+  const std::vector<Eigen::Isometry3d> out = WithoutSideSlip(sliding, 5, wheel, 0.02);
+  for (int k = 0; k < 11; ++k)
+    EXPECT_NEAR(out[k].translation().y(), poses[k].translation().y() + 0.03, 1e-9) << k;
+}
+
+TEST(WithoutSideSlip, TakesOutAStepAcrossTheTrack) {
+  // Heading east on straight track; between the third and the fourth keyframe the positions
+  // jump 9 cm north (the window taking a correction). Fitted with the jump, the slip would
+  // have turned every other step by 3.7 mrad.
+  const Eigen::Vector3d wheel(0.0, 0.0, -3.8);
+  std::vector<Eigen::Isometry3d> poses;
+  for (int k = 0; k < 10; ++k)
+    poses.push_back(BodyPose(Eigen::Vector3d(3.0 * k, k >= 3 ? 0.09 : 0.0, 0.0), 0.0, 0.0, 0.0));
+  const std::vector<Eigen::Isometry3d> out = WithoutSideSlip(poses, 5, wheel, 0.02);
+  for (int k = 0; k < 10; ++k) {
+    EXPECT_NEAR(out[k].translation().y(), 0.09, 1e-9) << k;  // the anchor's side
+    EXPECT_NEAR(out[k].translation().x(), 3.0 * k, 1e-9) << k;
+  }
+  // Taken for slip (a threshold above the jump), it would bend the rest by centimetres.
+  EXPECT_GT(LargestMove(poses, WithoutSideSlip(poses, 5, wheel, 0.1)), 0.03);
+}
+
+TEST(WithoutSideSlip, KeepsTheBodysSwingAboutTheWheels) {
+  // A cant transition: the body rolls by up to 50 mrad about the rail 3.8 m below it, so its
+  // origin moves sideways by up to 19 cm while the wheels run straight.
+  const Eigen::Vector3d wheel(0.0, 0.0, -3.8);
+  std::vector<Eigen::Isometry3d> poses;
+  for (int k = 0; k < 10; ++k) {
+    const double roll = 0.005 * k;
+    Eigen::Isometry3d T = BodyPose(Eigen::Vector3d::Zero(), roll, 0.0, 0.0);
+    T.translation() = Eigen::Vector3d(3.0 * k, 0.0, 0.0) - T.linear() * wheel;
+    poses.push_back(T);
+  }
+  EXPECT_LT(LargestMove(poses, WithoutSideSlip(poses, 5, wheel, 0.02)), 1e-9);
+  // Taken at the body origin instead, the step would lose that sideways swing.
+  EXPECT_GT(LargestMove(poses, WithoutSideSlip(poses, 5, Eigen::Vector3d::Zero(), 0.02)), 0.05);
+}
+
+TEST(SubmapBuilder, KeyframesSlidingSidewaysStillMapAPostToOnePlace) {
+  // A post (points 1 m apart up a vertical line) 1.5 m left of the track at 40 m, seen from
+  // ten keyframes 3 m apart heading east whose odometry slides north by 2 mrad of the travel.
+  std::vector<Eigen::Vector3d> post;
+  for (int i = 0; i < 5; ++i) post.emplace_back(40.0, 1.5, static_cast<double>(i));
+  auto spread = [&](bool remove_side_slip) {
+    SubmapOptions options = Plain(10, 0.0);
+    options.remove_side_slip = remove_side_slip;
+    options.p_body_odometer = Eigen::Vector3d(0.0, 0.0, -3.8);
+    SubmapBuilder builder(options);
+    std::vector<api::Submap> done;
+    for (int k = 0; k < 10; ++k) {
+      const Eigen::Isometry3d truth = Pose(3.0 * k, 0.0, 0.0, 0.0);
+      std::vector<Eigen::Vector3f> points;
+      for (const Eigen::Vector3d& p : post) points.push_back((truth.inverse() * p).cast<float>());
+      SubmapKeyframe keyframe = Keyframe(k + 1,
+                                         Pose(3.0 * k, 0.006 * k, 0.0, 0.0),
+                                         false,
+                                         "",
+                                         points,
+                                         std::vector<float>(points.size(), 1.f));
+      for (api::Submap& s : builder.Add(std::move(keyframe))) done.push_back(std::move(s));
+    }
+    EXPECT_EQ(done.size(), 1u);
+    double lo = 1e9, hi = -1e9;
+    for (const Eigen::Vector3f& q : done.at(0).points) {
+      lo = std::min(lo, static_cast<double>(q.y()));
+      hi = std::max(hi, static_cast<double>(q.y()));
+    }
+    return hi - lo;
+  };
+  EXPECT_LT(spread(true), 1e-4);
+  EXPECT_GT(spread(false), 0.05);  // 2 mrad over the 27 m between the first and last keyframe
 }
 
 api::Submap SampleSubmap() {
