@@ -426,8 +426,9 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       pred = pre->Predict(prev);
       if (odometer_ok && t_end - init_time_s_ > 1.0) {
         // A slipping or sliding wheel disagrees with the inertial prediction: drop its reading.
+        // phi is integrated at the scale prev.c already: it is in metres.
         const double dx_pred = (prev.q.conjugate() * (pred.p - prev.p)).x();
-        const double dx_odo = prev.c * pre->phi().x();
+        const double dx_odo = pre->phi().x();
         if (std::abs(dx_odo - dx_pred) > 0.05 * std::abs(dx_pred) + 0.05) {
           ++stats_.odometer_outliers;
           if (warning_counts_["slip"]++ % 50 == 0) {
