@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Eigenvalues>
 
@@ -428,9 +429,13 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   for (size_t k = 0; k < n; ++k) p.P[k] = A * (odom_anchor_inv * odom[k]);
   if (options_.icp && n > 1) RegisterKeyframes(s.origin, &p.P);
 
+  const float max_range_squared =
+      options_.max_range_m > 0.0 ? static_cast<float>(options_.max_range_m * options_.max_range_m)
+                                 : std::numeric_limits<float>::infinity();
   for (size_t k = 0; k < n; ++k) {
     const SubmapKeyframe& kf = open_[k];
     for (size_t i = 0; i < kf.points_body.size(); ++i) {
+      if (kf.points_body[i].squaredNorm() > max_range_squared) continue;
       s.points.push_back((p.P[k] * kf.points_body[i].cast<double>()).cast<float>());
       s.intensities.push_back(i < kf.intensities.size() ? kf.intensities[i] : 0.f);
     }

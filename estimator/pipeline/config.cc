@@ -91,6 +91,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("write_keyframes", &o->write_keyframes);
   r.Read("submap_keyframes", &o->submap.keyframes);
   r.Read("submap_voxel_m", &o->submap.voxel_m);
+  r.Read("submap_max_range_m", &o->submap.max_range_m);
   r.Read("submap_icp", &o->submap.icp);
   r.Read("submap_remove_side_slip", &o->submap.remove_side_slip);
   r.Read("submap_side_slip_max_jump_m", &o->submap.side_slip_max_jump_m);
@@ -245,6 +246,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("submap_keyframes must be in [1, 1000]");
   if (!(submap.voxel_m >= 0.0 && submap.voxel_m <= 5.0))
     return fail("submap_voxel_m must be in [0, 5] m (0: every point)");
+  if (!(submap.max_range_m >= 0.0))
+    return fail("submap_max_range_m must be >= 0 m (0: every point)");
   if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
   if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
   if (!(map_radius_m > 10.0)) return fail("map_radius_m must be > 10");
@@ -402,7 +405,13 @@ std::string EstimatorConfig::Describe() const {
     << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held up to "
     << o.gnss_max_latency_s << " s for smoothing\n";
   const SubmapOptions& m = o.submap;
-  s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, side slip ";
+  s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, points within ";
+  if (m.max_range_m > 0.0) {
+    s << m.max_range_m << " m";
+  } else {
+    s << "any range";
+  }
+  s << ", side slip ";
   if (m.remove_side_slip) {
     s << "removed (steps across of over " << m.side_slip_max_jump_m << " m taken as jumps)";
   } else {

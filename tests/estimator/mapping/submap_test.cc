@@ -117,6 +117,24 @@ TEST(SubmapBuilder, OverlappingKeyframesAreThinnedToOnePointPerVoxel) {
   EXPECT_FALSE(done[0].georeferenced);
 }
 
+TEST(SubmapBuilder, PointsBeyondTheRangeLimitStayOut) {
+  // One keyframe seeing a point 10 m ahead, one 49.9 m ahead and one 50.1 m ahead.
+  const std::vector<Eigen::Vector3f> points = {
+      {10.f, 0.f, 0.f}, {0.f, 49.9f, 0.f}, {30.f, 40.f, 0.5f}};
+  auto kept = [&](double max_range_m) {
+    SubmapOptions options = Plain(1, 0.0);
+    options.max_range_m = max_range_m;
+    SubmapBuilder builder(options);
+    const std::vector<api::Submap> done = builder.Add(
+        Keyframe(1, Pose(100.0, 200.0, 10.0, 0.3), false, "", points, std::vector<float>(3, 1.f)));
+    EXPECT_EQ(done.size(), 1u);
+    return done.empty() ? size_t{0} : done[0].points.size();
+  };
+  EXPECT_EQ(kept(50.0), 2u);
+  EXPECT_EQ(kept(0.0), 3u);  // no limit
+  EXPECT_EQ(kept(5.0), 0u);
+}
+
 TEST(SubmapBuilder, TheFrameChangingClosesTheOpenSubmap) {
   SubmapBuilder builder(Plain(10, 0.0));
   builder.Add(Keyframe(1, Pose(1.0, 2.0, 3.0, 0.0), false, "", Grid(), {}));

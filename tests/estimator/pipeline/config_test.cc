@@ -129,6 +129,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"submap_gnss_pull_excess: 2", "submap_gnss_pull_excess must be in [0, 1]"},
       {"submap_gnss_pull_along_excess: -0.5", "submap_gnss_pull_along_excess must be in [0, 1]"},
       {"submap_chain_reset_m: 0", "submap_chain_reset_m must be > 0 m"},
+      {"submap_max_range_m: -1", "submap_max_range_m must be >= 0 m (0: every point)"},
       {"submap_side_slip_max_jump_m: 0", "submap_side_slip_max_jump_m must be > 0 m"},
       {"rail_line_sigma_m: -0.1", "rail_line_sigma_m must be >= 0"},
       {"rail_line_max_forward_m: -1", "rail_line_max_forward_m must be >= 0"},
@@ -166,7 +167,7 @@ TEST(EstimatorConfig, OverridesTunables) {
       "0\n"
       "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n"
       "  submap_gnss_pull_along_excess: 0.25\n  "
-      "submap_chain_reset_m: 5\n  submap_remove_side_slip: false\n"
+      "submap_chain_reset_m: 5\n  submap_remove_side_slip: false\n  submap_max_range_m: 0\n"
       "  rail_line_sigma_m: 0.2\n  rail_line_max_forward_m: 12\n"
       "  odometer_pitch_sigma_rad: 0.001\n  odometer_yaw_sigma_rad: 0.002\n"
       "  odometer_misalignment_walk: 2e-5\n  deskew_step_s: 0\n"
@@ -194,6 +195,8 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_NE(config.Describe().find("chain reset beyond 5 m across / 10 m along"), std::string::npos)
       << config.Describe();
   EXPECT_FALSE(config.options.submap.remove_side_slip);
+  EXPECT_EQ(config.options.submap.max_range_m, 0.0);
+  EXPECT_NE(config.Describe().find("points within any range"), std::string::npos);
   EXPECT_NE(config.Describe().find("side slip kept"), std::string::npos) << config.Describe();
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);
   EXPECT_DOUBLE_EQ(config.options.preprocess.min_range_m, 3.5);
