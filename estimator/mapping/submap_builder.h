@@ -28,9 +28,9 @@ struct SubmapOptions {
   /// Within a submap the keyframes' positions lose the sideways slip their steps share against
   /// their headings (WithoutSideSlip): the wheels roll along the rails, but the odometry's
   /// emitted positions can slide across the track where the LiDAR pulls the sliding window
-  /// sideways a few millimetres a frame: 1.3-2.3 mrad for seconds in poor_high_open_a's canted
-  /// curve (its velocity states within 0.5 mrad of the heading), 5 cm over one submap, and rail
-  /// heads seen from two submaps 3.4 cm apart (estimator/RESULTS.md, 2026-11-25). Each step
+  /// sideways a few millimetres a frame: 1.2-1.6 mrad for 5 s in poor_high_open_a's canted
+  /// curve (GNSS off; the truth's within 0.2 mrad), and rail heads seen from two submaps came
+  /// out 3.4 cm apart (estimator/RESULTS.md, 2026-12-01). Each step
   /// keeps the rest of its sideways part, the LiDAR's view of where the frame is: taking every
   /// step's sideways part out put the heading's own errors into the positions (imu_loss's rail
   /// heads 1.4 -> 2.3 cm). The body's swing as the cant rolls it about the rail (6 cm/s at 4 m
