@@ -39,9 +39,11 @@ struct GnssFusionOptions {
   /// height, the graph averages the receiver's wandering height over many nodes instead of
   /// following it; that pays only where the odometry's height holds. The default odometry
   /// climbs at up to 0.7 mrad (at constant speed its pitch and the accelerometer's x bias
-  /// trade), so the default is the horizontal fraction's; estimator/RESULTS.md (2026-11-25) has
-  /// 0.0003 with a tight accelerometer bias prior.
-  double vertical_drift_fraction = 0.005;
+  /// trade; 0.2-0.3 mrad through tunnel_gnss_outage's tunnel, GNSS off), so the default leaves
+  /// it 1 mrad. At the horizontal fraction's 0.005 the graph took in the receiver's height
+  /// wherever it came back from an outage 3-4 m off (estimator/RESULTS.md, 2026-12-01); 0.0003
+  /// suits an odometry with a tight accelerometer bias prior (2026-11-25).
+  double vertical_drift_fraction = 0.001;
   double yaw_drift_rad_per_m = 5e-6;
   /// The graph also estimates the odometry's systematic drift over its window, a scale error
   /// and a heading drift per metre, with these prior spreads around zero; the newest estimate
@@ -57,11 +59,11 @@ struct GnssFusionOptions {
   /// on the alignment's short baseline and still move by milliradians.
   int min_settled_nodes = 3;
   /// When GNSS returns after a gap (no factor for more than 1.5 factor periods, e.g. a tunnel)
-  /// or the alignment is re-solved, a difference above this (m) is applied at once, its height
-  /// excepted: the graph then corrects drift it could not see. Any other re-solve fades, however
-  /// far it moves the graph: the receiver's height wanders by metres, and a new node moved the
-  /// graph's height by 0.5-0.9 m on 10 of the 19 suite runs, a step in the trajectory. The submap
-  /// chain's target (MapTarget) takes every move above this at once.
+  /// or the alignment is re-solved, a horizontal difference above this (m) is applied at once,
+  /// the height still fading: the graph then corrects drift it could not see. Any other re-solve
+  /// fades, however far it moves the graph: the receiver's height wanders by metres, and a new node
+  /// moved the graph's height by 0.5-0.9 m on 10 of the 19 suite runs, a step in the trajectory.
+  /// The submap chain's target (MapTarget) takes every move above this at once.
   double continuity_max_step_m = 0.5;
   /// After this many consecutive rejected fixes that agree with each other within
   /// 2 * sigma_horizontal_m, the alignment is re-solved on the recent fixes.
@@ -114,9 +116,9 @@ class GnssFusion {
   Eigen::Isometry3d ToEnu(const Eigen::Isometry3d& T_odom_body, double t_s) const;
   /// The pose to publish for the odometry pose at time t_s (time order): ToEnu(T, t_s), plus
   /// how far the graph has moved the last published position since it went out, fading with
-  /// exp(-travel / continuity_length_m); after a GNSS gap or a re-solved alignment, the
-  /// horizontal part of a move above continuity_max_step_m is taken at once instead (the
-  /// height still fades). Valid once aligned.
+  /// exp(-travel / continuity_length_m); after a GNSS gap or a re-solved alignment, a
+  /// horizontal move above continuity_max_step_m is taken at once instead (the height still
+  /// fades). Valid once aligned.
   Eigen::Isometry3d Publish(const Eigen::Isometry3d& T_odom_body, double t_s);
   /// Where the submap chain is pulled for the odometry pose at time t_s (time order, every
   /// pose): as Publish, but any move above continuity_max_step_m is taken at once. The chain
@@ -221,7 +223,7 @@ class GnssFusion {
   };
   /// ToEnu(T_odom_body, t_s) plus the fading part of how far the graph has moved c's last pose
   /// since it went out; a move above continuity_max_step_m is taken at once where c allows a
-  /// step.
+  /// step (for Publish, its horizontal part, where that alone is above it).
   Eigen::Isometry3d Continue(const Eigen::Isometry3d& T_odom_body, double t_s, Continuity* c);
   Continuity published_, map_target_{/*step_always=*/true};
 };

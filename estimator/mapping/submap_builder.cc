@@ -172,8 +172,8 @@ bool SubmapBuilder::StartNdt(Pending* p, bool chained) {
   std::vector<Eigen::Vector3f> target =
       archive_.Within(s.utm_zone, s.origin, source_box, take, &ids);
   if (target.empty()) return false;
-  if (std::any_of(ids.begin(), ids.end(), [&](uint32_t id) { return id + 1 != s.index; }))
-    ++stats_.ndt_revisits;
+  p->revisit = std::any_of(ids.begin(), ids.end(), [&](uint32_t id) { return id + 1 != s.index; });
+  if (p->revisit) ++stats_.ndt_revisits;
   for (const Eigen::Vector3f& t : target) target_box.extend(t);
   target_box.min().array() -= margin;
   target_box.max().array() += margin;
@@ -204,6 +204,8 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
   const Registration r = p.ndt.get();
   // Along the track only where the registration sees it: on a corridor that repeats itself
   // every mast spacing NDT slides, and the odometry (its scale corrected by GNSS) is better.
+  // Onto an earlier pass it takes far less to see it: nothing else ties the two passes along
+  // the track, and the earlier pass holds the result, so no slide is carried along the chain.
   // The slide is taken out before the trust region is checked, so that it does not throw
   // away the height and the turn that NDT did see.
   // Likewise the turn about the vertical: where the corridor offers little to turn against (a
@@ -225,7 +227,9 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
       const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(translation_information);
       const double strongest = std::max(eig.eigenvalues().maxCoeff(), 1e-12);
       const double ratio = along.dot(translation_information * along) / strongest;
-      if (ratio < options_.ndt_min_along_information) {
+      const double min_ratio = p.revisit ? options_.ndt_min_along_information_revisit
+                                         : options_.ndt_min_along_information;
+      if (ratio < min_ratio) {
         delta.translation() -= along * along.dot(delta * a - a);
       }
     }

@@ -123,6 +123,13 @@ struct SubmapOptions {
   /// direction: its information along the track at least this share of the strongest (0.1-0.2
   /// past a station, under 0.01 on plain track with evenly spaced masts).
   double ndt_min_along_information = 0.05;
+  /// The same where NDT's target holds an earlier pass's submaps. Each pass is placed along
+  /// the track by its own odometry and GNSS, and only NDT ties them together there; the
+  /// earlier pass holds the result, so it is not carried along the chain as a slide would be.
+  /// reverse_running's later passes were 0.1-0.2 m off the first along the track (NDT saw the
+  /// offset submap after submap at ratios of 0.005-0.06), and a wall facing along the track
+  /// came out 3.2 cm RMS thick on seed 3 (2.5 with this; seed 2 2.4 -> 1.2 cm).
+  double ndt_min_along_information_revisit = 0.005;
   /// NDT's turn about the vertical is used only where the registration constrains it: its
   /// information (the other directions free) at least that of the strongest translation at
   /// this lever arm (m). Mostly 5-15 m along built-up or mast-lined track, 1-2 m in a bare curve,
@@ -208,6 +215,7 @@ class SubmapBuilder {
     bool chained = false;
     size_t anchor = 0;
     double travel_anchor_m = 0.0;  ///< the odometry's path length at the anchor
+    bool revisit = false;          ///< NDT's target holds an earlier pass's submaps
     std::future<Registration> ndt;
   };
 

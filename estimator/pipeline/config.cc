@@ -105,6 +105,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_gnss_pull_along_excess", &o->submap.gnss_pull_along_excess);
   r.Read("submap_chain_reset_m", &o->submap.chain_reset_m);
   r.Read("submap_ndt_min_turn_arm_m", &o->submap.ndt_min_turn_arm_m);
+  r.Read("submap_ndt_min_along_information_revisit", &o->submap.ndt_min_along_information_revisit);
   r.Read("init_gravity_s", &o->init_gravity_s);
   r.Read("gravity_align_s", &o->gravity_align_s);
   if (r.Has("gnss")) {
@@ -234,6 +235,11 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(submap.gnss_pull_along_excess >= 0.0 && submap.gnss_pull_along_excess <= 1.0))
     return fail("submap_gnss_pull_along_excess must be in [0, 1]");
   if (!(submap.chain_reset_m > 0.0)) return fail("submap_chain_reset_m must be > 0 m");
+  if (!(submap.ndt_min_along_information_revisit >= 0.0 &&
+        submap.ndt_min_along_information_revisit <= 1.0))
+    return fail(
+        "submap_ndt_min_along_information_revisit must be in [0, 1] (0: always NDT's "
+        "along-track correction onto an earlier pass)");
   if (!(submap.ndt_min_turn_arm_m >= 0.0 && submap.ndt_min_turn_arm_m <= 100.0))
     return fail("submap_ndt_min_turn_arm_m must be in [0, 100] m (0: always NDT's turn)");
   if (!(submap.gnss_height_length_m >= 0.0))
@@ -424,7 +430,8 @@ std::string EstimatorConfig::Describe() const {
     << m.gnss_height_length_m << " m, heading loop " << m.gnss_heading_length_m << " m at up to "
     << m.gnss_max_turn_rate_rad_per_m << " rad/m, chain reset beyond " << m.chain_reset_m
     << " m across / " << 2.0 * m.chain_reset_m << " m along; ndt's turn kept from a lever arm of "
-    << m.ndt_min_turn_arm_m << " m\n";
+    << m.ndt_min_turn_arm_m << " m; ndt along the track onto an earlier pass from an information "
+    << "share of " << m.ndt_min_along_information_revisit << "\n";
   return s.str();
 }
 

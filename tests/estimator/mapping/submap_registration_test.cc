@@ -513,51 +513,91 @@ TEST(SubmapArchive, ReturnsTheStoredPointsInsideABoxAsOffsetsFromTheAskedOrigin)
   EXPECT_TRUE(archive.Within("50N", query, beyond).empty());
 }
 
-TEST(SubmapBuilder, ASecondPassIsRegisteredOntoTheFirst) {
-  // The train runs 78 m out and back over the same corridor. On the way back the odometry has
-  // drifted 0.12 m up and 0.1 m sideways, and GNSS is no help (it is as far off): NDT onto the
-  // first pass's submaps, which the way back overlaps, takes the second pass back onto it.
-  const CorridorRun run(80.0);
+/// The submaps of a train that runs 78 m out along `run`'s corridor and back over the same
+/// track, whose odometry is exact on the way out and off by `drift` (UTM axes) on the way back,
+/// and whose GNSS agrees with the odometry (no help on the way back).
+std::vector<api::Submap> OutAndBack(const CorridorRun& run,
+                                    const Vec3& drift,
+                                    SubmapOptions options,
+                                    SubmapStats* stats) {
   const Eigen::Isometry3d T_odom_utm = Pose(Vec3(-432000.0, -3585000.0, -25.0), 0.4);
-  const Vec3 drift = Sideways(0.1, 0.12);
-  auto pass = [&](SubmapOptions options, SubmapStats* stats) {
-    options.icp = false;
-    SubmapBuilder builder(options);
-    std::vector<api::Submap> done;
-    std::vector<int> along;  // keyframe positions, out (0..39) and back (39..0)
-    for (int k = 0; k < 40; ++k) along.push_back(k);
-    for (int k = 39; k >= 0; --k) along.push_back(k);
-    for (size_t i = 0; i < along.size(); ++i) {
-      const bool back = i >= 40;
-      // Reversing, the body keeps facing the same way: the keyframe poses are the outward ones.
-      Eigen::Isometry3d odom = T_odom_utm * run.Truth(along[i]);
-      if (back) odom.translation() += T_odom_utm.linear() * drift;
-      const SubmapKeyframe kf = run.Keyframe(along[i], odom, back ? drift : Vec3::Zero());
-      for (api::Submap& s : builder.Add(kf)) done.push_back(s);
-    }
-    for (api::Submap& s : builder.Flush()) done.push_back(s);
-    *stats = builder.stats();
-    return done;
-  };
-  SubmapOptions options;
+  options.icp = false;
   options.gnss_pull = 0.0;
   options.gnss_pull_vertical = 0.0;
-  SubmapStats stats;
-  const std::vector<api::Submap> done = pass(options, &stats);
-  ASSERT_EQ(done.size(), 8u);
-  EXPECT_GE(stats.ndt_revisits, 3u);
-  for (size_t s = 4; s < 8; ++s) {
+  SubmapBuilder builder(options);
+  std::vector<api::Submap> done;
+  std::vector<int> along;  // keyframe positions, out (0..39) and back (39..0)
+  for (int k = 0; k < 40; ++k) along.push_back(k);
+  for (int k = 39; k >= 0; --k) along.push_back(k);
+  for (size_t i = 0; i < along.size(); ++i) {
+    const bool back = i >= 40;
+    // Reversing, the body keeps facing the same way: the keyframe poses are the outward ones.
+    Eigen::Isometry3d odom = T_odom_utm * run.Truth(along[i]);
+    if (back) odom.translation() += T_odom_utm.linear() * drift;
+    const SubmapKeyframe kf = run.Keyframe(along[i], odom, back ? drift : Vec3::Zero());
+    for (api::Submap& s : builder.Add(kf)) done.push_back(s);
+  }
+  for (api::Submap& s : builder.Flush()) done.push_back(s);
+  *stats = builder.stats();
+  return done;
+}
+
+/// The largest distance (m) of the way back's keyframes (submaps 4-7) from the truth.
+double WorstOnTheWayBack(const CorridorRun& run, const std::vector<api::Submap>& done) {
+  double worst = 0.0;
+  for (size_t s = 4; s < 8 && s < done.size(); ++s) {
     for (int k = 0; k < 10; ++k) {
       const int at = 39 - static_cast<int>(10 * (s - 4)) - k;
-      const Vec3 left = done[s].keyframes[k].p_world - run.Truth(at).translation();
-      EXPECT_LT(left.norm(), 0.03)
-          << "submap " << s << " keyframe " << k << ": " << left.transpose();
+      worst = std::max(worst, (done[s].keyframes[k].p_world - run.Truth(at).translation()).norm());
     }
   }
+  return worst;
+}
+
+TEST(SubmapBuilder, ASecondPassIsRegisteredOntoTheFirst) {
+  // On the way back the odometry has drifted 0.12 m up and 0.1 m sideways: NDT onto the first
+  // pass's submaps, which the way back overlaps, takes the second pass back onto it.
+  const CorridorRun run(80.0);
+  SubmapStats stats;
+  const std::vector<api::Submap> done =
+      OutAndBack(run, Sideways(0.1, 0.12), SubmapOptions{}, &stats);
+  ASSERT_EQ(done.size(), 8u);
+  EXPECT_GE(stats.ndt_revisits, 3u);
+  EXPECT_LT(WorstOnTheWayBack(run, done), 0.03);
   // Without NDT the second pass stays where the odometry put it.
-  options.ndt = false;
-  const std::vector<api::Submap> without = pass(options, &stats);
+  SubmapOptions without_ndt;
+  without_ndt.ndt = false;
+  const std::vector<api::Submap> without =
+      OutAndBack(run, Sideways(0.1, 0.12), without_ndt, &stats);
   EXPECT_GT((without[6].keyframes[5].p_world - run.Truth(14).translation()).norm(), 0.1);
+}
+
+TEST(SubmapBuilder, ASecondPassOffAlongTheTrackIsTakenBackOntoTheFirst) {
+  // On the way back the odometry is 0.15 m off along the track, which this corridor shows NDT
+  // only weakly (its recesses and boxes against the long walls and the ground; an information
+  // share of 0.005-0.013): too weakly to take from one submap onto the last, where a slide
+  // would be carried along the chain, but enough onto an earlier pass, which holds it. Each
+  // registration takes a share of the offset (NDT converges slowly along a weak direction),
+  // and the chain carries it on, so the way back comes closer submap by submap.
+  const CorridorRun run(80.0);
+  const Vec3 drift = Sideways(0.0, 0.0, 0.15);
+  const auto along_error = [&](const std::vector<api::Submap>& done, size_t s) {
+    const int at = 39 - static_cast<int>(10 * (s - 4)) - 5;
+    return Sideways(0.0, 0.0, 1.0).dot(done[s].keyframes[5].p_world - run.Truth(at).translation());
+  };
+  SubmapStats stats;
+  const std::vector<api::Submap> done = OutAndBack(run, drift, SubmapOptions{}, &stats);
+  ASSERT_EQ(done.size(), 8u);
+  EXPECT_GE(stats.ndt_revisits, 3u);
+  EXPECT_NEAR(along_error(done, 4), 0.15, 0.01);  // the turn's submap: no earlier pass yet
+  EXPECT_LT(along_error(done, 5), along_error(done, 4) - 0.03);
+  EXPECT_LT(along_error(done, 6), along_error(done, 5) - 0.03);
+  EXPECT_LT(along_error(done, 7), 0.05);
+  // Held to the bar of one pass onto the last, the way back stays off along the track.
+  SubmapOptions one_pass_bar;
+  one_pass_bar.ndt_min_along_information_revisit = one_pass_bar.ndt_min_along_information;
+  const std::vector<api::Submap> held = OutAndBack(run, drift, one_pass_bar, &stats);
+  EXPECT_GT(along_error(held, 7), 0.13);
 }
 
 }  // namespace
