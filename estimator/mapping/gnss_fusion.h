@@ -39,9 +39,9 @@ struct GnssFusionOptions {
   /// height, the graph averages the receiver's wandering height over many nodes instead of
   /// following it; that pays only where the odometry's height holds. The default odometry
   /// climbs at up to 0.7 mrad (at constant speed its pitch and the accelerometer's x bias
-  /// trade; 0.2-0.3 mrad through tunnel_gnss_outage's tunnel, GNSS off), so the default leaves
-  /// it 1 mrad. At the horizontal fraction's 0.005 the graph took in the receiver's height
-  /// wherever it came back from an outage 3-4 m off (estimator/RESULTS.md, 2026-12-01); 0.0003
+  /// trade; at most 0.34 mrad through tunnel_gnss_outage's tunnel, GNSS off), so the default
+  /// leaves it 1 mrad. At the horizontal fraction's 0.005 the graph took in the receiver's height
+  /// wherever it came back from an outage 2-4 m off (estimator/RESULTS.md, 2026-12-01); 0.0003
   /// suits an odometry with a tight accelerometer bias prior (2026-11-25).
   double vertical_drift_fraction = 0.001;
   double yaw_drift_rad_per_m = 5e-6;
