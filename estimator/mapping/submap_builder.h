@@ -143,9 +143,9 @@ struct SubmapOptions {
 /// is that mean heading). The slip the steps share is the least-squares ratio of their y to
 /// their x parts, fitted again without the steps whose y part lies more than `max_jump_m` off
 /// it: those lose their whole y part (no car body steps sideways so far between two
-/// keyframes), the others slip times their x part. The pose at `anchor` stays; the others are
-/// rebuilt outwards from it, orientations kept. Poses in any one frame; fewer than two come
-/// back as they are.
+/// keyframes), the others lose the shared slip times their x part and keep the rest. The pose
+/// at `anchor` stays; the others are rebuilt outwards from it, orientations kept. Poses in any
+/// one frame; fewer than two come back as they are.
 std::vector<Eigen::Isometry3d> WithoutSideSlip(const std::vector<Eigen::Isometry3d>& poses,
                                                size_t anchor,
                                                const Eigen::Vector3d& p_body_wheel,

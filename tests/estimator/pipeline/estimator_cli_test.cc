@@ -57,6 +57,14 @@ class EstimatorCli : public ::testing::Test {
   static fs::path Dir() { return scratch_->path(); }
   static fs::path Bag() { return Dir() / "bag" / "run.bag"; }
   static fs::path Rig() { return Dir() / "bag" / "rig.yaml"; }
+  /// A scenario file `<name>.yaml` in the scratch directory: a built-in `base` with `changes`.
+  static fs::path WriteScenario(const std::string& name,
+                                const std::string& base,
+                                const std::string& changes) {
+    const fs::path path = Dir() / (name + ".yaml");
+    std::ofstream(path) << "base: " << base << "\nname: " << name << "\n" << changes;
+    return path;
+  }
   CommandResult Shell(const std::string& command) const {
     return raillomer::test::RunCommand(command, Dir());
   }
@@ -403,10 +411,11 @@ double LastValue(const fs::path& timing_csv, const std::string& name) {
 // run ends 0.47 % of its 1 km off (raillomer-eval, se3); with the pitch estimated (-1.38 mrad,
 // where the rail joints' one-sided dips add +0.16), 0.02 %.
 TEST_F(EstimatorCli, APitchedCarBodyIsNotTakenToClimb) {
-  const fs::path scenario = Dir() / "pitched_body.yaml";
-  std::ofstream(scenario) << "base: long_20km\nname: pitched_body\n"
-                             "motion: {start_m: 18100, start_speed_kmh: 120, phases: [{for_s: 30}],"
-                             " body_pitch_mrad: 1.6}\n";
+  const fs::path scenario = WriteScenario(
+      "pitched_body",
+      "long_20km",
+      "motion: {start_m: 18100, start_speed_kmh: 120, phases: [{for_s: 30}], body_pitch_mrad: "
+      "1.6}\n");
   const fs::path rig_dir = Dir() / "pitched_rig";
   const CommandResult sim =
       Shell(Bin("raillomer-sim") + " --scenario " + ShellQuote(scenario.string()) +
@@ -441,10 +450,11 @@ TEST_F(EstimatorCli, APitchedCarBodyIsNotTakenToClimb) {
 // the frames after the slip used it; winter_wheel_slip seed 3 lost it for 60 s and drifted
 // 0.21 %).
 TEST_F(EstimatorCli, AWornWheelIsBelievedAgainAfterASlip) {
-  const fs::path scenario = Dir() / "worn_wheel.yaml";
-  std::ofstream(scenario) << "base: winter_wheel_slip\nname: worn_wheel\n"
-                             "odometer: {scale_error: 0.08, creep_sigma: 0.005}\n"
-                             "events: [{type: wheel_slip, at_s: 14, duration_s: 4, slip: 0.2}]\n";
+  const fs::path scenario =
+      WriteScenario("worn_wheel",
+                    "winter_wheel_slip",
+                    "odometer: {scale_error: 0.08, creep_sigma: 0.005}\n"
+                    "events: [{type: wheel_slip, at_s: 14, duration_s: 4, slip: 0.2}]\n");
   const fs::path out = Dir() / "worn_wheel";
   const CommandResult r = Estimate("--sim " + ShellQuote(scenario.string()) +
                                    " --duration 30 --no-gnss --no-submaps --no-keyframes --out " +
