@@ -76,6 +76,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("failure_min_planes", &o->failure_min_planes);
   r.Read("degeneracy_threshold", &o->degeneracy_threshold);
   r.Read("degeneracy_projection", &o->degeneracy_projection);
+  r.Read("degeneracy_projection_along", &o->degeneracy_projection_along);
   r.Read("heading_projection", &o->heading_projection);
   r.Read("odometer_sway_time_constant_s", &o->odometer_sway_time_constant_s);
   r.Read("deskew_step_s", &o->deskew_step_s);
@@ -286,6 +287,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("degeneracy_threshold must be in [0, 1)");
   if (!(degeneracy_projection >= 0.0 && degeneracy_projection < 1.0))
     return fail("degeneracy_projection must be in [0, 1) (0 = no remapping)");
+  if (!(degeneracy_projection_along >= 0.0 && degeneracy_projection_along < 1.0))
+    return fail("degeneracy_projection_along must be in [0, 1) (0 = no along-track remapping)");
   if (!(heading_projection >= 0.0 && heading_projection < 1e6))
     return fail("heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)");
   if (!(odometer_sway_time_constant_s >= 0.0 && odometer_sway_time_constant_s <= 60.0))
@@ -361,8 +364,9 @@ std::string EstimatorConfig::Describe() const {
     << " yaw " << o.odometer_yaw_sigma_rad << " rad\n";
   s << "favour factors: failure below " << o.failure_min_edges << " edges / "
     << o.failure_min_planes << " planes, degeneracy below " << o.degeneracy_threshold
-    << "; solution remapping below " << o.degeneracy_projection << "; heading remapping below "
-    << o.heading_projection << " /rad^2\n";
+    << "; solution remapping below " << o.degeneracy_projection
+    << " (along the track, with the sleepers measured, below " << o.degeneracy_projection_along
+    << "); heading remapping below " << o.heading_projection << " /rad^2\n";
   s << "odometer sway: ";
   if (o.odometer_sway_time_constant_s > 0.0) {
     s << "the body's rotation faster than " << o.odometer_sway_time_constant_s

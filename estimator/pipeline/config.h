@@ -134,6 +134,13 @@ struct EstimatorOptions {
   /// Solution remapping: when both LiDARs' matches together are this degenerate, their
   /// factors stop seeing the translation along the weakest direction. 0 disables.
   double degeneracy_projection = 0.012;
+  /// Along-track remapping: where the sleepers measured the frame (track_bed), matches whose
+  /// weakest direction lies within 30 deg of the track are remapped below this degeneracy
+  /// instead. In a tunnel the LiDARs see the distance through lamps and refuges every 25-50 m
+  /// alone (degeneracy 0.012-0.03), and there their registration pulls each frame back: the
+  /// odometry ran 0.3-0.5 % short through the 1.3 km tunnel (estimator/RESULTS.md, 2026-12-02).
+  /// 0 disables.
+  double degeneracy_projection_along = 0.03;
   /// Heading remapping: when both LiDARs' matches together hold the heading (rotation about
   /// the vertical, the other five directions free) with less than this information per
   /// residual (1/rad^2), their factors stop seeing the heading and the gyro carries it. Weakly

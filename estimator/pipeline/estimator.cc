@@ -651,6 +651,15 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     result.degeneracy = frame.degeneracy;
     result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
                        frame.degeneracy < o.degeneracy_projection;
+    // Where the sleepers measured the frame, a weak direction along the track is theirs: the
+    // LiDARs' few cues there (a tunnel's lamps and refuges) pull each frame back.
+    if (!result.projected && all.size() >= 6 && result.bed_shift_m.has_value() &&
+        frame.degeneracy < o.degeneracy_projection_along) {
+      Eigen::Vector3d forward = T_current.linear().col(0);
+      forward.z() = 0.0;
+      forward.normalize();
+      result.projected = std::fabs(frame.weakest_direction.dot(forward)) > std::cos(M_PI / 6.0);
+    }
     result.heading_information = frame.heading_information;
     // The rail-head lines, when matched, hold the heading themselves; without the IMU there is
     // no gyro to carry it.

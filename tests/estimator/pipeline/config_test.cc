@@ -113,6 +113,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
       {"odometer_lateral_density: 0", "estimator.odometer_lateral_density must be > 0"},
       {"odometer_vertical_density: -0.03", "estimator.odometer_vertical_density must be > 0"},
       {"degeneracy_projection: -1", "degeneracy_projection must be in [0, 1)"},
+      {"degeneracy_projection_along: 1", "degeneracy_projection_along must be in [0, 1)"},
       {"heading_projection: -5", "heading_projection must be in [0, 1e6)"},
       {"odometer_sway_time_constant_s: -1", "odometer_sway_time_constant_s must be in [0, 60]"},
       {"odometer_yaw_sigma_rad: -0.001", "odometer_yaw_sigma_rad must be in [0, 0.1] rad"},
