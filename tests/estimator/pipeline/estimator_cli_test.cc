@@ -76,9 +76,17 @@ class EstimatorCli : public ::testing::Test {
     return Bin("raillomer-sim") + " --scenario poor_low_embankment_b --duration 1 --out " +
            ShellQuote((Dir() / "embankment_rig").string());
   }
-  /// The first 35 s of poor_low_embankment_b with GNSS off under the rig `rig_yaml` (saved as
-  /// <name>.yaml, the run in <name>/): the error at its end (EndError).
-  Eigen::Vector3d EmbankmentEndError(const std::string& rig_yaml, const std::string& name) const;
+  /// `--sim <sim_args>` with GNSS off under the rig `rig_yaml` (saved as <name>.yaml, the run in
+  /// <name>/): the error at its end (EndError), or 1e9 after a failed run.
+  Eigen::Vector3d SimEndError(const std::string& sim_args,
+                              const std::string& rig_yaml,
+                              const std::string& name) const;
+  /// The first 35 s of poor_low_embankment_b (SimEndError).
+  Eigen::Vector3d EmbankmentEndError(const std::string& rig_yaml, const std::string& name) const {
+    return SimEndError("poor_low_embankment_b --duration 35", rig_yaml, name);
+  }
+  /// The rig raillomer-sim writes (to <name>/) for the scenario file `scenario`, or "".
+  std::string ScenarioRig(const fs::path& scenario, const std::string& name) const;
   /// Runs the estimator on the test bag with the rig's `from` replaced by `to`.
   CommandResult EstimateWithEditedRig(const std::string& from,
                                       const std::string& to,
@@ -262,25 +270,33 @@ Eigen::Vector3d EndError(const fs::path& run) {
   return last.T_world_truth.linear().transpose() * e;
 }
 
-/// The rig of poor_low_embankment_b as raillomer-sim writes it (no `estimator:` section), or ""
-/// after a failed assertion.
-std::string EmbankmentRig(const fs::path& dir, const CommandResult& sim) {
+/// The rig raillomer-sim wrote to `dir` (no `estimator:` section), or "" after a failed
+/// assertion.
+std::string SimulatedRig(const fs::path& dir, const CommandResult& sim) {
   EXPECT_EQ(sim.exit_code, 0) << sim.err;
   const std::string rig = ReadText(dir / "rig.yaml");
   EXPECT_EQ(rig.find("\nestimator:"), std::string::npos);
   return sim.exit_code == 0 ? rig : "";
 }
 
-Eigen::Vector3d EstimatorCli::EmbankmentEndError(const std::string& rig_yaml,
-                                                 const std::string& name) const {
+Eigen::Vector3d EstimatorCli::SimEndError(const std::string& sim_args,
+                                          const std::string& rig_yaml,
+                                          const std::string& name) const {
   const fs::path config = Dir() / (name + ".yaml");
   std::ofstream(config) << rig_yaml;
   const fs::path out = Dir() / name;
-  const CommandResult r = Estimate(
-      "--sim poor_low_embankment_b --duration 35 --no-gnss --no-submaps --no-keyframes --config " +
-      ShellQuote(config.string()) + " --out " + ShellQuote(out.string()));
+  const CommandResult r =
+      Estimate("--sim " + sim_args + " --no-gnss --no-submaps --no-keyframes --config " +
+               ShellQuote(config.string()) + " --out " + ShellQuote(out.string()));
   EXPECT_EQ(r.exit_code, 0) << r.err;
   return r.exit_code == 0 ? EndError(out) : Eigen::Vector3d::Constant(1e9);
+}
+
+std::string EstimatorCli::ScenarioRig(const fs::path& scenario, const std::string& name) const {
+  const fs::path dir = Dir() / name;
+  return SimulatedRig(dir,
+                      Shell(Bin("raillomer-sim") + " --scenario " + ShellQuote(scenario.string()) +
+                            " --duration 1 --out " + ShellQuote(dir.string())));
 }
 
 // On an embankment the LiDARs see nothing along the track, and a wheel 2.4 % larger than the
@@ -291,7 +307,7 @@ Eigen::Vector3d EstimatorCli::EmbankmentEndError(const std::string& rig_yaml,
 // held, the registration's yaw pull moved the frames along the track through the masts on one
 // side, and with the profile that run ends 0.09 m ahead.)
 TEST_F(EstimatorCli, TheSleepersHoldTheDistanceWhenTheWheelSizeIsWrong) {
-  std::string rig = EmbankmentRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
+  std::string rig = SimulatedRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
   const std::string wheel = "wheel_diameter_m: 0.84";
   ASSERT_NE(rig.find(wheel), std::string::npos);
   rig.replace(rig.find(wheel), wheel.size(), "wheel_diameter_m: 0.86");
@@ -344,7 +360,7 @@ double ShareOfFlaggedFrames(const fs::path& timing_csv,
 // along the track), so nearly every frame leaves it to the gyro (heading_projection); on the
 // demo's corridor, with buildings and a station, almost none does. Switched off, none does.
 TEST_F(EstimatorCli, WeaklyHeldHeadingsAreLeftToTheGyro) {
-  const std::string rig = EmbankmentRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
+  const std::string rig = SimulatedRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
   ASSERT_FALSE(rig.empty());
   EmbankmentEndError(rig, "heading_projected");
   EmbankmentEndError(rig + "estimator:\n  heading_projection: 0\n", "heading_free");
@@ -363,7 +379,7 @@ TEST_F(EstimatorCli, WeaklyHeldHeadingsAreLeftToTheGyro) {
 // straight track's heading hold off, as it would hold the heading itself) drift 0.21 m sideways
 // without them and 0.03 m with them.
 TEST_F(EstimatorCli, RailHeadLinesHoldTheTrainSideways) {
-  const std::string rig = EmbankmentRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
+  const std::string rig = SimulatedRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
   ASSERT_FALSE(rig.empty());
   const std::string no_hold = rig + "estimator:\n  straight_track:\n    sigma_rad: 0\n";
   const double without = std::fabs(EmbankmentEndError(no_hold, "no_rail_lines").y());
@@ -378,7 +394,7 @@ TEST_F(EstimatorCli, RailHeadLinesHoldTheTrainSideways) {
 // standstill end 0.02 m to the side with the hold and 0.21 m without it (heading 0.003 against
 // 0.11 deg), the hold on in two frames of three.
 TEST_F(EstimatorCli, TheHeadingHoldsOnStraightTrack) {
-  const std::string rig = EmbankmentRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
+  const std::string rig = SimulatedRig(Dir() / "embankment_rig", Shell(EmbankmentSim()));
   ASSERT_FALSE(rig.empty());
   const double with = std::fabs(EmbankmentEndError(rig, "straight_hold").y());
   const double without = std::fabs(
@@ -416,21 +432,10 @@ TEST_F(EstimatorCli, APitchedCarBodyIsNotTakenToClimb) {
       "long_20km",
       "motion: {start_m: 18100, start_speed_kmh: 120, phases: [{for_s: 30}], body_pitch_mrad: "
       "1.6}\n");
-  const fs::path rig_dir = Dir() / "pitched_rig";
-  const CommandResult sim =
-      Shell(Bin("raillomer-sim") + " --scenario " + ShellQuote(scenario.string()) +
-            " --duration 1 --out " + ShellQuote(rig_dir.string()));
-  ASSERT_EQ(sim.exit_code, 0) << sim.err;
-  const std::string rig = ReadText(rig_dir / "rig.yaml");
+  const std::string rig = ScenarioRig(scenario, "pitched_rig");
+  ASSERT_FALSE(rig.empty());
   auto run = [&](const std::string& rig_yaml, const std::string& name) {
-    const fs::path config = Dir() / (name + ".yaml");
-    std::ofstream(config) << rig_yaml;
-    const CommandResult r =
-        Estimate("--sim " + ShellQuote(scenario.string()) +
-                 " --no-gnss --no-submaps --no-keyframes --config " + ShellQuote(config.string()) +
-                 " --out " + ShellQuote((Dir() / name).string()));
-    EXPECT_EQ(r.exit_code, 0) << r.err;
-    return r.exit_code == 0 ? EndError(Dir() / name).norm() : 1e9;
+    return SimEndError(ShellQuote(scenario.string()), rig_yaml, name).norm();
   };
   const double estimated = run(rig, "pitched_estimated");
   const double held =
@@ -453,21 +458,10 @@ TEST_F(EstimatorCli, InATunnelTheSleepersAndTheWheelMeasureTheDistance) {
       WriteScenario("in_tunnel",
                     "tunnel_gnss_outage",
                     "motion: {start_m: 850, start_speed_kmh: 100, phases: [{for_s: 30}]}\n");
-  const fs::path rig_dir = Dir() / "tunnel_rig";
-  const CommandResult sim =
-      Shell(Bin("raillomer-sim") + " --scenario " + ShellQuote(scenario.string()) +
-            " --duration 1 --out " + ShellQuote(rig_dir.string()));
-  ASSERT_EQ(sim.exit_code, 0) << sim.err;
-  const std::string rig = ReadText(rig_dir / "rig.yaml");
+  const std::string rig = ScenarioRig(scenario, "tunnel_rig");
+  ASSERT_FALSE(rig.empty());
   auto run = [&](const std::string& rig_yaml, const std::string& name) {
-    const fs::path config = Dir() / (name + ".yaml");
-    std::ofstream(config) << rig_yaml;
-    const CommandResult r =
-        Estimate("--sim " + ShellQuote(scenario.string()) +
-                 " --no-gnss --no-submaps --no-keyframes --config " + ShellQuote(config.string()) +
-                 " --out " + ShellQuote((Dir() / name).string()));
-    EXPECT_EQ(r.exit_code, 0) << r.err;
-    return r.exit_code == 0 ? EndError(Dir() / name).x() : 1e9;
+    return SimEndError(ShellQuote(scenario.string()), rig_yaml, name).x();
   };
   const double remapped = run(rig, "tunnel_remapped");
   const double pulled =
