@@ -20,6 +20,7 @@
 #include "estimator/features/loam_features.h"
 #include "estimator/features/rail_extraction.h"
 #include "estimator/features/track_bed.h"
+#include "estimator/mapping/voxel_centroids.h"
 #include "estimator/pipeline/gravity_fit.h"
 #include "estimator/preprocess/filters.h"
 
@@ -98,12 +99,7 @@ void VoxelThin(double voxel_m,
   size_t kept = 0;
   for (size_t i = 0; i < points->size(); ++i) {
     const Eigen::Vector3f& p = (*points)[i];
-    const uint64_t mask = (1ULL << 21) - 1;
-    const uint64_t key =
-        ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.x() / voxel_m))) & mask) << 42) |
-        ((static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.y() / voxel_m))) & mask) << 21) |
-        (static_cast<uint64_t>(static_cast<int64_t>(std::floor(p.z() / voxel_m))) & mask);
-    if (!seen.insert(key).second) continue;
+    if (!seen.insert(VoxelKey(p.cast<double>(), voxel_m)).second) continue;
     (*points)[kept] = p;
     (*intensities)[kept] = (*intensities)[i];
     ++kept;
