@@ -118,11 +118,13 @@ bool MeasureRegistrationBias(sim::Simulator* simulator,
       LidarMatches all;
       for (size_t i = 0; i < frames.size(); ++i) {
         if (frames[i].points.empty()) continue;
-        const LidarMatches m = MatchFeatures(LidarMatchOptions(o, rig.lidars[i].looks_down()),
-                                             features[i],
-                                             T_match,
-                                             edge_map,
-                                             plane_map);
+        LidarMatches m = MatchFeatures(LidarMatchOptions(o, rig.lidars[i].looks_down()),
+                                       features[i],
+                                       T_match,
+                                       edge_map,
+                                       plane_map);
+        if (options.matches == RegistrationBiasOptions::Matches::kPlanes) m.lines.clear();
+        if (options.matches == RegistrationBiasOptions::Matches::kEdges) m.planes.clear();
         if (static_cast<int>(m.size()) >= options.min_matches) {
           per_lidar[i].Add(RegistrationPull(m, T_match, T_end, options.iterations));
         }

@@ -48,6 +48,9 @@ struct RegistrationBiasOptions {
   /// Each frame is matched and solved from truth * start_offset (body frame) instead of the
   /// truth: the pull then shows how much of such an error the registration takes back.
   Eigen::Isometry3d start_offset = Eigen::Isometry3d::Identity();
+  /// Which matches the solutions use: a pull that one class alone shows is that class's.
+  enum class Matches { kAll, kPlanes, kEdges };
+  Matches matches = Matches::kAll;
 };
 
 /// The mean pull over a span of frames.

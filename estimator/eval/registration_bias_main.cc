@@ -82,9 +82,18 @@ int main(int argc, char** argv) {
                  "back")
       ->expected(6)
       ->delimiter(',');
+  std::string matches = "all";
+  app.add_option("--matches",
+                 matches,
+                 "solve with these matches only: all, planes or edges (whose pull is it)")
+      ->check(CLI::IsMember({"all", "planes", "edges"}))
+      ->capture_default_str();
   app.add_option("--json", json_path, "write the figures here as JSON");
   CLI11_PARSE(app, argc, argv);
   has_seed = seed_option->count() > 0;
+  using Matches = raillomer::eval::RegistrationBiasOptions::Matches;
+  options.matches = matches == "planes" ? Matches::kPlanes
+                                        : (matches == "edges" ? Matches::kEdges : Matches::kAll);
   if (offset.size() == 6) {
     options.start_offset = Eigen::Translation3d(offset[0], offset[1], offset[2]) *
                            Eigen::AngleAxisd(1e-3 * offset[5], Eigen::Vector3d::UnitZ()) *
@@ -125,10 +134,11 @@ int main(int argc, char** argv) {
     return kExitInputError;
   }
 
-  std::printf("raillomer-registration-bias  scenario %s  seed %u  frames %d\n",
+  std::printf("raillomer-registration-bias  scenario %s  seed %u  frames %d  matches %s\n",
               scenario.name.c_str(),
               scenario.seed,
-              report.frames);
+              report.frames,
+              matches.c_str());
   std::printf(
       "  mean pull per frame   frames    x mm    y mm    z mm   roll urad pitch urad  yaw urad\n");
   for (const auto& w : report.windows) {
@@ -145,6 +155,7 @@ int main(int argc, char** argv) {
     nlohmann::json j;
     j["scenario"] = scenario.name;
     j["seed"] = scenario.seed;
+    j["matches"] = matches;
     j["frames"] = report.frames;
     j["both"] = PullJson(report.both);
     for (size_t i = 0; i < report.per_lidar.size(); ++i) {

@@ -117,6 +117,29 @@ TEST(RegistrationBias, AtTruePosesTheDemoPullsByMillimetresAndTakesBackAnOffset)
   EXPECT_LT((offset.both.mean.rotation_rad - report.both.mean.rotation_rad).norm(), 3e-4);
 }
 
+// Each class of match alone: the demo's frames are solved from their planes alone and from
+// their edges alone, and each class pulls differently from both together (the edges alone are
+// the weaker: fewer frames reach min_matches).
+TEST(RegistrationBias, EachClassOfMatchAloneHasItsOwnPull) {
+  RegistrationBiasOptions options;
+  options.duration_s = 4.0;
+  options.window_s = 4.0;
+  RegistrationBiasReport all, planes, edges;
+  std::string error;
+  ASSERT_TRUE(MeasureDemo(options, &all, &error)) << error;
+  options.matches = RegistrationBiasOptions::Matches::kPlanes;
+  ASSERT_TRUE(MeasureDemo(options, &planes, &error)) << error;
+  options.matches = RegistrationBiasOptions::Matches::kEdges;
+  ASSERT_TRUE(MeasureDemo(options, &edges, &error)) << error;
+  EXPECT_EQ(planes.frames, all.frames);
+  EXPECT_GE(planes.both.frames, all.both.frames - 2);
+  EXPECT_GT(edges.both.frames, 0);
+  EXPECT_LE(edges.both.frames, all.both.frames);
+  EXPECT_GT((planes.both.mean.translation_m - all.both.mean.translation_m).norm(), 5e-4);
+  EXPECT_GT((edges.both.mean.translation_m - all.both.mean.translation_m).norm(), 5e-4);
+  EXPECT_GT((edges.both.mean.translation_m - planes.both.mean.translation_m).norm(), 5e-4);
+}
+
 TEST(RegistrationBias, ARigWithoutTheSimulatorsLidarIsRefused) {
   RegistrationBiasOptions options;
   options.duration_s = 1.0;
@@ -145,6 +168,17 @@ TEST(RegistrationBiasMain, WritesTheFiguresAndRefusesAnUnknownScenario) {
   EXPECT_GE(j["frames"].get<int>(), 25);
   EXPECT_GE(j["windows"].size(), 2u);
   EXPECT_EQ(j["both"]["translation_mm"].size(), 3u);
+  EXPECT_EQ(j["matches"], "all");
+
+  const test::CommandResult edges = test::RunCommand(
+      test::ShellQuote(program.string()) + " --scenario demo --duration 2 --matches edges",
+      scratch.path());
+  ASSERT_EQ(edges.exit_code, 0) << edges.err;
+  EXPECT_NE(edges.out.find("matches edges"), std::string::npos) << edges.out;
+  const test::CommandResult wrong = test::RunCommand(
+      test::ShellQuote(program.string()) + " --scenario demo --matches corners", scratch.path());
+  EXPECT_NE(wrong.exit_code, 0);
+  EXPECT_NE(wrong.err.find("corners"), std::string::npos) << wrong.err;
 
   const test::CommandResult unknown = test::RunCommand(
       test::ShellQuote(program.string()) + " --scenario no_such_line", scratch.path());
