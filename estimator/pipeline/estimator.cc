@@ -580,10 +580,14 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     std::vector<PlaneTerm> plane_terms;
     std::vector<LineTerm> line_terms;
     LidarMatches all;
-    // Soft edges (down_edge_soft_spread_m) say nothing along the body's horizontal lateral axis.
-    Eigen::Vector3d lateral = T_current.linear().col(1);
-    lateral.z() = 0.0;
-    lateral.normalize();
+    // The body's horizontal axes: soft edges (down_edge_soft_spread_m) say nothing along the
+    // lateral one, rail-head lines nothing along the forward one.
+    const auto horizontal = [&](int axis) {
+      Eigen::Vector3d v = T_current.linear().col(axis);
+      v.z() = 0.0;
+      return v.normalized();
+    };
+    const Eigen::Vector3d forward = horizontal(0), lateral = horizontal(1);
     for (size_t i = 0; i < fronts.size(); ++i) {
       if (!fronts[i].present) continue;
       LidarDiagnostics& diag = result.lidars[i];
@@ -632,9 +636,6 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
       // Edges only: with no plane features the plane map is never searched.
       const LidarMatches matches =
           MatchFeatures(LidarMatchOptions(o, true), rail, T_current, *rail_map_, *rail_map_);
-      Eigen::Vector3d forward = T_current.linear().col(0);
-      forward.z() = 0.0;
-      forward.normalize();
       for (const LineMatch& m : matches.lines) {
         line_terms.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
         line_terms.back().Ignore(forward);
@@ -645,17 +646,15 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
     // Solution remapping: what neither LiDAR observes is left to the other factors.
     const LidarOnlySolution frame = SolveLidarOnly(all, T_current, 1);
     result.degeneracy = frame.degeneracy;
-    result.projected = o.degeneracy_projection > 0.0 && all.size() >= 6 &&
-                       frame.degeneracy < o.degeneracy_projection;
-    // Where the sleepers measured the frame, a weak direction along the track is theirs: the
-    // LiDARs' few cues there (a tunnel's lamps and refuges) pull each frame back.
-    if (!result.projected && all.size() >= 6 && result.bed_shift_m.has_value() &&
-        frame.degeneracy < o.degeneracy_projection_along) {
-      Eigen::Vector3d forward = T_current.linear().col(0);
-      forward.z() = 0.0;
-      forward.normalize();
-      result.projected = std::fabs(frame.weakest_direction.dot(forward)) > std::cos(M_PI / 6.0);
-    }
+    // Where the sleepers measured the frame, a weak direction along the track (within 30 deg)
+    // is theirs below a higher bar: the LiDARs' few cues there (a tunnel's lamps and refuges)
+    // pull each frame back.
+    const bool along_track = result.bed_shift_m.has_value() &&
+                             std::fabs(frame.weakest_direction.dot(forward)) > std::cos(M_PI / 6.0);
+    const double projection = along_track
+                                  ? std::max(o.degeneracy_projection, o.degeneracy_projection_along)
+                                  : o.degeneracy_projection;
+    result.projected = projection > 0.0 && all.size() >= 6 && frame.degeneracy < projection;
     result.heading_information = frame.heading_information;
     // The rail-head lines, when matched, hold the heading themselves; without the IMU there is
     // no gyro to carry it.

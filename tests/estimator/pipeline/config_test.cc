@@ -171,7 +171,7 @@ TEST(EstimatorConfig, OverridesTunables) {
       "  submap_gnss_heading_length_m: 250\n  submap_gnss_pull_excess: 0.5\n"
       "  submap_gnss_pull_along_excess: 0.25\n  "
       "submap_chain_reset_m: 5\n  submap_remove_side_slip: false\n  submap_max_range_m: 0\n"
-      "  submap_ndt_min_along_information_revisit: 0\n"
+      "  submap_ndt_min_along_information_revisit: 0\n  degeneracy_projection_along: 0.02\n"
       "  rail_line_sigma_m: 0.2\n  rail_line_max_forward_m: 12\n"
       "  odometer_pitch_sigma_rad: 0.001\n  odometer_yaw_sigma_rad: 0.002\n"
       "  odometer_misalignment_walk: 2e-5\n  deskew_step_s: 0\n"
@@ -201,6 +201,9 @@ TEST(EstimatorConfig, OverridesTunables) {
   EXPECT_FALSE(config.options.submap.remove_side_slip);
   EXPECT_EQ(config.options.submap.max_range_m, 0.0);
   EXPECT_EQ(config.options.submap.ndt_min_along_information_revisit, 0.0);
+  EXPECT_EQ(config.options.degeneracy_projection_along, 0.02);
+  EXPECT_NE(config.Describe().find("with the sleepers measured, below 0.02"), std::string::npos)
+      << config.Describe();
   EXPECT_NE(config.Describe().find("points within any range"), std::string::npos);
   EXPECT_NE(config.Describe().find("side slip kept"), std::string::npos) << config.Describe();
   EXPECT_DOUBLE_EQ(config.options.submap.chain_reset_m, 5.0);

@@ -434,13 +434,13 @@ TEST_F(EstimatorCli, APitchedCarBodyIsNotTakenToClimb) {
       "1.6}\n");
   const std::string rig = ScenarioRig(scenario, "pitched_rig");
   ASSERT_FALSE(rig.empty());
-  auto run = [&](const std::string& rig_yaml, const std::string& name) {
-    return SimEndError(ShellQuote(scenario.string()), rig_yaml, name).norm();
-  };
-  const double estimated = run(rig, "pitched_estimated");
+  const std::string sim = ShellQuote(scenario.string());
+  const double estimated = SimEndError(sim, rig, "pitched_estimated").norm();
   const double held =
-      run(rig + "estimator:\n  odometer_pitch_sigma_rad: 0\n  odometer_yaw_sigma_rad: 0\n",
-          "pitched_held");
+      SimEndError(sim,
+                  rig + "estimator:\n  odometer_pitch_sigma_rad: 0\n  odometer_yaw_sigma_rad: 0\n",
+                  "pitched_held")
+          .norm();
   EXPECT_GT(held, 1.0);
   EXPECT_LT(estimated, 0.15 * held) << estimated << " m estimated, " << held << " m held";
   const double pitch = LastValue(Dir() / "pitched_estimated" / "timing.csv", "odometer_pitch_mrad");
@@ -460,12 +460,10 @@ TEST_F(EstimatorCli, InATunnelTheSleepersAndTheWheelMeasureTheDistance) {
                     "motion: {start_m: 850, start_speed_kmh: 100, phases: [{for_s: 30}]}\n");
   const std::string rig = ScenarioRig(scenario, "tunnel_rig");
   ASSERT_FALSE(rig.empty());
-  auto run = [&](const std::string& rig_yaml, const std::string& name) {
-    return SimEndError(ShellQuote(scenario.string()), rig_yaml, name).x();
-  };
-  const double remapped = run(rig, "tunnel_remapped");
+  const std::string sim = ShellQuote(scenario.string());
+  const double remapped = SimEndError(sim, rig, "tunnel_remapped").x();
   const double pulled =
-      run(rig + "estimator:\n  degeneracy_projection_along: 0\n", "tunnel_pulled");
+      SimEndError(sim, rig + "estimator:\n  degeneracy_projection_along: 0\n", "tunnel_pulled").x();
   EXPECT_LT(pulled, -0.6) << "the LiDARs' pull";
   EXPECT_LT(std::fabs(remapped), 0.15 * std::fabs(pulled))
       << remapped << " m remapped, " << pulled << " m pulled";
