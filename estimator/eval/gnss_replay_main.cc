@@ -15,11 +15,14 @@
 #include <iostream>
 #include <sstream>
 #include <string>
+#include <variant>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
 #include "api/trajectory.h"
 #include "estimator/geo/utm.h"
+#include "estimator/io/bag_reader.h"
 #include "estimator/mapping/gnss_fusion.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/sim/scenario.h"
@@ -50,14 +53,18 @@ Eigen::Isometry3d PoseOf(const raillomer::api::StampedPose& p) {
 int main(int argc, char** argv) {
   CLI::App app{
       "raillomer-gnss-replay: the estimator's GNSS fusion on a recorded odometry trajectory "
-      "(a --no-gnss run's trajectory.tum) and the receiver's fixes (a simulated run's gnss.tum), "
+      "(a --no-gnss run's trajectory.tum) and the receiver's fixes (a simulated run's gnss.tum, "
+      "or a bag's GNSS topic), "
       "written as the UTM trajectory the estimator would publish"};
   std::string odometry_path, fixes_path, out_path, scenario_name, config_path;
   app.add_option("--odometry", odometry_path, "odometry trajectory, local frame (TUM)")->required();
-  app.add_option("--fixes",
-                 fixes_path,
-                 "receiver fixes in UTM (TUM with a '# utm_zone' line; orientations ignored)")
-      ->required();
+  std::string bag_path;
+  auto* fixes_option =
+      app.add_option("--fixes",
+                     fixes_path,
+                     "receiver fixes in UTM (TUM with a '# utm_zone' line; orientations ignored)");
+  app.add_option("--bag", bag_path, "or the fixes of this bag's GNSS topic (the rig's)")
+      ->excludes(fixes_option);
   app.add_option("--out", out_path, "georeferenced trajectory to write (TUM, UTM)")->required();
   app.add_option("--sim", scenario_name, "take the rig (antenna, zone) from this scenario");
   app.add_option("--config",
@@ -72,6 +79,8 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   if (scenario_name.empty() == config_path.empty())
     return Fail(kExitInputError, "give exactly one of --sim and --config");
+  if (fixes_path.empty() && bag_path.empty())
+    return Fail(kExitInputError, "give the fixes: --fixes <tum> or --bag <bag>");
 
   std::string error;
   raillomer::EstimatorConfig config;
@@ -98,18 +107,46 @@ int main(int argc, char** argv) {
     return Fail(kExitInputError, error);
   }
 
-  raillomer::api::Trajectory odometry, fixes;
-  if (!raillomer::api::ReadTum(odometry_path, &odometry, &error) ||
-      !raillomer::api::ReadTum(fixes_path, &fixes, &error)) {
+  raillomer::api::Trajectory odometry;
+  if (!raillomer::api::ReadTum(odometry_path, &odometry, &error))
     return Fail(kExitInputError, error);
-  }
   if (!odometry.utm_zone.empty())
     return Fail(kExitInputError,
                 odometry_path + " is in UTM zone " + odometry.utm_zone +
                     ": replay needs the local odometry (a --no-gnss run)");
-  raillomer::geo::UtmZone fix_zone;
-  if (!raillomer::geo::ParseZone(fixes.utm_zone, &fix_zone))
-    return Fail(kExitInputError, fixes_path + " has no '# utm_zone' line");
+  std::vector<raillomer::io::GnssFix> fixes;
+  if (!bag_path.empty()) {
+    if (config.rig.gnss_topic.empty()) return Fail(kExitInputError, "the rig has no GNSS topic");
+    raillomer::io::BagTopics topics;
+    topics.lidar.clear();
+    topics.imu.clear();
+    topics.odometer.clear();
+    topics.gnss = config.rig.gnss_topic;
+    auto bag = raillomer::io::BagReader::Open(bag_path, topics, &error);
+    if (bag == nullptr) return Fail(kExitInputError, error);
+    raillomer::io::SensorMessage message;
+    while (bag->Next(&message)) {
+      if (const auto* fix = std::get_if<raillomer::io::GnssFix>(&message.data))
+        fixes.push_back(*fix);
+    }
+    if (!bag->error().empty()) return Fail(kExitInputError, bag->error());
+  } else {
+    raillomer::api::Trajectory utm;
+    if (!raillomer::api::ReadTum(fixes_path, &utm, &error)) return Fail(kExitInputError, error);
+    raillomer::geo::UtmZone zone;
+    if (!raillomer::geo::ParseZone(utm.utm_zone, &zone))
+      return Fail(kExitInputError, fixes_path + " has no '# utm_zone' line");
+    for (const raillomer::api::StampedPose& f : utm.poses) {
+      const Eigen::Vector2d ll =
+          raillomer::geo::UtmToGeographic(zone, f.p_world.x(), f.p_world.y());
+      raillomer::io::GnssFix fix;
+      fix.stamp_ns = f.stamp_ns;
+      fix.latitude_deg = ll.x();
+      fix.longitude_deg = ll.y();
+      fix.altitude_m = f.p_world.z();
+      fixes.push_back(fix);
+    }
+  }
 
   const raillomer::EstimatorOptions& o = config.options;
   raillomer::GnssFusion fusion(
@@ -122,18 +159,8 @@ int main(int argc, char** argv) {
   // past a pose goes in before it.
   size_t next_fix = 0;
   auto add_fixes_until = [&](double t_s) {
-    for (; next_fix < fixes.poses.size() && Seconds(fixes.poses[next_fix].stamp_ns) <= t_s;
-         ++next_fix) {
-      const raillomer::api::StampedPose& f = fixes.poses[next_fix];
-      const Eigen::Vector2d ll =
-          raillomer::geo::UtmToGeographic(fix_zone, f.p_world.x(), f.p_world.y());
-      raillomer::io::GnssFix fix;
-      fix.stamp_ns = f.stamp_ns;
-      fix.latitude_deg = ll.x();
-      fix.longitude_deg = ll.y();
-      fix.altitude_m = f.p_world.z();
-      fusion.AddFix(fix);
-    }
+    for (; next_fix < fixes.size() && Seconds(fixes[next_fix].stamp_ns) <= t_s; ++next_fix)
+      fusion.AddFix(fixes[next_fix]);
   };
 
   // Release as the estimator does (Estimator::ReleaseHeld): a pose goes out once the graph has

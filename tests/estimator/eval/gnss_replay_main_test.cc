@@ -1,5 +1,6 @@
 // End-to-end tests of raillomer-gnss-replay: the demo's GNSS-off odometry replayed with the
-// demo's fixes is the trajectory the estimator publishes with GNSS on; bad input is named.
+// demo's fixes (from the simulated run's gnss.tum or the simulator's bag) is the trajectory the
+// estimator publishes with GNSS on; bad input is named.
 
 #include <algorithm>
 #include <filesystem>
@@ -28,13 +29,15 @@ class GnssReplayMain : public ::testing::Test {
         ShellQuote((test::BinDir() / "raillomer-gnss-replay").string()) + " " + arguments, dir_);
   }
 
-  /// raillomer-gnss-replay on two files of dir_, with more arguments, into dir_/out.
+  /// raillomer-gnss-replay on files of dir_ (no --fixes if `fixes` is empty), with more
+  /// arguments, into dir_/out.
   CommandResult ReplayFiles(const std::string& odometry,
                             const std::string& fixes,
                             const std::string& more,
                             const std::string& out) const {
-    return Replay("--odometry " + ShellQuote(Path(odometry)) + " --fixes " +
-                  ShellQuote(Path(fixes)) + " " + more + " --out " + ShellQuote(Path(out)));
+    return Replay("--odometry " + ShellQuote(Path(odometry)) +
+                  (fixes.empty() ? "" : " --fixes " + ShellQuote(Path(fixes))) + " " + more +
+                  " --out " + ShellQuote(Path(out)));
   }
 
   /// The demo through the estimator into dir_/name (GNSS on unless no_gnss).
@@ -105,6 +108,23 @@ TEST_F(GnssReplayMain, ReplayingTheOdometryGivesTheEstimatorsTrajectory) {
   // Both went through a TUM file: micrometres.
   EXPECT_LT(worst, 1e-5);
 
+  // The same fixes from the simulator's bag of the demo, the rig from its rig.yaml.
+  const CommandResult sim =
+      test::RunCommand(ShellQuote((test::BinDir() / "raillomer-sim").string()) +
+                           " --scenario demo --out " + ShellQuote(Path("sim")),
+                       dir_);
+  ASSERT_EQ(sim.exit_code, 0) << sim.err;
+  run = ReplayFiles(
+      "off/trajectory.tum",
+      "",
+      "--bag " + ShellQuote(Path("sim/run.bag")) + " --config " + ShellQuote(Path("sim/rig.yaml")),
+      "from_bag.tum");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const api::Trajectory from_bag = Read("from_bag.tum");
+  ASSERT_EQ(from_bag.poses.size(), published.poses.size());
+  for (size_t i = 0; i < published.poses.size(); ++i)
+    EXPECT_LT((from_bag.poses[i].p_world - published.poses[i].p_world).norm(), 1e-5) << i;
+
   // --options reach the fusion: trusting the fixes to 5 cm moves the trajectory.
   {
     std::ofstream options(Path("tight.yaml"));
@@ -153,10 +173,15 @@ TEST_F(GnssReplayMain, BadInputIsNamed) {
        "--config rig.yaml --options " + ShellQuote(Path("straight_fixes.tum")),
        "--options goes with --sim"},
       {"straight_odometry.tum", "straight_fixes.tum", "--sim no_such_line", "no_such_line"},
+      {"straight_odometry.tum", "", "--sim demo", "give the fixes"},
+      {"straight_odometry.tum",
+       "",
+       "--sim demo --bag " + ShellQuote(Path("none.bag")),
+       "none.bag does not exist"},
   };
   for (const auto& c : cases) {
     const CommandResult run = ReplayFiles(c.odometry, c.fixes, c.more, "bad.tum");
-    EXPECT_EQ(run.exit_code, 2) << c.message;
+    EXPECT_EQ(run.exit_code, 2) << c.message << ": " << run.err;
     EXPECT_NE(run.err.find(c.message), std::string::npos) << run.err;
   }
   EXPECT_FALSE(fs::exists(Path("bad.tum")));
