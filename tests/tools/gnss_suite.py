@@ -16,14 +16,15 @@ come near it.
 Usage:
   /usr/bin/python3 tests/tools/gnss_suite.py [--build build] [--out runs/gnss]
       [--scenarios all|extra|NAME[,NAME...]] [--seed N] [--duration S] [--markdown FILE]
-      [--check] [--replay DIR [--options FILE]]
+      [--check] [--replay DIR [--options FILE] [--exact-fixes]]
 
 With --replay DIR the estimator does not run: each run's GNSS-off odometry (DIR/<run>/, as
 estimator_suite.py writes it to runs/estimator/full) is georeferenced again with the run's fixes
 by raillomer-gnss-replay, the estimator's own GNSS fusion (--options: an estimator: section to
 try, e.g. gnss: settings). The trajectory is the one the estimator would publish, so ATE, MAX, the
 outage and the steps are scored as for a full run, in seconds; the map columns stay empty and
-RTF and peak memory are the GNSS-off run's.
+RTF and peak memory are the GNSS-off run's. --exact-fixes replaces the fixes by the true antenna
+position at the same epochs (gaps and outages kept): what is left is the estimator's own error.
 
 With --check the exit status is 1 when a run misses a target of issue 4 (ATE RMSE 0.25 m,
 MAX 1.0 m, MAX 1.5 m inside an outage, planes 3 cm RMS, rail heads within 3 cm) or is not
@@ -155,14 +156,44 @@ def antenna_up(scenario_yaml_text):
     return 0.3
 
 
-def replay(build, out, scenario, source, options):
+def scenario_yaml(build, scenario):
+    """A built-in scenario's YAML (raillomer-sim --print-scenario) or a scenario file's."""
+    if scenario.endswith(".yaml"):
+        with open(scenario) as f:
+            return f.read()
+    return subprocess.run([os.path.join(build, "bin", "raillomer-sim"), "--scenario", scenario, "--print-scenario"],
+                          capture_output=True, text=True).stdout
+
+
+def write_exact_fixes(source, out, antenna_up_m):
+    """out/gnss.tum: the run's fix epochs (gaps and outages kept) at the true antenna position."""
+    truth = Interpolator(read_tum(os.path.join(source, "truth.tum")))
+    lines = []
+    with open(os.path.join(source, "gnss.tum")) as f:
+        for line in f:
+            if line.startswith("#"):
+                lines.append(line)
+                continue
+            v = line.split()
+            q = truth.at(float(v[0])) if v else None
+            if q is not None:
+                lines.append(f"{v[0]} {q[0]:.6f} {q[1]:.6f} {q[2] + antenna_up_m:.6f} 0 0 0 1\n")
+    with open(os.path.join(out, "gnss.tum"), "w") as f:
+        f.writelines(lines)
+
+
+def replay(build, out, scenario, source, options, exact_fixes=False):
     """raillomer-gnss-replay on the GNSS-off run in source: out gets the trajectory the estimator
-    would publish, the run's truth and fixes, and a summary.json with what scoring needs."""
+    would publish, the run's truth and fixes (with exact_fixes, error-free ones at the same
+    epochs), and a summary.json with what scoring needs."""
     os.makedirs(out, exist_ok=True)
-    for name in ("truth.tum", "gnss.tum"):
-        shutil.copyfile(os.path.join(source, name), os.path.join(out, name))
+    shutil.copyfile(os.path.join(source, "truth.tum"), os.path.join(out, "truth.tum"))
+    if exact_fixes:
+        write_exact_fixes(source, out, antenna_up(scenario_yaml(build, scenario)))
+    else:
+        shutil.copyfile(os.path.join(source, "gnss.tum"), os.path.join(out, "gnss.tum"))
     cmd = [os.path.join(build, "bin", "raillomer-gnss-replay"), "--odometry", os.path.join(source, "trajectory.tum"),
-           "--fixes", os.path.join(source, "gnss.tum"), "--sim", scenario, "--out", os.path.join(out, "trajectory.tum")]
+           "--fixes", os.path.join(out, "gnss.tum"), "--sim", scenario, "--out", os.path.join(out, "trajectory.tum")]
     if options:
         cmd += ["--options", options]
     proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -180,11 +211,11 @@ def replay(build, out, scenario, source, options):
     return proc
 
 
-def run_one(build, out_root, scenario, seed, duration, source=None, options=None):
+def run_one(build, out_root, scenario, seed, duration, source=None, options=None, exact_fixes=False):
     label = run_label(scenario, seed)
     out = os.path.join(out_root, label)
     if source:
-        proc, wall = replay(build, out, scenario, os.path.join(source, label), options), 0.0
+        proc, wall = replay(build, out, scenario, os.path.join(source, label), options, exact_fixes), 0.0
     else:
         proc, wall = run_estimator(build, scenario, seed, duration, out, [])
     row = {"scenario": label, "wall_s": wall}
@@ -213,9 +244,7 @@ def run_one(build, out_root, scenario, seed, duration, source=None, options=None
     truth = read_tum(os.path.join(out, "truth.tum"))
     fixes = read_tum(os.path.join(out, "gnss.tum"))
     estimate = read_tum(os.path.join(out, "trajectory.tum"))
-    scenario_text = subprocess.run([os.path.join(build, "bin", "raillomer-sim"), "--scenario", scenario, "--print-scenario"],
-                         capture_output=True, text=True).stdout if not scenario.endswith(".yaml") else open(scenario).read()
-    bound = gnss_bound(truth, fixes, antenna_up(scenario_text))
+    bound = gnss_bound(truth, fixes, antenna_up(scenario_yaml(build, scenario)))
     row.update(distance_m=e["distance_m"], ate_m=e["ate_rmse_m"], max_m=e["ate_max_m"],
                outage_max_m=outage_max(estimate, truth, fixes), step_m=largest_step(estimate, truth),
                bound_ate_m=bound[0] if bound else None, bound_max_m=bound[1] if bound else None,
@@ -266,13 +295,15 @@ def main():
     ap.add_argument("--replay", metavar="DIR", help="georeference DIR/<run>'s GNSS-off odometry again instead of "
                     "running the estimator (estimator_suite.py's runs/estimator/full)")
     ap.add_argument("--options", metavar="FILE", help="with --replay: an estimator: section to try")
+    ap.add_argument("--exact-fixes", action="store_true",
+                    help="with --replay: error-free fixes at the run's fix epochs (the estimator's own share)")
     a = ap.parse_args()
-    if a.options and not a.replay:
-        ap.error("--options goes with --replay")
+    if (a.options or a.exact_fixes) and not a.replay:
+        ap.error("--options and --exact-fixes go with --replay")
     runs = select_runs(a)
     rows = []
     for scenario, seed in runs:
-        row = run_one(a.build, a.out, scenario, seed, a.duration, a.replay, a.options)
+        row = run_one(a.build, a.out, scenario, seed, a.duration, a.replay, a.options, a.exact_fixes)
         rows.append(row)
         if "error" in row:
             print(f"{row['scenario']:34s} FAILED {' '.join(row['error'])}", flush=True)
