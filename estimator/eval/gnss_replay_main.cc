@@ -9,6 +9,8 @@
 // Exit codes: 0 success; 1 the output could not be written; 2 unusable input; 3 the run never
 // aligned to UTM (nothing written); CLI11's codes for usage errors.
 
+#include <algorithm>
+#include <cstdint>
 #include <cstdio>
 #include <deque>
 #include <fstream>

@@ -215,7 +215,15 @@ def run_one(build, out_root, scenario, seed, duration, source=None, options=None
     label = run_label(scenario, seed)
     out = os.path.join(out_root, label)
     if source:
-        proc, wall = replay(build, out, scenario, os.path.join(source, label), options, exact_fixes), 0.0
+        run = os.path.join(source, label)
+        missing = [n for n in ("trajectory.tum", "gnss.tum", "truth.tum", "summary.json")
+                   if not os.path.isfile(os.path.join(run, n))]
+        if missing:
+            return {"scenario": label, "wall_s": 0.0,
+                    "error": [f"no GNSS-off run to replay in {run} (missing {', '.join(missing)}; make it with "
+                              f"estimator_suite.py --scenarios {scenario}"
+                              f"{'' if seed is None else f' --seed {seed}'} --out D, then replay D/full)"]}
+        proc, wall = replay(build, out, scenario, run, options, exact_fixes), 0.0
     else:
         proc, wall = run_estimator(build, scenario, seed, duration, out, [])
     row = {"scenario": label, "wall_s": wall}
