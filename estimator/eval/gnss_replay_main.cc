@@ -9,7 +9,6 @@
 // Exit codes: 0 success; 1 the output could not be written; 2 unusable input; 3 the run never
 // aligned to UTM (nothing written); CLI11's codes for usage errors.
 
-#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <deque>
@@ -21,8 +20,11 @@
 #include <vector>
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
+#include "api/atomic_file.h"
 #include "api/trajectory.h"
+#include "estimator/eval/association.h"
 #include "estimator/geo/utm.h"
 #include "estimator/io/bag_reader.h"
 #include "estimator/mapping/gnss_fusion.h"
@@ -42,13 +44,6 @@ int Fail(int code, const std::string& message) {
 }
 
 double Seconds(int64_t stamp_ns) { return static_cast<double>(stamp_ns) * 1e-9; }
-
-Eigen::Isometry3d PoseOf(const raillomer::api::StampedPose& p) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = p.q_world_body.normalized().toRotationMatrix();
-  T.translation() = p.p_world;
-  return T;
-}
 
 }  // namespace
 
@@ -72,7 +67,11 @@ int main(int argc, char** argv) {
   app.add_option("--config",
                  config_path,
                  "estimator configuration (rig.yaml with an optional estimator: section)");
-  std::string options_path;
+  std::string options_path, json_path;
+  app.add_option("--json",
+                 json_path,
+                 "also write the fusion's counts here (fixes, rejected, multipath, factors, "
+                 "realignments)");
   app.add_option("--options",
                  options_path,
                  "with --sim: a file of estimator options (an estimator: section) for the "
@@ -165,8 +164,7 @@ int main(int argc, char** argv) {
       fusion.AddFix(fixes[next_fix]);
   };
 
-  // Release as the estimator does (Estimator::ReleaseHeld): a pose goes out once the graph has
-  // a node after it, after gnss_max_latency_s, or at the end.
+  // Release as the estimator does (Estimator::ReleaseHeld, the same GnssFusion policy).
   raillomer::api::Trajectory out;
   std::deque<raillomer::api::StampedPose> held;
   bool gave_up = false;
@@ -174,16 +172,14 @@ int main(int argc, char** argv) {
     if (held.empty() || gave_up) return;
     const double newest_s = Seconds(held.back().stamp_ns);
     if (!fusion.aligned()) {
-      const double limit =
-          fusion.stats().fixes == 0 ? std::min(30.0, o.gnss_max_hold_s) : o.gnss_max_hold_s;
-      if (flush || newest_s - Seconds(held.front().stamp_ns) >= limit) gave_up = true;
+      gave_up = flush || fusion.AlignmentOverdue(newest_s - Seconds(held.front().stamp_ns),
+                                                 o.gnss_max_hold_s);
       return;
     }
-    const double settled_s = fusion.settled_until_s();
     while (!held.empty()) {
       const double t = Seconds(held.front().stamp_ns);
-      if (t > settled_s && !flush && newest_s - t < o.gnss_max_latency_s) break;
-      const Eigen::Isometry3d T = fusion.Publish(PoseOf(held.front()), t);
+      if (!flush && !fusion.Releases(t, newest_s, o.gnss_max_latency_s)) break;
+      const Eigen::Isometry3d T = fusion.Publish(raillomer::eval::ToIsometry(held.front()), t);
       raillomer::api::StampedPose p;
       p.stamp_ns = held.front().stamp_ns;
       p.p_world = T.translation() + fusion.origin_utm();
@@ -195,7 +191,7 @@ int main(int argc, char** argv) {
   for (const raillomer::api::StampedPose& pose : odometry.poses) {
     if (gave_up) break;
     add_fixes_until(Seconds(pose.stamp_ns) + 2.0);
-    fusion.AddOdometry(pose.stamp_ns, PoseOf(pose));
+    fusion.AddOdometry(pose.stamp_ns, raillomer::eval::ToIsometry(pose));
     held.push_back(pose);
     release(false);
   }
@@ -208,6 +204,17 @@ int main(int argc, char** argv) {
   out.utm_zone = fusion.zone().Name();
   if (!raillomer::api::WriteTum(out_path, out, &error)) return Fail(kExitOutputError, error);
   const raillomer::GnssFusionStats& s = fusion.stats();
+  if (!json_path.empty()) {
+    const nlohmann::json j = {{"poses", out.poses.size()},
+                              {"utm_zone", out.utm_zone},
+                              {"fixes", s.fixes},
+                              {"rejected", s.rejected},
+                              {"outliers", s.outliers},
+                              {"factors", s.factors},
+                              {"realignments", s.realignments}};
+    if (!raillomer::api::WriteFileAtomically(json_path, j.dump(2) + "\n", &error))
+      return Fail(kExitOutputError, error);
+  }
   std::fprintf(stderr,
                "raillomer-gnss-replay: %zu poses -> %s (%llu fixes, %llu multipath, %llu factors, "
                "%llu re-alignments)\n",

@@ -484,6 +484,10 @@ Eigen::Isometry3d GnssFusion::MapTarget(const Eigen::Isometry3d& T_odom_body, do
   return Continue(T_odom_body, t_s, &map_target_);
 }
 
+bool GnssFusion::AlignmentOverdue(double held_s, double max_hold_s) const {
+  return held_s >= (stats_.fixes == 0 ? std::min(30.0, max_hold_s) : max_hold_s);
+}
+
 double GnssFusion::settled_until_s() const {
   // The first nodes' headings rest on the alignment's short baseline and move by milliradians
   // as the graph grows; poses wait for min_settled_nodes nodes.

@@ -129,6 +129,16 @@ class GnssFusion {
   double odometry_scale() const { return std::exp(drift_[0]); }
   /// Poses up to this time lie between nodes of the graph (-inf before the first).
   double settled_until_s() const;
+  /// How long a consumer holds poses for the fusion (the estimator, raillomer-gnss-replay).
+  /// Not aligned yet with poses held over `held_s`: true once that reaches max_hold_s (30 s
+  /// while no usable fix has come at all), when the run should stay in the local frame.
+  bool AlignmentOverdue(double held_s, double max_hold_s) const;
+  /// Aligned: the pose at t_s may go out once the graph has a node after it (it is then smoothed
+  /// between two nodes) or once it has waited max_latency_s behind the newest pose (newest_s: a
+  /// GNSS outage; it is then extrapolated).
+  bool Releases(double t_s, double newest_s, double max_latency_s) const {
+    return t_s <= settled_until_s() || newest_s - t_s >= max_latency_s;
+  }
   const GnssFusionStats& stats() const { return stats_; }
   /// The UTM zone in use (the rig's, or the first fix's standard zone).
   const geo::UtmZone& zone() const { return options_.zone; }

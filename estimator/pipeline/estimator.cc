@@ -903,9 +903,7 @@ void Estimator::ReleaseHeld(bool flush) {
   const double held_s = newest_s - StampSeconds(gnss_held_.front().frame.stamp_ns);
   if (!gnss_->aligned()) {
     // Waiting for the alignment, at most gnss_max_hold_s (30 s when no fix has come at all).
-    const double limit = stats_.gnss.fixes == 0 ? std::min(30.0, config_.options.gnss_max_hold_s)
-                                                : config_.options.gnss_max_hold_s;
-    if (!flush && held_s < limit) return;
+    if (!flush && !gnss_->AlignmentOverdue(held_s, config_.options.gnss_max_hold_s)) return;
     gnss_gave_up_ = true;
     Warn("not georeferenced: " +
          (flush ? std::string("the run ended before the GNSS alignment")
@@ -921,11 +919,10 @@ void Estimator::ReleaseHeld(bool flush) {
   // between two nodes), or when it has waited gnss_max_latency_s (a GNSS outage), or at the
   // end of the run; those are extrapolated from the newest node.
   stats_.georeferenced = true;
-  const double settled_s = gnss_->settled_until_s();
   while (!gnss_held_.empty()) {
     HeldOutput& h = gnss_held_.front();
     const double t = StampSeconds(h.frame.stamp_ns);
-    if (t > settled_s && !flush && newest_s - t < config_.options.gnss_max_latency_s) break;
+    if (!flush && !gnss_->Releases(t, newest_s, config_.options.gnss_max_latency_s)) break;
     const Eigen::Isometry3d T_odom_body = h.frame.T_world_body;
     const Eigen::Isometry3d T_map_target = gnss_->MapTarget(T_odom_body, t);
     h.frame.T_world_body = gnss_->Publish(T_odom_body, t);

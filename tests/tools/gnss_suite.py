@@ -32,6 +32,7 @@ georeferenced.
 """
 import argparse
 import bisect
+import functools
 import json
 import math
 import os
@@ -156,6 +157,7 @@ def antenna_up(scenario_yaml_text):
     return 0.3
 
 
+@functools.lru_cache(maxsize=None)
 def scenario_yaml(build, scenario):
     """A built-in scenario's YAML (raillomer-sim --print-scenario) or a scenario file's."""
     if scenario.endswith(".yaml"):
@@ -192,19 +194,21 @@ def replay(build, out, scenario, source, options, exact_fixes=False):
         write_exact_fixes(source, out, antenna_up(scenario_yaml(build, scenario)))
     else:
         shutil.copyfile(os.path.join(source, "gnss.tum"), os.path.join(out, "gnss.tum"))
+    counts = os.path.join(out, "replay.json")
+    if os.path.exists(counts):
+        os.remove(counts)
     cmd = [os.path.join(build, "bin", "raillomer-gnss-replay"), "--odometry", os.path.join(source, "trajectory.tum"),
-           "--fixes", os.path.join(out, "gnss.tum"), "--sim", scenario, "--out", os.path.join(out, "trajectory.tum")]
+           "--fixes", os.path.join(out, "gnss.tum"), "--sim", scenario, "--out", os.path.join(out, "trajectory.tum"),
+           "--json", counts]
     if options:
         cmd += ["--options", options]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     with open(os.path.join(source, "summary.json")) as f:
         s = json.load(f)
     stats = {"factors": 0, "outliers": 0}
-    for line in proc.stderr.splitlines():  # "... (60 fixes, 0 multipath, 8 factors, 0 re-alignments)"
-        if " factors, " in line:
-            words = line.replace("(", " ").replace(",", " ").split()
-            stats = {"factors": int(words[words.index("factors") - 1]),
-                     "outliers": int(words[words.index("multipath") - 1])}
+    if proc.returncode == 0:
+        with open(counts) as f:
+            stats = json.load(f)
     with open(os.path.join(out, "summary.json"), "w") as f:
         json.dump({"georeferenced": proc.returncode == 0, "gnss": stats, "real_time_factor": s["real_time_factor"],
                    "peak_rss_mb": s["peak_rss_mb"]}, f)

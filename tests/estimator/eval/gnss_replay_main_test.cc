@@ -8,6 +8,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "api/trajectory.h"
 #include "tests/support/process.h"
@@ -90,8 +91,14 @@ TEST_F(GnssReplayMain, ReplayingTheOdometryGivesTheEstimatorsTrajectory) {
   RunDemo("off", true);
   const std::string inputs = "--odometry " + ShellQuote(Path("off/trajectory.tum")) + " --fixes " +
                              ShellQuote(Path("off/gnss.tum")) + " --sim demo";
-  CommandResult run = Replay(inputs + " --out " + ShellQuote(Path("replayed.tum")));
+  CommandResult run = Replay(inputs + " --out " + ShellQuote(Path("replayed.tum")) + " --json " +
+                             ShellQuote(Path("replayed.json")));
   ASSERT_EQ(run.exit_code, 0) << run.err;
+  // The fusion's counts: every fix of the run taken, a factor every 10 s of it.
+  const nlohmann::json counts = nlohmann::json::parse(test::ReadText(Path("replayed.json")));
+  EXPECT_EQ(counts.at("fixes").get<size_t>(), Read("off/gnss.tum").poses.size());
+  EXPECT_GE(counts.at("factors").get<int>(), 2);
+  EXPECT_EQ(counts.at("rejected").get<int>(), 0);
   EXPECT_NE(run.err.find("aligned to UTM zone"), std::string::npos) << run.err;
   const api::Trajectory published = Read("on/trajectory.tum"), replayed = Read("replayed.tum");
   ASSERT_FALSE(published.utm_zone.empty());
