@@ -31,7 +31,7 @@ struct PreintegrationNoise {
   /// m/s/sqrt(Hz): the same, vertically (a car body may bounce more than it sways). At 0.03
   /// rich_high_mixed_b's 3.0 m of vertical drift over 2.7 km falls to 0.4 m, but long_20km's
   /// pitch and heading then wander through its feature-poor stretches until it diverges at
-  /// 15 km (README, "Where the estimator stands"), so it stays at the sideways figure.
+  /// 15 km (docs/notebook/estimator-results.md), so it stays at the sideways figure.
   double odometer_vertical_density = 0.01;
   /// m: distance of one encoder pulse. Each end of an interval is quantised to it, a bounded
   /// error (variance resolution^2 / 12 per end) that does not grow with the interval.
@@ -73,7 +73,7 @@ struct NavState {
   /// rad: the wheels' path against the odometer's x axis, pitch and yaw (about the odometer's y
   /// and z axes): the path runs along R_body_odo Exp((0, m0, m1)) x. A car body sitting 1.6 mrad
   /// nose-up on its suspension, taken to move along its x axis, drove the pitch 12 mrad off
-  /// and the distance 0.9 % long (estimator/RESULTS.md, 2026-11-25).
+  /// and the distance 0.9 % long (docs/notebook/estimator-results.md: the odometer's pitch).
   Eigen::Vector2d m = Eigen::Vector2d::Zero();
 };
 

@@ -41,8 +41,8 @@ struct GnssFusionOptions {
   /// climbs at up to 0.7 mrad (at constant speed its pitch and the accelerometer's x bias
   /// trade; at most 0.34 mrad through tunnel_gnss_outage's tunnel, GNSS off), so the default
   /// leaves it 1 mrad. At the horizontal fraction's 0.005 the graph took in the receiver's height
-  /// wherever it came back from an outage 2-4 m off (estimator/RESULTS.md, 2026-12-01); 0.0003
-  /// suits an odometry with a tight accelerometer bias prior (2026-11-25).
+  /// wherever it came back from an outage 2-4 m off; 0.0003 suits an odometry with a tight
+  /// accelerometer bias prior (docs/notebook/estimator-results.md: the height).
   double vertical_drift_fraction = 0.001;
   double yaw_drift_rad_per_m = 5e-6;
   /// The graph also estimates the odometry's systematic drift over its window, a scale error

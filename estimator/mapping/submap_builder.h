@@ -30,7 +30,7 @@ struct SubmapOptions {
   /// emitted positions can slide across the track where the LiDAR pulls the sliding window
   /// sideways a few millimetres a frame: 1.2-1.6 mrad for 5 s in poor_high_open_a's canted
   /// curve (GNSS off; the truth's within 0.2 mrad), and rail heads seen from two submaps came
-  /// out 3.4 cm apart (estimator/RESULTS.md, 2026-12-01). Each step
+  /// out 3.4 cm apart (docs/notebook/estimator-results.md: the sideways slip). Each step
   /// keeps the rest of its sideways part, the LiDAR's view of where the frame is: taking every
   /// step's sideways part out put the heading's own errors into the positions (imu_loss's rail
   /// heads 1.4 -> 2.3 cm). The body's swing as the cant rolls it about the rail (6 cm/s at 4 m

@@ -31,7 +31,7 @@ struct LidarRig {
   bool looks_down() const { return T_body_lidar.linear().col(0).z() < 0.0; }
 };
 
-/// The sensor rig, as raillomer-sim writes it to rig.yaml (see README "Rig configuration").
+/// The sensor rig, as raillomer-sim writes it to rig.yaml (docs/estimator.md: rig configuration).
 struct RigConfig {
   std::string rig;
   std::string utm_zone;
@@ -84,7 +84,7 @@ struct EstimatorOptions {
   int map_points_per_voxel = 10;   ///< local map cap per voxel
   /// A frame's features go into the local map once this many newer states have refined its
   /// pose (at the latest when it leaves the window); 0: at once, at its first single-frame
-  /// estimate. Not the default: see estimator/RESULTS.md for what it gains
+  /// estimate. Not the default: see docs/notebook/estimator-results.md for what it gains
   /// on the feature-poor runs and costs on the 20 km one.
   int map_insert_lag = 0;
   double map_radius_m = 200.0;  ///< voxels farther from the vehicle are dropped
@@ -92,8 +92,7 @@ struct EstimatorOptions {
   /// sensor's 2 cm: a frame's thousands of residuals share their errors (the map is built from
   /// the same trajectory, the deskew from the same prediction), and weighted as independent
   /// 0.1 m measurements they outvote the IMU and odometer so far that a pitch error grows by
-  /// feedback through the map at 100 km/h and above (README, the pipeline under
-  /// raillomer-estimator).
+  /// feedback through the map at 100 km/h and above (docs/estimator.md: the back end).
   double plane_sigma_m = 0.3;
   double edge_sigma_m = 0.45;
   double max_correspondence_m = 1.0;  ///< neighbour search radius
@@ -102,14 +101,14 @@ struct EstimatorOptions {
   /// around a soft crease (a ballast shoulder) at places that shift with range; matched to the
   /// scattered far points of the map they turn each frame (0.041 deg of yaw per frame at true
   /// poses on poor_low_embankment_b; 0.023 deg with 0.05 m). Not the default: see
-  /// estimator/RESULTS.md.
+  /// docs/notebook/estimator-results.md.
   double edge_max_spread_m = 0.0;
   /// When > 0, an edge of the LiDAR looking down at the track whose map neighbours lie further
   /// than this RMS from their line (a soft crease of ballast or embankment, not a corner) drops
   /// the part of its residual along the body's lateral axis: it still holds pitch,
   /// height and position along the track, but no longer turns the frame. Not the default: it
-  /// helps the embankment and costs other runs about as much (README, "Where the estimator
-  /// stands"); 0.05 m is the value measured there.
+  /// helps the embankment and costs other runs about as much (docs/notebook/estimator-results.md:
+  /// soft edges); 0.05 m is the value measured there.
   double down_edge_soft_spread_m = 0.0;
   double rail_normal_sigma_rad = 0.003;  ///< rail-plane normal noise (eq. 30)
   double rail_distance_sigma_m = 0.01;   ///< rail-plane distance noise
@@ -118,12 +117,12 @@ struct EstimatorOptions {
   /// and vertical parts left out): they hold the frame sideways and in heading. Not the
   /// default: with the sleepers (track_bed) holding the distance they take every feature-poor
   /// run to 0.10-0.34 %, but long_20km's heading then wanders by a degree (1.10 % at its end;
-  /// README, "Where the estimator stands"). 0.1 m is the value measured there.
+  /// docs/notebook/estimator-results.md: rail heads as lines). 0.1 m is the value measured there.
   double rail_line_sigma_m = 0.0;
   /// When > 0, only rail-head points nearer than this along body x are matched as lines (0: all
   /// the extraction grows, up to 20 m). Far points turn the frame: on the first 2 km of
   /// long_20km the lines with every point turn the heading 0.07 deg in 500 m, with the points
-  /// within 12 m 0.006 deg (README, "Where the estimator stands"). Built as the default with
+  /// within 12 m 0.006 deg (docs/notebook/estimator-results.md). Built as the default with
   /// the lines on it turned poor_low_open_a and one embankment seed by a degree, so 0 stays.
   double rail_line_max_forward_m = 0.0;
   /// Failure detection (eq. 24): feature counts below these fail a LiDAR.
@@ -138,19 +137,20 @@ struct EstimatorOptions {
   /// weakest direction lies within 30 deg of the track are remapped below this degeneracy
   /// instead. In a tunnel the LiDARs see the distance through lamps and refuges every 25-50 m
   /// alone (degeneracy 0.012-0.03), and there their registration pulls each frame back: the
-  /// odometry ran 0.3-0.5 % short through the 1.3 km tunnel (estimator/RESULTS.md, 2026-12-02).
-  /// 0 disables.
+  /// odometry ran 0.3-0.5 % short through the 1.3 km tunnel
+  /// (docs/notebook/estimator-results.md: the tunnel). 0 disables.
   double degeneracy_projection_along = 0.03;
   /// Heading remapping: when both LiDARs' matches together hold the heading (rotation about
   /// the vertical, the other five directions free) with less than this information per
   /// residual (1/rad^2), their factors stop seeing the heading and the gyro carries it. Weakly
   /// held, the heading follows the registration's small steady pulls (+565 urad a frame on
-  /// the embankment at true poses), and the yaw gyro bias with it (README, "Where the
-  /// estimator stands"). rich_high_mixed_b's frames score 20-140, the embankment's 2-5 (10th-90th
-  /// percentile), the curved tunnel's 11-16. A frame left so is evaluated at the heading its
-  /// matches would take for the rest of its pose (their profile), not at its predicted one:
-  /// held there, the pull went sideways into the points ahead, and the odometer's sideways term
-  /// turned it back into heading (the tunnel's curve 2 mrad, README). 0 disables.
+  /// the embankment at true poses), and the yaw gyro bias with it
+  /// (docs/notebook/estimator-results.md: heading remapping). rich_high_mixed_b's frames score
+  /// 20-140, the embankment's 2-5 (10th-90th percentile), the curved tunnel's 11-16. A frame
+  /// left so is evaluated at the heading its matches would take for the rest of its pose (their
+  /// profile), not at its predicted one: held there, the pull went sideways into the points
+  /// ahead, and the odometer's sideways term turned it back into heading (the tunnel's curve
+  /// 2 mrad; docs/notebook/estimator-results.md: a heading left out). 0 disables.
   double heading_projection = 20.0;
   /// s: the car body's rotation faster than this is its sway on the suspension, about its own
   /// origin (InertialBuffer::SwayAt, the gyro's angles high-passed): that roll does not swing the
@@ -159,7 +159,7 @@ struct EstimatorOptions {
   /// rotation is the track's. At 2 s a grade change (6 permille over 2 s) left the pitch's second
   /// high-pass 0.8 mrad below zero for seconds, the path tilted against the body, and rail heads
   /// seen from two submaps 3 cm apart; 0.5 s still keeps 94 % of the body's 1.3 Hz pitch
-  /// (estimator/RESULTS.md, 2026-11-25).
+  /// (docs/notebook/estimator-results.md: the sway's time constant).
   double odometer_sway_time_constant_s = 0.5;
   /// s: each LiDAR point is moved to the frame end by the gyro's rotation up to its own time,
   /// sampled this often (and the translation lerped), so that the car body's pitch and roll on
@@ -174,17 +174,17 @@ struct EstimatorOptions {
   /// m/s^2: the accelerometer bias prior once gravity has re-levelled the world frame, which
   /// took the bias as zero. At 0.03 the bias stood in for gravity along the track, and on
   /// feature-poor runs that start at speed the pitch drifted 2-5 mrad a minute with the LiDAR's
-  /// own (estimator/RESULTS.md).
+  /// own (docs/notebook/estimator-results.md: the accelerometer bias after re-levelling).
   double relevelled_accel_bias_sigma = 3.0e-3;
   double initial_gyro_bias_sigma = 5.0e-5;  ///< rad/s: an MTi-680G's bias stability
   double initial_scale_sigma = 0.02;        ///< odometer scale
   /// rad: priors of the odometer's misalignment (the pitch and the yaw of the wheels' path against
   /// the odometer's x axis, NavState::m), estimated with the state; 0 holds one at zero, the
   /// paper's model. Held at zero, a body sitting 1.6 mrad nose-up on its suspension drove the
-  /// pitch 12 mrad off and the distance 0.9 % long (estimator/RESULTS.md, 2026-11-25). The yaw is
-  /// held by default: a body yawed 1.6 mrad did no harm, and estimated, the yaw took up the
-  /// LiDARs' sideways pull (-0.4 to -0.9 mrad where the truth is 0; tunnel_gnss_outage 0.122 ->
-  /// 0.188 %).
+  /// pitch 12 mrad off and the distance 0.9 % long (docs/notebook/estimator-results.md: the
+  /// odometer's pitch). The yaw is held by default: a body yawed 1.6 mrad did no harm, and
+  /// estimated, the yaw took up the LiDARs' sideways pull (-0.4 to -0.9 mrad where the truth is 0;
+  /// tunnel_gnss_outage 0.122 -> 0.188 %).
   double odometer_pitch_sigma_rad = 3.0e-3;
   double odometer_yaw_sigma_rad = 0.0;
   double keyframe_distance_m = 2.0;  ///< keyframes for mapping: distance since the last

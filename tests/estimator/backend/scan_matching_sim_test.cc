@@ -149,8 +149,8 @@ TEST(ScanMatchingSim, TruthMapHoldsTheTruthAtSpeed) {
 // for the up one. Its soft creases are where curvature picks edge points at places that move
 // with range; matched to scattered map neighbours they turn every frame to the left, which the
 // estimator follows into a heading drift of 8e-5 rad/s with a perfect IMU. The spread check on
-// edge neighbours (edge_max_spread_m; off by default, see estimator/RESULTS.md) takes most of it
-// away.
+// edge neighbours (edge_max_spread_m; off by default: docs/notebook/estimator-results.md) takes
+// most of it away.
 TEST(ScanMatchingSim, EdgeSpreadCheckKeepsSoftCreasesFromTurningTheRegistration) {
   const RegistrationErrors e = RegisterAtTruth("poor_low_embankment_b", -1.0, true, 0.05);
   ASSERT_GT(e.frames, 1000);
