@@ -41,6 +41,25 @@ std::vector<fs::path> Pending(const std::string& dir) {
   return files;
 }
 
+std::string KindOf(const fs::path& file) { return file.filename().string().substr(13); }
+
+/// The highest sequence a poses.json or submap.pcd message holds (-1 if none).
+int64_t MaxSequence(const std::string& kind, const std::string& bytes) {
+  int64_t max = -1;
+  if (kind == "poses.json") {
+    const json j = json::parse(bytes, nullptr, false);
+    if (j.is_object() && j.contains("poses") && j["poses"].is_array())
+      for (const json& p : j["poses"])
+        if (p.is_object() && p.contains("sequence") && p["sequence"].is_number_unsigned())
+          max = std::max(max, p["sequence"].get<int64_t>());
+  } else if (kind == "submap.pcd") {
+    Submap s;
+    std::string error;
+    if (DecodeSubmapPcd(bytes, &s, &error)) max = static_cast<int64_t>(s.sequence);
+  }
+  return max;
+}
+
 }  // namespace
 
 IngestClient::IngestClient(IngestClientOptions options) : options_(std::move(options)) {}
@@ -75,19 +94,28 @@ bool IngestClient::Start(std::string* error) {
     *error = "cannot create the outbox " + options_.outbox_dir + ": " + ec.message();
     return false;
   }
-  // Resume: a run begun by an earlier start goes on, after what its outbox still holds.
+  // Resume: a run begun by an earlier start goes on, after what its outbox still holds, and
+  // skips what the outbox held before (acknowledged, or still pending).
   const fs::path run_file = fs::path(options_.outbox_dir) / "run.json";
   if (fs::exists(run_file)) {
     const json j = json::parse(ReadAll(run_file), nullptr, false);
-    if (j.is_object() && j.value("server", "") == options_.server_url)
+    if (j.is_object() && j.value("server", "") == options_.server_url) {
       backlog_.run_id = j.value("run_id", int64_t{0});
+      progress_pose_ = j.value("pose_sequence", int64_t{-1});
+      progress_submap_ = j.value("submap_sequence", int64_t{-1});
+    }
   }
   for (const fs::path& f : Pending(options_.outbox_dir)) {
     next_file_ =
         std::max<uint64_t>(next_file_, std::stoull(f.filename().string().substr(0, 12)) + 1);
     ++backlog_.messages;
     backlog_.bytes += fs::file_size(f, ec);
+    const int64_t max = MaxSequence(KindOf(f), ReadAll(f));
+    int64_t& progress = KindOf(f) == "poses.json" ? progress_pose_ : progress_submap_;
+    progress = std::max(progress, max);
   }
+  resume_pose_ = progress_pose_;
+  resume_submap_ = progress_submap_;
   sender_ = std::thread([this] { SenderLoop(); });
   return true;
 }
@@ -126,11 +154,22 @@ void IngestClient::FlushPosesLocked() {
 
 void IngestClient::OnPose(const StreamPose& pose) {
   std::lock_guard<std::mutex> lock(mu_);
+  if (static_cast<int64_t>(pose.sequence) <= resume_pose_) {
+    ++backlog_.skipped;
+    return;
+  }
   poses_.push_back(pose);
   if (poses_.size() >= std::max<size_t>(1, options_.poses_per_batch)) FlushPosesLocked();
 }
 
 void IngestClient::OnSubmap(const Submap& submap) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (static_cast<int64_t>(submap.sequence) <= resume_submap_) {
+      ++backlog_.skipped;
+      return;
+    }
+  }
   const std::string bytes = EncodeSubmapPcd(submap);
   std::lock_guard<std::mutex> lock(mu_);
   FlushPosesLocked();  // the poses before it go first
@@ -161,6 +200,15 @@ bool IngestClient::Finish(double wait_s, std::string* error) {
   return drained;
 }
 
+IngestClient::Resume IngestClient::resume() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  Resume r;
+  r.run_id = backlog_.run_id;
+  r.pose_sequence = resume_pose_;
+  r.submap_sequence = resume_submap_;
+  return r;
+}
+
 IngestClient::Backlog IngestClient::backlog() const {
   std::lock_guard<std::mutex> lock(mu_);
   return backlog_;
@@ -189,16 +237,37 @@ bool IngestClient::EnsureRun(std::string* error) {
     *error = "the server's answer has no run id: " + r->body;
     return false;
   }
-  std::string write_error;
-  WriteFileAtomically((fs::path(options_.outbox_dir) / "run.json").string(),
-                      json{{"run_id", id}, {"server", options_.server_url}}.dump(),
-                      &write_error);
-  std::lock_guard<std::mutex> lock(mu_);
-  backlog_.run_id = id;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    backlog_.run_id = id;
+  }
+  WriteRunFile();
   return true;
 }
 
-bool IngestClient::SendOne(const std::string& path, std::string* error, bool* rejected) {
+void IngestClient::WriteRunFile() {
+  std::string error;
+  WriteFileAtomically((fs::path(options_.outbox_dir) / "run.json").string(),
+                      json{{"run_id", backlog_.run_id},
+                           {"server", options_.server_url},
+                           {"pose_sequence", progress_pose_},
+                           {"submap_sequence", progress_submap_}}
+                          .dump(),
+                      &error);
+}
+
+void IngestClient::RecordProgress(const std::string& kind, const std::string& bytes) {
+  const int64_t max = MaxSequence(kind, bytes);
+  int64_t& progress = kind == "poses.json" ? progress_pose_ : progress_submap_;
+  if (max <= progress) return;
+  progress = max;
+  WriteRunFile();
+}
+
+bool IngestClient::SendOne(const std::string& path,
+                           const std::string& bytes,
+                           std::string* error,
+                           bool* rejected) {
   *rejected = false;
   const std::string name = fs::path(path).filename().string();
   const std::string kind = name.substr(13);
@@ -220,7 +289,7 @@ bool IngestClient::SendOne(const std::string& path, std::string* error, bool* re
   client.set_bearer_token_auth(options_.token);
   client.set_connection_timeout(2, 0);
   client.set_read_timeout(static_cast<time_t>(options_.request_timeout_s), 0);
-  const auto r = client.Post(target, ReadAll(path), content_type);
+  const auto r = client.Post(target, bytes, content_type);
   if (!r) {
     *error = "cannot reach " + options_.server_url + ": " + httplib::to_string(r.error());
     return false;
@@ -268,11 +337,13 @@ void IngestClient::SenderLoop() {
     }
     std::string error;
     bool rejected = false;
+    const std::string bytes = ReadAll(files.front());
     bool ok = EnsureRun(&error);
-    if (ok) ok = SendOne(files.front().string(), &error, &rejected);
+    if (ok) ok = SendOne(files.front().string(), bytes, &error, &rejected);
     std::error_code ec;
-    const uint64_t size = fs::file_size(files.front(), ec);
+    const uint64_t size = bytes.size();
     if (ok || rejected) {
+      RecordProgress(KindOf(files.front()), bytes);  // before the file goes
       if (rejected) {
         fs::rename(files.front(),
                    fs::path(options_.outbox_dir) / "rejected" / files.front().filename(),
@@ -280,7 +351,7 @@ void IngestClient::SenderLoop() {
         warn("rejected, kept in " + options_.outbox_dir + "/rejected: " + error);
       } else {
         fs::remove(files.front(), ec);
-        if (files.front().filename().string().substr(13) == "finish.json")
+        if (KindOf(files.front()) == "finish.json")
           fs::remove(fs::path(options_.outbox_dir) / "run.json", ec);  // the run is complete
       }
       {

@@ -28,9 +28,14 @@ struct IngestClientOptions {
 /// Streams the estimator's poses and submaps to raillomer-server through a durable on-disk
 /// outbox: each pose batch and each submap is written to the outbox before it is sent, and let
 /// go only when the server has acknowledged it (a duplicate counts: the server had it). A
-/// server outage or a cut link loses nothing: a sender thread keeps retrying, and a restarted
-/// estimator with the same outbox resumes the same run. The server de-duplicates by sequence
-/// number, so a message sent twice (acknowledgement lost) is stored once.
+/// server outage or a cut link loses nothing: a sender thread keeps retrying. The server
+/// de-duplicates by sequence number, so a message sent twice (acknowledgement lost) is stored
+/// once.
+///
+/// A restarted estimator with the same outbox resumes the same run: what the outbox holds goes
+/// first, and poses and submaps up to the highest sequences the outbox has held (pending, or
+/// acknowledged and recorded in progress.json before the file went) are skipped, since the
+/// estimator numbers them by the data alone and regenerates them on a rerun.
 class IngestClient : public StreamSink {
  public:
   explicit IngestClient(IngestClientOptions options);
@@ -52,11 +57,20 @@ class IngestClient : public StreamSink {
     uint64_t sent = 0;      ///< acknowledged since start
     uint64_t retries = 0;   ///< failed attempts (server away or erroring)
     uint64_t rejected = 0;  ///< refused by the server (4xx): kept in outbox/rejected/
+    uint64_t skipped = 0;   ///< poses and submaps a resumed run had sent or queued before
     bool connected = false;
     int64_t run_id = 0;
     std::string last_error;
   };
   Backlog backlog() const;
+  /// What Start found in the outbox of an earlier start: the run to go on with (0: none yet)
+  /// and the highest pose and submap sequences it held, which are skipped (-1: none).
+  struct Resume {
+    int64_t run_id = 0;
+    int64_t pose_sequence = -1, submap_sequence = -1;
+    bool resuming() const { return pose_sequence >= 0 || submap_sequence >= 0; }
+  };
+  Resume resume() const;
   /// Called from the sender thread with each problem worth a warning (rejections, outages).
   void SetWarningHandler(std::function<void(const std::string&)> handler);
 
@@ -65,7 +79,15 @@ class IngestClient : public StreamSink {
   void WriteMessage(const std::string& name, const std::string& bytes);
   void FlushPosesLocked();
   void SenderLoop();
-  bool SendOne(const std::string& name, std::string* error, bool* rejected);
+  bool SendOne(const std::string& name,
+               const std::string& bytes,
+               std::string* error,
+               bool* rejected);
+  /// Records, before a sent or rejected message leaves the outbox, the highest sequences the
+  /// outbox has held (progress.json), so a resumed run skips them.
+  void RecordProgress(const std::string& kind, const std::string& bytes);
+  /// run.json: the run's id, the server and the progress, written atomically.
+  void WriteRunFile();
 
   IngestClientOptions options_;
   mutable std::mutex mu_;
@@ -75,6 +97,11 @@ class IngestClient : public StreamSink {
   bool stopping_ = false;
   bool finishing_ = false;
   bool write_failed_ = false;  ///< the outbox refused a message: the sender warns
+  /// Highest pose and submap sequences the outbox has held (-1: none); from Start, then the
+  /// sender's alone.
+  int64_t progress_pose_ = -1, progress_submap_ = -1;
+  /// What a resumed run skips: sequences up to these (set by Start).
+  int64_t resume_pose_ = -1, resume_submap_ = -1;
   Backlog backlog_;
   std::function<void(const std::string&)> warn_;
   std::thread sender_;

@@ -1,6 +1,7 @@
 #include "api/stream.h"
 
 #include <cinttypes>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -9,6 +10,26 @@
 #include <sstream>
 
 namespace raillomer::api {
+namespace {
+
+/// Sequences are stored as SQLite integers: below 2^63.
+constexpr uint64_t kMaxSequence = uint64_t{INT64_MAX};
+
+/// Decimal digits only, at most `max`.
+bool ParseWholeNumber(const std::string& text, uint64_t max, uint64_t* value) {
+  if (text.empty() || text.size() > 20) return false;
+  uint64_t v = 0;
+  for (char c : text) {
+    if (c < '0' || c > '9') return false;
+    const uint64_t digit = static_cast<uint64_t>(c - '0');
+    if (v > (max - digit) / 10) return false;
+    v = v * 10 + digit;
+  }
+  *value = v;
+  return true;
+}
+
+}  // namespace
 
 std::string EncodeSubmapPcd(const Submap& s) {
   std::ostringstream h;
@@ -74,10 +95,14 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
       if (what != "keyframe" && !seen.insert(what).second)
         return fail("the header has a second '" + what + "' line");
       if (what == "sequence") {
-        std::string k1, k2;
-        size_t keyframes = 0;
-        if (!(in >> s->sequence >> k1 >> s->index >> k2 >> keyframes))
-          return fail("bad line '" + line + "'");
+        // Whole numbers only: ">>" would read "-5" into an unsigned as 2^64 - 5.
+        std::string sequence, k1, index, k2, keyframes;
+        uint64_t n = 0;
+        if (!(in >> sequence >> k1 >> index >> k2 >> keyframes) || k1 != "index" ||
+            k2 != "keyframes" || !ParseWholeNumber(sequence, kMaxSequence, &s->sequence) ||
+            !ParseWholeNumber(index, UINT32_MAX, &n))
+          return fail("bad line '" + line + "' (sequence below 2^63, index below 2^32)");
+        s->index = static_cast<uint32_t>(n);
       } else if (what == "stamps") {
         std::string a, b;
         if (!(in >> a >> b) || !ParseStampSeconds(a, &s->first_stamp_ns) ||
@@ -120,8 +145,8 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
       break;
     }
   }
-  if (!have_fields || !have_points || !have_origin)
-    return fail("the header lacks FIELDS, POINTS or the raillomer origin");
+  if (!have_fields || !have_points || !have_origin || !seen.count("sequence"))
+    return fail("the header lacks FIELDS, POINTS or the raillomer origin or sequence");
   if (points > (bytes.size() - pos) / 16 || bytes.size() - pos != 16 * points) {
     return fail("expected " + std::to_string(16 * points) + " bytes of points, found " +
                 std::to_string(bytes.size() - pos) + " (truncated?)");

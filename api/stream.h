@@ -13,7 +13,9 @@ namespace raillomer::api {
 
 /// A pose as the estimator streams it, once it is final.
 struct StreamPose {
-  uint64_t sequence = 0;  ///< monotonic over the run, one counter for poses and submaps
+  /// 0, 1, 2, ... over the run's poses (submaps count apart): the server stores each
+  /// sequence once, so a message sent again is a duplicate.
+  uint64_t sequence = 0;
   int64_t stamp_ns = 0;
   bool georeferenced = false;  ///< false: the estimator's local odometry frame
   std::string utm_zone;        ///< "50N" when georeferenced
@@ -25,7 +27,7 @@ struct StreamPose {
 /// A submap: the deskewed clouds of consecutive keyframes in one frame. Positions are float
 /// offsets from a double-precision origin (UTM coordinates never go into a float).
 struct Submap {
-  uint64_t sequence = 0;  ///< see StreamPose::sequence
+  uint64_t sequence = 0;  ///< 0, 1, 2, ... over the run's submaps (the estimator: its index)
   uint32_t index = 0;     ///< 0, 1, 2, ... within the run
   int64_t first_stamp_ns = 0, last_stamp_ns = 0;
   bool georeferenced = false;

@@ -221,6 +221,13 @@ int main(int argc, char** argv) {
       std::cerr << (quiet ? "" : "\r") << "raillomer-estimator: server: " << m << "\n";
     });
     if (!ingest->Start(&error)) return Fail(error);
+    const api::IngestClient::Resume resume = ingest->resume();
+    if (resume.resuming())
+      std::cerr << "raillomer-estimator: resuming "
+                << (resume.run_id > 0 ? "run " + std::to_string(resume.run_id) : "the run")
+                << " from the outbox " << o.outbox_dir << ": poses up to " << resume.pose_sequence
+                << " and submaps up to " << resume.submap_sequence
+                << " were sent or queued by an earlier start and are not sent again\n";
   }
   struct Stream : api::StreamSink {
     RunWriter* writer;
@@ -347,7 +354,11 @@ int main(int argc, char** argv) {
     if (!quiet || !drained) {
       std::cerr << "  server: run " << b.run_id << ", " << b.sent << " messages acknowledged, "
                 << b.retries << " failed attempts, " << b.rejected << " rejected, " << b.messages
-                << " left in the outbox\n";
+                << " left in the outbox";
+      if (b.skipped > 0)
+        std::cerr << "; resumed: " << b.skipped
+                  << " poses and submaps skipped (the outbox had them from an earlier start)";
+      std::cerr << "\n";
     }
     if (!drained) return Fail("the server did not take everything: " + drain_error);
     if (b.rejected > 0)

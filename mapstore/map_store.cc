@@ -54,7 +54,8 @@ uint64_t TileVoxel(const Eigen::Vector3f& o, float inverse_voxel) {
 }
 
 /// A submap's points can go into the UTM tiles: georeferenced, finite, plausible UTM.
-bool ValidSubmap(const api::Submap& s, size_t max_points, std::string* error) {
+bool ValidSubmap(const api::Submap& s, const StoreOptions& options, std::string* error) {
+  const size_t max_points = options.max_points_per_submap;
   if (!s.georeferenced) {
     *error = "the submap is not georeferenced (zone 'local'): only UTM submaps go into tiles";
     return false;
@@ -92,6 +93,20 @@ bool ValidSubmap(const api::Submap& s, size_t max_points, std::string* error) {
   }
   if (s.last_stamp_ns < s.first_stamp_ns) {
     *error = "the submap's last stamp is before its first";
+    return false;
+  }
+  Eigen::AlignedBox2f box;
+  for (const Eigen::Vector3f& p : s.points) box.extend(p.head<2>());
+  const float extent = box.sizes().maxCoeff();
+  if (extent > options.max_submap_extent_m) {
+    char text[160];
+    std::snprintf(text,
+                  sizeof(text),
+                  "the submap's points spread over %.0f m, more than the %.0f m a submap may "
+                  "span (max_submap_extent_m)",
+                  extent,
+                  options.max_submap_extent_m);
+    *error = text;
     return false;
   }
   return true;
@@ -136,6 +151,9 @@ bool StoreOptions::IsValid(std::string* error) const {
   if (!grid.IsValid(error)) return false;
   if (max_points_per_submap < 1) return *error = "max_points_per_submap must be positive", false;
   if (hot_points_budget < 100'000) return *error = "hot_points_budget must be >= 100000", false;
+  if (hot_tiles_budget < 64) return *error = "hot_tiles_budget must be >= 64", false;
+  if (!(max_submap_extent_m >= 10.0 && max_submap_extent_m <= 20000.0))
+    return *error = "max_submap_extent_m must be in [10, 20000]", false;
   if (draco_speed < 0 || draco_speed > 9) return *error = "draco_speed must be in [0, 9]", false;
   if (encode_threads < 1 || encode_threads > 64)
     return *error = "encode_threads must be in [1, 64]", false;
@@ -223,6 +241,12 @@ std::unique_ptr<MapStore> MapStore::Open(const std::string& dir,
     *error = "cannot create the store folder " + dir + ": " + ec.message();
     return nullptr;
   }
+  // The index, the payloads and the token are the server's alone: the folder is private.
+  std::filesystem::permissions(dir, std::filesystem::perms::owner_all, ec);
+  if (ec) {
+    *error = "cannot make the store folder " + dir + " private (0700): " + ec.message();
+    return nullptr;
+  }
   std::unique_ptr<MapStore> store(new MapStore(dir, options));
   store->writer_ = std::make_unique<Database>();
   if (!store->writer_->Open(store->IndexPath(), true, error)) return nullptr;
@@ -273,16 +297,16 @@ bool MapStore::Recover(std::string* error) {
     Merge(run, s, &receipt);
     unflushed_.emplace_back(run, sequence);
     waiting.insert(path);
+    recovery_.recovered.emplace_back(run, sequence);
     ++stats_.submaps_recovered;
   }
   if (!q.error().empty()) {
     *error = "cannot read the submaps to recover: " + q.error();
     return false;
   }
-  Statement mark(*writer_, "UPDATE submaps SET tiled = -1 WHERE run_id = ? AND sequence = ?");
   for (const auto& [run, sequence] : lost) {
-    mark.Reset();
-    mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run();
+    if (!MarkLostLocked(run, sequence, error)) return false;
+    recovery_.lost.emplace_back(run, sequence);
     ++stats_.submaps_lost;
   }
   // Payloads written but never acknowledged (a crash before the commit) are not the store's.
@@ -295,10 +319,29 @@ bool MapStore::Recover(std::string* error) {
   return r.ok();
 }
 
+bool MapStore::MarkLostLocked(int64_t run_id, uint64_t sequence, std::string* error) {
+  // The submap stays (its sequence is taken; the same bytes sent again restore it), but its
+  // points leave the run's counts, which say what the tiles hold.
+  Transaction t(*writer_);
+  Statement mark(*writer_, "UPDATE submaps SET tiled = -1 WHERE run_id = ? AND sequence = ?");
+  Statement count(*writer_,
+                  "UPDATE runs SET submaps = submaps - 1, submaps_lost = submaps_lost + 1, "
+                  "points = points - (SELECT points FROM submaps WHERE run_id = ? AND sequence = "
+                  "?) WHERE id = ?");
+  const int64_t seq = static_cast<int64_t>(sequence);
+  if (!t.ok() || !count.Bind(1, run_id).Bind(2, seq).Bind(3, run_id).Run() ||
+      !mark.Bind(1, run_id).Bind(2, seq).Run() || !t.Commit(error)) {
+    *error = "cannot mark submap " + std::to_string(sequence) + " of run " +
+             std::to_string(run_id) + " lost: " + writer_->Message();
+    return false;
+  }
+  return true;
+}
+
 Result MapStore::RunLocked(const Database& db, int64_t run_id, RunInfo* out) const {
   Statement q(db,
               "SELECT id, line, vehicle, status, start_ns, end_ns, utm_zone, created_ns, "
-              "submaps, points, poses FROM runs WHERE id = ?");
+              "submaps, points, poses, submaps_lost FROM runs WHERE id = ?");
   if (!q.ok()) return Fail(Outcome::kError, q.error());
   q.Bind(1, run_id);
   if (!q.Step()) {
@@ -317,6 +360,7 @@ Result MapStore::RunLocked(const Database& db, int64_t run_id, RunInfo* out) con
   r.submaps = q.Int(8);
   r.points = q.Int(9);
   r.poses = q.Int(10);
+  r.submaps_lost = q.Int(11);
   if (out) *out = r;
   return {};
 }
@@ -830,7 +874,7 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
     ++stats_.submaps_rejected;
     return Fail(Outcome::kInvalid, error);
   }
-  if (!ValidSubmap(s, options_.max_points_per_submap, &error)) {
+  if (!ValidSubmap(s, options_, &error)) {
     std::lock_guard<std::mutex> lock(mu_);
     ++stats_.submaps_rejected;
     return Fail(Outcome::kInvalid, "submap " + std::to_string(s.sequence) + ": " + error);
@@ -856,9 +900,15 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
       const std::string incoming = IncomingPath(run_id, s.sequence);
       if (!api::WriteFileAtomically(incoming, payload, &error))
         return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
+      Transaction t(*writer_);
       Statement again(*writer_, "UPDATE submaps SET tiled = 0 WHERE run_id = ? AND sequence = ?");
-      if (!again.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).Run())
-        return Fail(Outcome::kError, again.error());
+      Statement count(*writer_,
+                      "UPDATE runs SET submaps = submaps + 1, submaps_lost = submaps_lost - 1, "
+                      "points = points + ? WHERE id = ?");
+      if (!t.ok() || !again.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).Run() ||
+          !count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, run_id).Run() ||
+          !t.Commit(&error))
+        return Fail(Outcome::kError, "cannot restore the submap: " + writer_->Message());
       IngestReceipt restored;
       Merge(run_id, s, &restored);
       unflushed_.emplace_back(run_id, s.sequence);
@@ -940,7 +990,7 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
   if (receipt) *receipt = local;
   dirty_points_ += local.points_new;
   if (dirty_points_ >= options_.flush_dirty_points) wake_.notify_all();
-  if (hot_points_ > options_.hot_points_budget) {
+  if (OverBudgetLocked()) {
     // Over the memory budget: write what changed, then let the oldest tiles go.
     lock.unlock();
     const Result flushed = Flush(nullptr);
@@ -999,11 +1049,13 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
   // new at a level go on to the next.
   std::vector<uint32_t> candidates(s.points.size()), next;
   for (size_t i = 0; i < candidates.size(); ++i) candidates[i] = static_cast<uint32_t>(i);
-  std::vector<TileKey> keys;                  // the tiles this level's points fall in
-  std::vector<std::vector<uint32_t>> bucket;  // ... and the points of each
+  std::vector<TileKey> keys;                              // the tiles this level's points fall in
+  std::vector<std::vector<uint32_t>> bucket;              // ... and the points of each
+  std::unordered_map<TileKey, size_t, TileKeyHash> slot;  // a key's place in `keys`
   for (int level = 0; level < grid.levels && !candidates.empty(); ++level) {
     // Group the points by tile first: then each tile's voxels are filled in one tight loop.
     keys.clear();
+    slot.clear();
     for (auto& b : bucket) b.clear();
     const double inverse_side = 1.0 / grid.TileM(level);
     for (uint32_t i : candidates) {
@@ -1011,11 +1063,17 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
       const TileKey key{level,
                         static_cast<int64_t>(std::floor(p.x() * inverse_side)),
                         static_cast<int64_t>(std::floor(p.y() * inverse_side))};
-      size_t k = 0;
-      while (k < keys.size() && !(keys[k] == key)) ++k;
-      if (k == keys.size()) {
-        keys.push_back(key);
-        if (bucket.size() < keys.size()) bucket.emplace_back();
+      // Consecutive points mostly share a tile: check the last one before the table.
+      size_t k = keys.size();
+      if (!keys.empty() && keys.back() == key) {
+        k = keys.size() - 1;
+      } else {
+        const auto [it, inserted] = slot.emplace(key, keys.size());
+        k = it->second;
+        if (inserted) {
+          keys.push_back(key);
+          if (bucket.size() < keys.size()) bucket.emplace_back();
+        }
       }
       bucket[k].push_back(i);
     }
@@ -1193,6 +1251,10 @@ Result MapStore::Flush(std::vector<TileUpdate>* updated) {
   return {};
 }
 
+bool MapStore::OverBudgetLocked() const {
+  return hot_points_ > options_.hot_points_budget || hot_.size() > options_.hot_tiles_budget;
+}
+
 void MapStore::EvictLocked() {
   // Let the least recently touched written tiles go until half the budget is left.
   std::vector<std::pair<uint64_t, HotKey>> order;
@@ -1201,7 +1263,9 @@ void MapStore::EvictLocked() {
   }
   std::sort(order.begin(), order.end());
   for (const auto& [touched, k] : order) {
-    if (hot_points_ <= options_.hot_points_budget / 2) break;
+    if (hot_points_ <= options_.hot_points_budget / 2 &&
+        hot_.size() <= options_.hot_tiles_budget / 2)
+      break;
     hot_points_ -= hot_.at(k)->points.points.size();
     hot_.erase(k);
   }
@@ -1328,6 +1392,16 @@ Result MapStore::IngestPoses(int64_t run_id,
   RunInfo run;
   Result r = RunLocked(*writer_, run_id, &run);
   if (!r) return r;
+  // A run lies in one UTM zone: its first georeferenced pose or submap sets it.
+  std::string zone = run.utm_zone;
+  for (const api::StreamPose& p : poses) {
+    if (!p.georeferenced) continue;
+    if (zone.empty()) zone = p.utm_zone;
+    if (p.utm_zone != zone)
+      return Fail(Outcome::kInvalid,
+                  "pose " + std::to_string(p.sequence) + " is in UTM zone " + p.utm_zone +
+                      ", run " + std::to_string(run_id) + " in " + zone);
+  }
   Transaction t(*writer_);
   if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
   Statement get(*writer_,
@@ -1373,10 +1447,12 @@ Result MapStore::IngestPoses(int64_t run_id,
     ++added;
     fresh[k] = true;
   }
-  Statement count(*writer_, "UPDATE runs SET poses = poses + ? WHERE id = ?");
-  if (!count.Bind(1, added).Bind(2, run_id).Run()) return Fail(Outcome::kError, count.error());
+  Statement count(*writer_, "UPDATE runs SET poses = poses + ?, utm_zone = ? WHERE id = ?");
+  if (!zone.empty()) count.Bind(2, zone);
+  if (!count.Bind(1, added).Bind(3, run_id).Run()) return Fail(Outcome::kError, count.error());
   if (!t.Commit(&error)) return Fail(Outcome::kError, error);
   stats_.poses_stored += added;
+  stats_.poses_duplicate += poses.size() - static_cast<size_t>(added);
   if (stored) *stored = added;
   if (added_flags) *added_flags = fresh;
   if (added == 0 && !poses.empty())
@@ -1437,8 +1513,15 @@ Result MapStore::ChainageOfPoses(int64_t run_id,
 }
 
 StoreStats MapStore::stats() const {
+  uint64_t lost = 0;
+  std::string error;
+  if (auto db = readers_->Take(&error)) {
+    Statement q(*db, "SELECT COALESCE(SUM(submaps_lost), 0) FROM runs");
+    if (q.Step()) lost = static_cast<uint64_t>(q.Int(0));
+  }
   std::lock_guard<std::mutex> lock(mu_);
   StoreStats s = stats_;
+  s.submaps_lost_stored = lost;
   s.hot_tiles = hot_.size();
   s.hot_points = hot_points_;
   return s;

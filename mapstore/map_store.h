@@ -47,6 +47,12 @@ struct StoreOptions {
   /// Points held in memory by tiles still being filled; beyond it every changed tile is
   /// written and the least recently touched are let go.
   size_t hot_points_budget = 6'000'000;
+  /// Tiles held in memory (each costs its voxel table even when nearly empty): the same as
+  /// hot_points_budget, counted in tiles.
+  size_t hot_tiles_budget = 16384;
+  /// A submap's points must lie within a square of this side (easting, northing): a real one
+  /// spans its keyframes' path and the LiDARs' range, a few hundred metres.
+  double max_submap_extent_m = 2000.0;
   /// Draco's encoding speed (0 smallest ... 9 fastest): 3 encodes as fast as 5 on corridor
   /// tiles and 15 % smaller (18 against 21 bits per point).
   int draco_speed = 3;
@@ -68,7 +74,8 @@ struct RunInfo {
   int64_t id = 0;
   std::string line, vehicle, status, utm_zone;
   int64_t start_ns = 0, end_ns = 0, created_ns = 0;
-  int64_t submaps = 0, points = 0, poses = 0;
+  int64_t submaps = 0, points = 0, poses = 0;  ///< submaps and points in tiles (lost ones aside)
+  int64_t submaps_lost = 0;  ///< acknowledged submaps whose payload was lost before tiling
 };
 
 struct TileInfo {
@@ -136,12 +143,20 @@ struct TileUpdate {
 struct StoreStats {
   uint64_t submaps_stored = 0, submaps_duplicate = 0, submaps_rejected = 0;
   uint64_t points_ingested = 0, points_off_grid = 0;
-  uint64_t poses_stored = 0;
+  uint64_t poses_stored = 0, poses_duplicate = 0;
   uint64_t tiles_written = 0, flushes = 0;
-  uint64_t points_encoded = 0;     ///< tile points through Draco, over every flush
-  uint64_t submaps_recovered = 0;  ///< merged again on opening, after a crash
-  uint64_t submaps_lost = 0;       ///< acknowledged, but the payload was gone on opening
+  uint64_t points_encoded = 0;       ///< tile points through Draco, over every flush
+  uint64_t submaps_recovered = 0;    ///< merged again on opening, after a crash
+  uint64_t submaps_lost = 0;         ///< acknowledged, but the payload was gone on opening
+  uint64_t submaps_lost_stored = 0;  ///< lost submaps of every run not sent again since
   size_t hot_tiles = 0, hot_points = 0;
+};
+
+/// What opening the store found of submaps acknowledged before a crash but not yet in written
+/// tiles: (run, sequence) of those merged again from their payloads, and of those whose
+/// payload was gone (their points are not in the tiles until the submap is sent again).
+struct RecoveryReport {
+  std::vector<std::pair<int64_t, uint64_t>> recovered, lost;
 };
 
 /// A folder holding every run as Draco tiles on a UTM grid with a level-of-detail pyramid, and
@@ -233,6 +248,8 @@ class MapStore {
                          double max_off_m = 10.0) const;
 
   StoreStats stats() const;
+  /// What opening the store recovered and found lost.
+  const RecoveryReport& recovery() const { return recovery_; }
   const StoreOptions& options() const { return options_; }
   const std::string& dir() const { return dir_; }
   std::string IndexPath() const { return dir_ + "/index.sqlite"; }
@@ -248,9 +265,14 @@ class MapStore {
   /// Merges a submap's points into the hot tiles of every level.
   void Merge(int64_t run_id, const api::Submap& submap, IngestReceipt* receipt);
   HotTile* Hot(int64_t run_id, const std::string& zone, const TileKey& key, double z_m);
+  /// Hot tiles beyond hot_points_budget or hot_tiles_budget.
+  bool OverBudgetLocked() const;
   void EvictLocked();
   void FlushLoop();
   Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
+  /// Marks an acknowledged submap whose payload is gone as lost, and takes it out of its run's
+  /// counts.
+  bool MarkLostLocked(int64_t run_id, uint64_t sequence, std::string* error);
   Result LineLocked(const Database& db, const std::string& name, LineInfo* out) const;
   Result CentrelineLocked(const Database& db,
                           const std::string& name,
@@ -269,6 +291,7 @@ class MapStore {
   /// Submaps merged into hot tiles that are not all written yet.
   std::vector<std::pair<int64_t, uint64_t>> unflushed_;
   StoreStats stats_;
+  RecoveryReport recovery_;
   size_t dirty_points_ = 0;  ///< new points since the last snapshot
   std::function<void(const std::vector<TileUpdate>&)> listener_;
   std::mutex flush_mu_;  ///< one flush at a time

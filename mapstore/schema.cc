@@ -109,6 +109,16 @@ CREATE TABLE pois (
 ALTER TABLE centreline ADD COLUMN cant_m REAL NOT NULL DEFAULT 0;
 ALTER TABLE lines ADD COLUMN chainage_offset_m REAL NOT NULL DEFAULT 0;
 )sql",
+      // 4: a run's submaps whose payload was lost before tiling are counted apart: its
+      // submaps and points are what its tiles hold.
+      R"sql(
+ALTER TABLE runs ADD COLUMN submaps_lost INTEGER NOT NULL DEFAULT 0;
+UPDATE runs SET
+  submaps_lost = (SELECT count(*) FROM submaps WHERE run_id = runs.id AND tiled = -1),
+  submaps = submaps - (SELECT count(*) FROM submaps WHERE run_id = runs.id AND tiled = -1),
+  points = points -
+    (SELECT COALESCE(SUM(points), 0) FROM submaps WHERE run_id = runs.id AND tiled = -1);
+)sql",
   };
   return migrations;
 }

@@ -113,7 +113,8 @@ class LiveHub::Impl {
   int port_ = 0;
   mutable std::mutex mu_;
   std::vector<std::weak_ptr<WsSession>> sessions_;
-  std::atomic<uint64_t> clients_{0}, connections_{0}, refused_{0}, sent_{0}, dropped_{0};
+  std::atomic<uint64_t> clients_{0}, pending_{0}, connections_{0}, refused_{0}, sent_{0},
+      dropped_{0};
 };
 
 /// An accepted WebSocket client: its subscriptions and its bounded queue, all on its strand.
@@ -254,10 +255,22 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
 /// A new connection: reads the HTTP upgrade request, checks the path and the token.
 class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSession> {
  public:
-  HttpSession(Impl* hub, tcp::socket&& socket) : hub_(hub), stream_(std::move(socket)) {}
+  HttpSession(Impl* hub, tcp::socket&& socket) : hub_(hub), stream_(std::move(socket)) {
+    ++hub_->pending_;
+  }
+  ~HttpSession() { --hub_->pending_; }
 
   void Run() {
-    stream_.expires_after(std::chrono::seconds(30));
+    if (hub_->pending_ + hub_->clients_ > static_cast<uint64_t>(hub_->options_.max_clients)) {
+      http::request<http::string_body> none;
+      Refuse(none,
+             http::status::service_unavailable,
+             "the live hub has ws_max_clients (" + std::to_string(hub_->options_.max_clients) +
+                 ") connections open");
+      return;
+    }
+    stream_.expires_after(std::chrono::seconds(hub_->options_.header_timeout_s));
+    parser_.header_limit(16 * 1024);
     parser_.body_limit(64 * 1024);
     http::async_read(
         stream_, buffer_, parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
@@ -303,11 +316,15 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
               http::status status,
               const std::string& message) {
     ++hub_->refused_;
+    stream_.expires_after(std::chrono::seconds(5));
     auto response = std::make_shared<http::response<http::string_body>>(status, request.version());
     response->set(http::field::content_type, "application/json");
     response->body() = nlohmann::json{
         {"error",
-         {{"code", status == http::status::unauthorized ? "unauthorized" : "bad_request"},
+         {{"code",
+           status == http::status::unauthorized          ? "unauthorized"
+           : status == http::status::service_unavailable ? "busy"
+                                                         : "bad_request"},
           {"message",
            message}}}}.dump();
     response->prepare_payload();

@@ -33,6 +33,10 @@ class LiveHub {
     int port = 0;  ///< 0: the OS picks
     int threads = 2;
     size_t queue_messages = 512;
+    /// Connections open at once, upgraded or still sending their upgrade request; beyond it
+    /// a new connection is refused (503).
+    int max_clients = 256;
+    int header_timeout_s = 10;  ///< for the upgrade request to arrive whole
   };
   /// True if the token (empty when the client gave none) may read.
   using Authorize = std::function<bool(const std::string& token)>;

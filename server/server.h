@@ -29,6 +29,8 @@ class Server {
   /// Where the ingest token is kept ("" if the config gives it).
   const std::string& token_path() const;
   const ServerConfig& config() const;
+  /// What opening the store recovered and found lost (after Start).
+  const mapstore::RecoveryReport& recovery() const;
 
  private:
   class Impl;

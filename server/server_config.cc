@@ -15,11 +15,22 @@ bool ServerConfig::IsValid(std::string* error) const {
   if (port < 0 || port > 65535) return *error = "port must be in [0, 65535]", false;
   if (ws_port < 0 || ws_port > 65535) return *error = "ws_port must be in [0, 65535]", false;
   if (max_body_bytes < 1024) return *error = "max_body_bytes must be at least 1024", false;
+  if (max_json_bytes < 1024) return *error = "max_json_bytes must be at least 1024", false;
+  if (max_poses_per_batch < 1) return *error = "max_poses_per_batch must be at least 1", false;
+  if (max_header_bytes < 1024 || max_header_bytes > (1u << 20))
+    return *error = "max_header_bytes must be in [1024, 1048576]", false;
+  if (header_timeout_s < 1 || header_timeout_s > 600)
+    return *error = "header_timeout_s must be in [1, 600]", false;
   if (request_timeout_s < 1 || request_timeout_s > 3600)
     return *error = "request_timeout_s must be in [1, 3600]", false;
-  if (http_threads < 2 || http_threads > 4096)
-    return *error = "http_threads must be in [2, 4096]", false;
+  if (max_connections < 8 || max_connections > 1000000)
+    return *error = "max_connections must be in [8, 1000000]", false;
+  if (io_threads < 1 || io_threads > 64) return *error = "io_threads must be in [1, 64]", false;
+  if (http_threads < 1 || http_threads > 1024)
+    return *error = "http_threads must be in [1, 1024]", false;
+  if (max_export_points < 1) return *error = "max_export_points must be at least 1", false;
   if (ws_threads < 1 || ws_threads > 64) return *error = "ws_threads must be in [1, 64]", false;
+  if (ws_max_clients < 1) return *error = "ws_max_clients must be at least 1", false;
   if (ws_queue_messages < 8) return *error = "ws_queue_messages must be at least 8", false;
   if (!ingest_token.empty() && ingest_token.size() < 16)
     return *error = "ingest_token must be at least 16 characters", false;
@@ -40,9 +51,17 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
     root.Read("reads_need_token", &c->reads_need_token);
     root.Read("read_token", &c->read_token);
     root.Read("max_body_bytes", &c->max_body_bytes);
+    root.Read("max_json_bytes", &c->max_json_bytes);
+    root.Read("max_poses_per_batch", &c->max_poses_per_batch);
+    root.Read("max_header_bytes", &c->max_header_bytes);
+    root.Read("header_timeout_s", &c->header_timeout_s);
     root.Read("request_timeout_s", &c->request_timeout_s);
+    root.Read("max_connections", &c->max_connections);
+    root.Read("io_threads", &c->io_threads);
     root.Read("http_threads", &c->http_threads);
+    root.Read("max_export_points", &c->max_export_points);
     root.Read("ws_threads", &c->ws_threads);
+    root.Read("ws_max_clients", &c->ws_max_clients);
     root.Read("ws_queue_messages", &c->ws_queue_messages);
     root.Read("web_root", &c->web_root);
     if (root.Has("store")) {
@@ -54,6 +73,8 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
       s.Read("max_error_m", &o.grid.max_error_m);
       s.Read("max_points_per_submap", &o.max_points_per_submap);
       s.Read("hot_points_budget", &o.hot_points_budget);
+      s.Read("hot_tiles_budget", &o.hot_tiles_budget);
+      s.Read("max_submap_extent_m", &o.max_submap_extent_m);
       s.Read("draco_speed", &o.draco_speed);
       s.Read("encode_threads", &o.encode_threads);
       s.Read("flush_interval_ms", &o.flush_interval_ms);
@@ -87,9 +108,17 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"reads_need_token", c.reads_need_token ? "true" : "false"},
       {"read_token", c.read_token.empty() ? "(none)" : "(set, hidden)"},
       {"max_body_bytes", s(c.max_body_bytes)},
+      {"max_json_bytes", s(c.max_json_bytes)},
+      {"max_poses_per_batch", s(c.max_poses_per_batch)},
+      {"max_header_bytes", s(c.max_header_bytes)},
+      {"header_timeout_s", s(c.header_timeout_s)},
       {"request_timeout_s", s(c.request_timeout_s)},
+      {"max_connections", s(c.max_connections)},
+      {"io_threads", s(c.io_threads)},
       {"http_threads", s(c.http_threads)},
+      {"max_export_points", s(c.max_export_points)},
       {"ws_threads", s(c.ws_threads)},
+      {"ws_max_clients", s(c.ws_max_clients)},
       {"ws_queue_messages", s(c.ws_queue_messages)},
       {"web_root", c.web_root.empty() ? "(none)" : c.web_root},
       {"store.tile_m", s(o.grid.tile_m)},
@@ -98,6 +127,8 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"store.max_error_m", s(o.grid.max_error_m)},
       {"store.max_points_per_submap", s(o.max_points_per_submap)},
       {"store.hot_points_budget", s(o.hot_points_budget)},
+      {"store.hot_tiles_budget", s(o.hot_tiles_budget)},
+      {"store.max_submap_extent_m", s(o.max_submap_extent_m)},
       {"store.draco_speed", s(o.draco_speed)},
       {"store.encode_threads", s(o.encode_threads)},
       {"store.flush_interval_ms", s(o.flush_interval_ms)},

@@ -20,10 +20,20 @@ struct ServerConfig {
   /// Reads (GET, the live hub) need a token too when true: read_token, or the ingest token.
   bool reads_need_token = false;
   std::string read_token;
-  size_t max_body_bytes = 64u << 20;  ///< a request body beyond it is refused (413)
-  int request_timeout_s = 30;         ///< reading or writing a request, per socket operation
-  int http_threads = 256;             ///< one per open connection (keep-alive holds one)
+  size_t max_body_bytes = 64u << 20;    ///< a submap body beyond it is refused (413)
+  size_t max_json_bytes = 8u << 20;     ///< a pose batch's JSON body beyond it is refused (413)
+  size_t max_poses_per_batch = 10000;   ///< more poses in one batch are refused (413)
+  size_t max_header_bytes = 16u << 10;  ///< request line and headers together (431 beyond)
+  /// A request's header must arrive within this time of the connection opening or of the
+  /// previous answer; an idle keep-alive connection closes after it.
+  int header_timeout_s = 10;
+  int request_timeout_s = 30;            ///< each read of a body and each write of an answer
+  int max_connections = 1000;            ///< HTTP connections open at once (503 beyond)
+  int io_threads = 2;                    ///< the HTTP event loop's threads (connections hold none)
+  int http_threads = 8;                  ///< threads that run request handlers
+  size_t max_export_points = 2'000'000;  ///< an export of more points is refused
   int ws_threads = 2;
+  int ws_max_clients = 256;        ///< live connections open at once, upgraded or not
   size_t ws_queue_messages = 512;  ///< per live client; beyond it old poses are dropped
   std::string web_root;            ///< the viewer's static files (empty: none served)
   mapstore::StoreOptions store;

@@ -2,6 +2,7 @@
 // with an SQLite index, and serves them over REST (/api/v1/), a live WebSocket hub and the
 // browser viewer's static files.
 #include <signal.h>
+#include <sys/stat.h>
 
 #include <cstdio>
 #include <string>
@@ -11,6 +12,36 @@
 #include "server/server.h"
 
 using raillomer::server::ServerConfig;
+
+namespace {
+
+/// "run 3: 12, 13; run 4: 2" for (run, sequence) pairs in run order.
+std::string ListSubmaps(const std::vector<std::pair<int64_t, uint64_t>>& submaps) {
+  std::string out;
+  int64_t run = -1;
+  for (const auto& [r, sequence] : submaps) {
+    out += r != run ? (out.empty() ? "" : "; ") + ("run " + std::to_string(r) + ": ") : ", ";
+    out += std::to_string(sequence);
+    run = r;
+  }
+  return out;
+}
+
+/// Tells what opening the store found of submaps acknowledged before a crash.
+void PrintRecovery(const raillomer::mapstore::RecoveryReport& report) {
+  if (!report.recovered.empty())
+    std::printf("raillomer-server: recovered %zu submaps acknowledged before a crash (%s)\n",
+                report.recovered.size(),
+                ListSubmaps(report.recovered).c_str());
+  if (!report.lost.empty())
+    std::printf(
+        "raillomer-server: LOST %zu acknowledged submaps whose payload is gone (%s): their "
+        "points are not in the tiles; the same submaps sent again restore them\n",
+        report.lost.size(),
+        ListSubmaps(report.lost).c_str());
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{
@@ -53,6 +84,8 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   signal(SIGPIPE, SIG_IGN);
 
+  // The store's files (index, payloads, token) are readable by the server's user alone.
+  umask(077);
   raillomer::server::Server server(config);
   if (!server.Start(&error)) {
     std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
@@ -61,6 +94,7 @@ int main(int argc, char** argv) {
   std::printf("raillomer-server: config in effect\n");
   for (const auto& [key, value] : raillomer::server::DescribeConfig(server.config()))
     std::printf("  %-28s %s\n", key.c_str(), value.c_str());
+  PrintRecovery(server.recovery());
   const std::string& h = server.config().host;
   std::printf(
       "raillomer-server: serving http://%s:%d/ (REST /api/v1/, health /health, metrics "

@@ -149,7 +149,7 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
     submap.p_body_odometer = config.rig.p_body_odometer;  // the wheels follow the rails
     submaps_ = std::make_unique<SubmapWorker>(submap, [this](api::Submap s) {
       std::lock_guard<std::mutex> lock(stream_mutex_);
-      s.sequence = stream_sequence_++;
+      s.sequence = s.index;
       sinks_.stream->OnSubmap(s);
     });
   }
@@ -954,7 +954,7 @@ void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyfram
   pose.q = Eigen::Quaterniond(frame.T_world_body.linear()).normalized();
   {
     std::lock_guard<std::mutex> lock(stream_mutex_);
-    pose.sequence = stream_sequence_++;
+    pose.sequence = pose_sequence_++;
     sinks_.stream->OnPose(pose);
   }
   if (!keyframe) return;

@@ -219,10 +219,12 @@ class Estimator {
     std::optional<Keyframe> keyframe;
   };
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
-  /// Serialises the stream sink's calls (poses from here, submaps from the worker) and their
-  /// sequence numbers.
+  /// Serialises the stream sink's calls: poses from here, submaps from the submap worker.
   std::mutex stream_mutex_;
-  uint64_t stream_sequence_ = 0;
+  /// Poses are numbered in the order they become final and submaps by their index: both
+  /// orders follow from the data alone, so a rerun on the same input numbers every message as
+  /// the first run did, and the ingest client can resume without a duplicate.
+  uint64_t pose_sequence_ = 0;
   std::unique_ptr<SubmapWorker> submaps_;  ///< with a stream sink only
   std::deque<HeldOutput> gnss_held_;
   bool gnss_gave_up_ = false;

@@ -586,10 +586,22 @@ TEST(MapStore, ASubmapWhosePayloadWasLostIsRestoredBySendingItAgain) {
   auto store = OpenStore(dir.path().string(), &error);
   ASSERT_TRUE(store) << error;
   EXPECT_EQ(store->stats().submaps_lost, 1u);
+  EXPECT_EQ(store->recovery().lost,
+            (std::vector<std::pair<int64_t, uint64_t>>{{run, CorridorSubmap(1).sequence}}));
+  // The run counts what its tiles hold: the lost submap apart.
+  RunInfo info;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  const int64_t points = static_cast<int64_t>(CorridorSubmap(1).points.size());
+  EXPECT_EQ(info.submaps_lost, 1);
+  const RunInfo lost = info;
   const size_t before = AllPoints(*store, run).size();
   IngestReceipt receipt;
   const Result r = store->IngestSubmap(run, payload, &receipt);
   EXPECT_EQ(r.outcome, Outcome::kOk) << r.message;
+  ASSERT_TRUE(store->GetRun(run, &info));
+  EXPECT_EQ(info.submaps_lost, 0);
+  EXPECT_EQ(info.submaps, lost.submaps + 1);
+  EXPECT_EQ(info.points, lost.points + points);
   ASSERT_TRUE(store->Flush());
   EXPECT_EQ(AllPoints(*store, run).size(), before + receipt.points_new);
   EXPECT_GT(receipt.points_new, 0u);
@@ -631,6 +643,34 @@ TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   auto newer = OpenStore(dir.path().string(), &error);
   EXPECT_FALSE(newer);
   EXPECT_NE(error.find("schema version 99"), std::string::npos) << error;
+}
+
+TEST(MapStore, MigrationFourTakesLostSubmapsOutOfTheirRunsCounts) {
+  test::ScratchDir dir("raillomer_store_");
+  const std::string path = (dir.path() / "index.sqlite").string();
+  std::string error;
+  {
+    // Version 3 counted a submap whose payload was lost (tiled = -1) in its run.
+    Database db;
+    ASSERT_TRUE(db.Open(path, true, &error)) << error;
+    ASSERT_TRUE(MigrateSchemaTo(db, 3, &error)) << error;
+    ASSERT_TRUE(db.Exec(
+        "INSERT INTO runs (id, line, vehicle, status, start_ns, created_ns, utm_zone, submaps, "
+        "points) VALUES (7, 'L', 'V', 'finished', 5, 6, '50N', 2, 300);"
+        "INSERT INTO submaps VALUES (7, 0, 0, 1, 2, '50N', 0, 0, 0, 0, 0, 1, 1, 100, 1, 'a', 1, 9);"
+        "INSERT INTO submaps VALUES (7, 1, 1, 3, 4, '50N', 0, 0, 0, 0, 0, 1, 1, 200, 1, 'b', -1, "
+        "9);",
+        &error))
+        << error;
+  }
+  auto store = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(store) << error;
+  RunInfo run;
+  ASSERT_TRUE(store->GetRun(7, &run));
+  EXPECT_EQ(run.submaps, 1);
+  EXPECT_EQ(run.submaps_lost, 1);
+  EXPECT_EQ(run.points, 100);
+  EXPECT_EQ(store->stats().submaps_lost_stored, 1u);
 }
 
 }  // namespace

@@ -28,29 +28,19 @@ class ServerProcess {
                 const std::string& flags = "",
                 int port = 0,
                 int ws_port = 0)
-      : data_(data), log_(data.string() + ".log") {
-    const std::string command = "exec " + (BinDir() / "raillomer-server").string() + " --data " +
-                                ShellQuote(data.string()) + " --port " + std::to_string(port) +
-                                " --ws-port " + std::to_string(ws_port) + " " + flags + " >" +
-                                ShellQuote(log_) + " 2>&1";
-    pid_ = fork();
-    if (pid_ == 0) {
-      execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
-      _exit(127);
-    }
+      : data_(data),
+        log_(data.string() + ".log"),
+        process_((BinDir() / "raillomer-server").string() + " --data " + ShellQuote(data.string()) +
+                 " --port " + std::to_string(port) + " --ws-port " + std::to_string(ws_port) + " " +
+                 flags + " >" + ShellQuote(log_) + " 2>&1") {
     const std::regex serving(R"(serving http://127\.0\.0\.1:(\d+)/.*ws://127\.0\.0\.1:(\d+)/live)");
-    for (int i = 0; i < 400 && port_ == 0; ++i) {
+    for (int i = 0; i < 400 && port_ == 0 && process_.Running(); ++i) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
       std::smatch m;
       const std::string log = ReadText(log_);
       if (std::regex_search(log, m, serving)) {
         port_ = std::stoi(m[1]);
         ws_port_ = std::stoi(m[2]);
-      }
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        break;
       }
     }
     std::ifstream token(data / "ingest.token");
@@ -60,14 +50,11 @@ class ServerProcess {
 
   /// Sends a signal and waits for the process to end; true if it exited with 0.
   bool Stop(int signal) {
-    if (pid_ <= 0) return false;
-    kill(pid_, signal);
-    int status = 0;
-    waitpid(pid_, &status, 0);
-    pid_ = -1;
-    return WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    if (!process_.Running()) return false;
+    process_.Signal(signal);
+    return process_.Wait() == 0;
   }
-  bool ok() const { return port_ > 0 && pid_ > 0; }
+  bool ok() { return port_ > 0 && process_.Running(); }
   int port() const { return port_; }
   int ws_port() const { return ws_port_; }
   const std::string& token() const { return token_; }
@@ -79,7 +66,7 @@ class ServerProcess {
  private:
   std::filesystem::path data_;
   std::string log_;
-  pid_t pid_ = -1;
+  ChildProcess process_;
   int port_ = 0, ws_port_ = 0;
   std::string token_;
 };

@@ -13,7 +13,7 @@ inline Eigen::Vector3d CorridorStart() { return {432100.0, 3585200.0, 30.0}; }
 
 /// Submap i of a corridor along easting: ground 8 m wide and a wall 3 m high, 40 m long from
 /// 20 i m (so consecutive submaps overlap by half), on the 0.1 m voxel grid's centres as the
-/// estimator's voxel filter leaves them; sequence 10 + 2 i (poses take the numbers between).
+/// estimator's voxel filter leaves them; sequence 10 + 2 i.
 inline api::Submap CorridorSubmap(uint32_t i) {
   api::Submap s;
   s.sequence = 10 + 2 * i;

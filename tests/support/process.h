@@ -3,8 +3,10 @@
 // Helpers for tests that run the project's programs and scripts: scratch folders, running a
 // command with its output captured, and where the sources and programs are.
 
+#include <signal.h>
 #include <stdlib.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -61,6 +63,51 @@ inline std::filesystem::path BinDir() {
   const char* value = std::getenv("RAILLOMER_BIN");
   return value ? value : RAILLOMER_BIN_DIR;
 }
+
+/// A program run in the background through the shell (`exec`, so the pid is the program's),
+/// for tests that signal it part way.
+class ChildProcess {
+ public:
+  explicit ChildProcess(const std::string& command) {
+    pid_ = fork();
+    if (pid_ == 0) {
+      const std::string exec = "exec " + command;
+      execl("/bin/sh", "sh", "-c", exec.c_str(), static_cast<char*>(nullptr));
+      _exit(127);
+    }
+  }
+  ~ChildProcess() {
+    if (pid_ > 0) Signal(SIGKILL);
+  }
+  ChildProcess(const ChildProcess&) = delete;
+  ChildProcess& operator=(const ChildProcess&) = delete;
+
+  /// True while the program runs (false once it ended or was waited for).
+  bool Running() {
+    if (pid_ <= 0) return false;
+    if (waitpid(pid_, &status_, WNOHANG) == pid_) pid_ = -1;
+    return pid_ > 0;
+  }
+  /// Sends a signal and waits for the program to end.
+  void Signal(int signal) {
+    if (pid_ <= 0) return;
+    kill(pid_, signal);
+    Wait();
+  }
+  /// Waits for the program to end; its exit code (-1 if a signal ended it).
+  int Wait() {
+    if (pid_ > 0) {
+      waitpid(pid_, &status_, 0);
+      pid_ = -1;
+    }
+    return WIFEXITED(status_) ? WEXITSTATUS(status_) : -1;
+  }
+  pid_t pid() const { return pid_; }
+
+ private:
+  pid_t pid_ = -1;
+  int status_ = 0;
+};
 
 /// A fresh folder under the system's temporary folder, removed with everything in it.
 class ScratchDir {

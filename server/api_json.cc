@@ -1,0 +1,162 @@
+#include "server/api_json.h"
+
+#include <limits>
+
+#include <GeographicLib/UTMUPS.hpp>
+
+#include "api/trajectory.h"
+
+namespace raillomer::server {
+
+using nlohmann::json;
+
+json RunJson(const mapstore::RunInfo& r) {
+  json j = {{"id", r.id},
+            {"line", r.line},
+            {"vehicle", r.vehicle},
+            {"status", r.status},
+            {"start_ns", r.start_ns},
+            {"utm_zone", r.utm_zone.empty() ? json(nullptr) : json(r.utm_zone)},
+            {"submaps", r.submaps},
+            {"submaps_lost", r.submaps_lost},
+            {"points", r.points},
+            {"poses", r.poses},
+            {"created_ns", r.created_ns}};
+  j["end_ns"] = r.status == "finished" ? json(r.end_ns) : json(nullptr);
+  return j;
+}
+
+json TileJson(const mapstore::TileInfo& t) {
+  return {{"level", t.key.level},
+          {"ix", t.key.ix},
+          {"iy", t.key.iy},
+          {"utm_zone", t.utm_zone},
+          {"origin", {t.origin.x(), t.origin.y(), t.origin.z()}},
+          {"points", t.points},
+          {"bytes", t.bytes},
+          {"version", t.version},
+          {"etag", t.etag},
+          {"max_error_m", t.max_error_m},
+          {"url", "/api/v1/runs/" + std::to_string(t.run_id) + "/tiles/" + t.key.ToString()}};
+}
+
+json LineJson(const mapstore::LineInfo& l) {
+  return {{"name", l.name},
+          {"reference_run", l.reference_run == 0 ? json(nullptr) : json(l.reference_run)},
+          {"utm_zone", l.utm_zone.empty() ? json(nullptr) : json(l.utm_zone)},
+          {"length_m", l.length_m},
+          {"chainage_offset_m", l.chainage_offset_m},
+          {"runs", l.runs}};
+}
+
+bool Wgs84(const std::string& zone, const Eigen::Vector3d& p, json* out) {
+  int number = 0;
+  bool north = true;
+  if (!api::ParseUtmZoneName(zone, &number, &north)) return false;
+  double lat = 0.0, lon = 0.0;
+  try {
+    GeographicLib::UTMUPS::Reverse(number, north, p.x(), p.y(), lat, lon);
+  } catch (const std::exception&) {
+    return false;
+  }
+  *out = {lon, lat, p.z()};
+  return true;
+}
+
+json PoiJson(const mapstore::Poi& p) {
+  json properties = json::parse(p.properties_json, nullptr, false);
+  if (properties.is_discarded()) properties = json::object();
+  return {{"id", p.id},
+          {"line", p.line.empty() ? json(nullptr) : json(p.line)},
+          {"kind", p.kind},
+          {"name", p.name},
+          {"utm_zone", p.utm_zone},
+          {"position", {p.p.x(), p.p.y(), p.p.z()}},
+          {"properties", properties},
+          {"created_ns", p.created_ns},
+          {"updated_ns", p.updated_ns}};
+}
+
+namespace {
+
+bool Numbers(const json& v, size_t n) {
+  if (!v.is_array() || v.size() != n) return false;
+  for (const auto& x : v)
+    if (!x.is_number()) return false;
+  return true;
+}
+
+}  // namespace
+
+bool ParsePoi(const json& j, mapstore::Poi* p, std::string* error) {
+  if (!j.contains("kind") || !j["kind"].is_string() || !j.contains("utm_zone") ||
+      !j["utm_zone"].is_string() || !j.contains("position") || !Numbers(j["position"], 3)) {
+    *error =
+        "a point of interest needs kind (string), utm_zone (string) and position [easting, "
+        "northing, height]";
+    return false;
+  }
+  if ((j.contains("name") && !j["name"].is_string()) ||
+      (j.contains("line") && !j["line"].is_string() && !j["line"].is_null()) ||
+      (j.contains("properties") && !j["properties"].is_object())) {
+    *error = "name and line must be strings and properties an object";
+    return false;
+  }
+  p->kind = j["kind"];
+  p->utm_zone = j["utm_zone"];
+  p->name = j.value("name", std::string());
+  p->line = j.contains("line") && j["line"].is_string() ? j["line"].get<std::string>() : "";
+  p->p = Eigen::Vector3d(j["position"][0].get<double>(),
+                         j["position"][1].get<double>(),
+                         j["position"][2].get<double>());
+  p->properties_json = j.contains("properties") ? j["properties"].dump() : "{}";
+  return true;
+}
+
+bool ParsePose(const json& j, api::StreamPose* p, std::string* error) {
+  if (!j.is_object() || !j.contains("sequence") || !j["sequence"].is_number_unsigned() ||
+      !j.contains("stamp_ns") || !j["stamp_ns"].is_number_integer() || !j.contains("p") ||
+      !Numbers(j["p"], 3) || !j.contains("q") || !Numbers(j["q"], 4)) {
+    *error = "a pose needs sequence (unsigned), stamp_ns (integer), p [x, y, z] and q [x, y, z, w]";
+    return false;
+  }
+  p->sequence = j["sequence"].get<uint64_t>();
+  if (p->sequence > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
+    *error = "pose sequence " + std::to_string(p->sequence) + " is beyond 2^63 - 1";
+    return false;
+  }
+  p->stamp_ns = j["stamp_ns"].get<int64_t>();
+  if ((j.contains("georeferenced") && !j["georeferenced"].is_boolean()) ||
+      (j.contains("utm_zone") && !j["utm_zone"].is_string())) {
+    *error = "a pose's georeferenced must be true or false and its utm_zone a string";
+    return false;
+  }
+  p->georeferenced = j.value("georeferenced", false);
+  p->utm_zone = j.value("utm_zone", std::string());
+  p->p = Eigen::Vector3d(j["p"][0].get<double>(), j["p"][1].get<double>(), j["p"][2].get<double>());
+  p->q = Eigen::Quaterniond(j["q"][3].get<double>(),
+                            j["q"][0].get<double>(),
+                            j["q"][1].get<double>(),
+                            j["q"][2].get<double>());
+  if (p->georeferenced) {
+    int zone = 0;
+    bool north = true;
+    if (!api::ParseUtmZoneName(p->utm_zone, &zone, &north)) {
+      *error = "pose " + std::to_string(p->sequence) + ": bad utm_zone '" + p->utm_zone + "'";
+      return false;
+    }
+  }
+  return true;
+}
+
+bool ReadInt(const json& j, const char* key, int64_t* value, std::string* error) {
+  if (!j.contains(key)) return true;
+  if (!j[key].is_number_integer()) {
+    *error = std::string(key) + " must be an integer";
+    return false;
+  }
+  *value = j[key].get<int64_t>();
+  return true;
+}
+
+}  // namespace raillomer::server

@@ -1,0 +1,541 @@
+#!/usr/bin/python3
+"""raillomer-server against hostile and careless clients, each test on a fresh server on
+loopback with plain sockets and http.client: bodies that would inflate or never end, slow
+clients, header floods, range amplification, the web root's edges, a pose in another UTM zone,
+numbers at their limits, lost submap payloads after a crash, and the store's file modes.
+
+Memory is the server's peak resident size (VmHWM) before and after the attack. Run one test
+with: python3 tests/server/hardening_test.py Hardening.test_gzip_body_is_refused_unread"""
+import json
+import os
+import signal
+import socket
+import stat
+import sys
+import threading
+import time
+import unittest
+import zlib
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from harness import Server, body_of, pose, raw_exchange, status_of, submap_pcd  # noqa: E402
+
+#: No request without a token may grow the server's peak memory by more than this (MB).
+UNAUTHENTICATED_GROWTH_MB = 64.0
+
+
+def gzip_bomb(inflated_mb):
+    """A gzip body of `inflated_mb` MB of zeros (about 1 KB per MB)."""
+    z = zlib.compressobj(9, zlib.DEFLATED, 31)
+    zeros = bytes(1 << 20)
+    return b"".join(z.compress(zeros) for _ in range(inflated_mb)) + z.flush()
+
+
+def request_head(method, path, headers):
+    return (("%s %s HTTP/1.1\r\nHost: 127.0.0.1\r\n" % (method, path)) +
+            "".join("%s: %s\r\n" % kv for kv in headers) + "\r\n").encode()
+
+
+def wait_for_tiles(server, run, level=0, timeout=20.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        status, body = server.json("GET", "/api/v1/runs/%d/tiles?level=%d" % (run, level))
+        if status == 200 and body["tiles"]:
+            return body["tiles"]
+        time.sleep(0.1)
+    raise AssertionError("no tiles were written")
+
+
+class Hardening(unittest.TestCase):
+    config = None
+
+    def setUp(self):
+        self.server = Server(config=self.config)
+        # A first request, so the baseline holds what serving at all costs.
+        self.server.request("GET", "/health")
+        self.baseline_mb = self.server.status("VmHWM")
+
+    def tearDown(self):
+        self.assertTrue(self.server.alive(), "the server died:\n" + self.server.log_text())
+        self.server.cleanup()
+
+    def assertPeakGrowthBelow(self, limit_mb):
+        growth = self.server.status("VmHWM") - self.baseline_mb
+        self.assertLess(growth, limit_mb, "peak memory grew by %.0f MB" % growth)
+
+    # 1. A compressed body is never inflated: refused (401 without a token, 415 with one)
+    # before it is read.
+    def test_gzip_body_is_refused_unread(self):
+        bomb = gzip_bomb(1024)
+        for token, expected in ((None, 401), (self.server.token, 415)):
+            headers = [("Content-Type", "application/json"), ("Content-Encoding", "gzip"),
+                       ("Content-Length", str(len(bomb)))]
+            if token:
+                headers.append(("Authorization", "Bearer " + token))
+            answer, _ = raw_exchange(self.server.port,
+                                     request_head("POST", "/api/v1/runs", headers) + bomb)
+            self.assertEqual(status_of(answer), expected, answer[:300])
+        self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB)
+        self.assertEqual(self.server.json("GET", "/api/v1/runs")[1]["runs"], [])
+
+    # 2. A chunked body is held to the route's limit as it arrives, and a write without a
+    # token is refused before its body is read.
+    def test_chunked_body_is_held_to_the_limit(self):
+        run = self.server.create_run()
+
+        def chunked(token, total_mb):
+            headers = [("Content-Type", "application/octet-stream"),
+                       ("Transfer-Encoding", "chunked")]
+            if token:
+                headers.append(("Authorization", "Bearer " + token))
+            yield request_head("POST", "/api/v1/runs/%d/submaps" % run, headers)
+            piece = b"100000\r\n" + b"x" * 0x100000 + b"\r\n"
+            for _ in range(total_mb):
+                yield piece
+            yield b"0\r\n\r\n"
+
+        answer, sent = raw_exchange(self.server.port, chunked(None, 512))
+        self.assertEqual(status_of(answer), 401, answer[:300])
+        self.assertLess(sent, 64 << 20, "the server read %d MB before refusing" % (sent >> 20))
+        answer, sent = raw_exchange(self.server.port, chunked(self.server.token, 512))
+        self.assertEqual(status_of(answer), 413, answer[:300])
+        self.assertIn(b"max_body_bytes", body_of(answer))
+        self.assertLess(sent, 160 << 20)  # the 64 MiB limit, and what the socket buffers hold
+        self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB + 64 + 16)
+        self.assertEqual(self.server.json("GET", "/api/v1/runs/%d" % run)[1]["submaps"], 0)
+
+    # 3. 300 clients that send a header line every 2 s hold no thread: /health answers within
+    # 1 s throughout, and the header deadline closes them.
+    def test_slow_clients_do_not_hold_up_others(self):
+        slow = []
+        for _ in range(300):
+            s = socket.create_connection(("127.0.0.1", self.server.port))
+            s.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            slow.append(s)
+        stop = threading.Event()
+
+        def trickle():
+            n = 0
+            while not stop.wait(2.0):
+                n += 1
+                for s in slow:
+                    try:
+                        s.sendall(b"X-Slow-%d: 1\r\n" % n)
+                    except OSError:
+                        pass
+
+        sender = threading.Thread(target=trickle)
+        sender.start()
+        worst = 0.0
+        try:
+            start = time.time()
+            while time.time() - start < 12.0:
+                t = time.time()
+                status, _, _ = self.server.request("GET", "/health", timeout=5)
+                worst = max(worst, time.time() - t)
+                self.assertEqual(status, 200)
+                time.sleep(0.2)
+        finally:
+            stop.set()
+            sender.join()
+        self.assertLess(worst, 1.0, "/health took %.2f s" % worst)
+        # The header deadline (10 s) closed every slow client.
+        closed = 0
+        for s in slow:
+            s.settimeout(0.5)
+            try:
+                closed += s.recv(1) == b""
+            except ConnectionResetError:
+                closed += 1
+            except socket.timeout:
+                pass
+            s.close()
+        self.assertEqual(closed, 300)
+        self.assertGreaterEqual(self.server.metric("raillomer_http_header_timeouts_total"), 300)
+
+    # 4. Headers are bounded in size: a flood is refused (431) before it is held.
+    def test_header_flood_is_refused(self):
+        def flood():
+            yield b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            lines = (b"X-Filler: " + b"0123456789" * 10 + b"\r\n") * 100
+            for _ in range(6200):  # 62 MB of header lines
+                yield lines
+        answer, sent = raw_exchange(self.server.port, flood())
+        self.assertEqual(status_of(answer), 431, answer[:300])
+        self.assertLess(sent, 16 << 20)
+        many = request_head("GET", "/health", [("X-%d" % i, "1") for i in range(5000)])
+        answer, _ = raw_exchange(self.server.port, many)
+        self.assertEqual(status_of(answer), 431, answer[:300])
+        self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB)
+
+    # 5. One range is served (206), several are answered with the whole tile (200), never
+    # with more bytes than the tile has; a range beyond it is a 416 naming the size.
+    def test_ranges_are_bounded(self):
+        run = self.server.create_run()
+        status, _, _ = self.server.request("POST", "/api/v1/runs/%d/submaps" % run, submap_pcd(0),
+                                           self.server.token)
+        self.assertEqual(status, 201)
+        url = wait_for_tiles(self.server, run)[0]["url"]
+        status, headers, whole = self.server.request("GET", url)
+        self.assertEqual(status, 200)
+        size = len(whole)
+        many = "bytes=" + ",".join("%d-%d" % (i, i) for i in range(0, 1200, 2))
+        status, headers, body = self.server.request("GET", url, headers={"Range": many})
+        self.assertEqual(status, 200)
+        self.assertEqual(body, whole)
+        status, headers, body = self.server.request("GET", url, headers={"Range": "bytes=10-19"})
+        self.assertEqual(status, 206)
+        self.assertEqual(headers["content-range"], "bytes 10-19/%d" % size)
+        self.assertEqual(body, whole[10:20])
+        status, headers, body = self.server.request("GET", url, headers={"Range": "bytes=-5"})
+        self.assertEqual((status, body), (206, whole[-5:]))
+        status, headers, body = self.server.request("GET", url,
+                                                    headers={"Range": "bytes=%d-" % size})
+        self.assertEqual(status, 416)
+        self.assertEqual(headers["content-range"], "bytes */%d" % size)
+        self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB)
+
+    # 7. A run lies in one UTM zone: a pose in another is refused, with its whole batch.
+    def test_a_pose_in_another_zone_is_refused(self):
+        run = self.server.create_run()
+        path = "/api/v1/runs/%d/poses" % run
+        self.assertEqual(self.server.write("POST", path, {"poses": [pose(i) for i in range(3)]})[0],
+                         200)
+        status, body = self.server.write("POST", path, {"poses": [pose(3, zone="1N")]})
+        self.assertEqual(status, 400)
+        self.assertIn("zone 1N", body["error"]["message"])
+        status, body = self.server.write("POST", path, {"poses": [pose(4), pose(5, zone="51N")]})
+        self.assertEqual(status, 400)
+        _, _, tum = self.server.request("GET", "/api/v1/runs/%d/trajectory?format=tum" % run)
+        self.assertEqual(tum.decode().count("\n"), 4, tum)  # the zone line and 3 poses
+        self.assertEqual(self.server.json("GET", "/api/v1/runs/%d" % run)[1]["poses"], 3)
+
+    # 10. Numbers at their limits and names with slashes.
+    def test_numbers_at_their_limits_are_refused(self):
+        run = self.server.create_run()
+        submaps = "/api/v1/runs/%d/submaps" % run
+        for bad in (submap_pcd(0, sequence="-5"), submap_pcd(0, sequence_line=False),
+                    submap_pcd(0, sequence=str(1 << 63))):
+            status, _, body = self.server.request("POST", submaps, bad, self.server.token)
+            self.assertEqual(status, 400, body)
+        poses = "/api/v1/runs/%d/poses" % run
+        for sequence in (1 << 63, -1, 1 << 64):
+            p = pose(0)
+            p["sequence"] = sequence
+            self.assertEqual(self.server.write("POST", poses, {"poses": [p]})[0], 400, sequence)
+        for query in ("level=1e3", "level=1.0", "level=99", "level=", "bbox=0,0,1,1x"):
+            status, _, body = self.server.request("GET",
+                                                  "/api/v1/runs/%d/tiles?%s" % (run, query))
+            self.assertEqual(status, 400, query)
+        status, _, _ = self.server.request(
+            "GET", "/api/v1/runs/%d/export?level=1e3&bbox=0,0,1,1" % run)
+        self.assertEqual(status, 400)
+        info = self.server.json("GET", "/api/v1/runs/%d" % run)[1]
+        self.assertEqual((info["submaps"], info["poses"]), (0, 0))
+
+    def test_pose_batches_are_bounded(self):
+        run = self.server.create_run()
+        poses = "/api/v1/runs/%d/poses" % run
+        status, body = self.server.write("POST", poses, {"poses": [pose(i) for i in range(10001)]})
+        self.assertEqual(status, 413)
+        self.assertIn("max_poses_per_batch", body["error"]["message"])
+        t = time.time()
+        status, body = self.server.write("POST", poses, {"poses": [pose(i) for i in range(200000)]})
+        self.assertEqual(status, 413)
+        self.assertLess(time.time() - t, 10.0)
+        self.assertEqual(self.server.write("POST", poses, {"poses": [pose(i) for i in range(10000)]}),
+                         (200, {"stored": 10000, "received": 10000}))
+
+    def test_a_line_name_with_slashes_can_be_fetched(self):
+        self.server.create_run(line="../x/y")
+        status, body = self.server.json("GET", "/api/v1/lines/..%2Fx%2Fy")
+        self.assertEqual(status, 200)
+        self.assertEqual(body["name"], "../x/y")
+
+    def test_a_submap_spread_over_kilometres_is_refused(self):
+        run = self.server.create_run()
+        import random
+        rng = random.Random(5)
+        points = [(rng.uniform(-9000, 9000), rng.uniform(-9000, 9000), 0.5) for _ in range(100000)]
+        status, _, body = self.server.request("POST", "/api/v1/runs/%d/submaps" % run,
+                                              submap_pcd(0, points=points), self.server.token)
+        self.assertEqual(status, 400, body)
+        self.assertIn(b"max_submap_extent_m", body)
+        self.assertPeakGrowthBelow(64)
+
+    def test_the_fronts_refusals_say_what_is_wrong(self):
+        status, headers, body = self.server.request("PATCH", "/api/v1/runs", b"{}",
+                                                    self.server.token)
+        self.assertEqual(status, 405)
+        self.assertIn("POST", headers["allow"])
+        self.assertIn(b"PATCH is not allowed", body)
+        status, _, body = self.server.request("GET", "/api/v1/runs/%zz")
+        self.assertEqual(status, 400)
+        self.assertIn(b"%-escape", body)
+        answer, _ = raw_exchange(self.server.port, b"GARBAGE\r\n\r\n")
+        self.assertEqual(status_of(answer), 400)
+        self.assertIn(b"malformed HTTP request", body_of(answer))
+        status, _, body = self.server.request("GET", "/nowhere")
+        self.assertEqual(status, 404)
+        self.assertIn(b"no resource at /nowhere", body)
+
+    # 11. The store's files are the server's user's alone.
+    def test_the_store_is_private(self):
+        data = self.server.data
+        mode = lambda p: stat.S_IMODE(os.stat(os.path.join(data, p)).st_mode)
+        self.assertEqual(mode(""), 0o700)
+        self.assertEqual(mode("incoming"), 0o700)
+        self.assertEqual(mode("index.sqlite"), 0o600)
+        self.assertEqual(mode("ingest.token"), 0o600)
+
+
+def bad_requests(run, token):
+    """Malformed and hostile requests, as raw bytes: each must get a 4xx and change nothing."""
+    auth = "Authorization: Bearer %s\r\n" % token
+    cases = []
+
+    def req(method, path, body=b"", headers="", with_auth=True, length=True):
+        head = "%s %s HTTP/1.1\r\nHost: 127.0.0.1\r\n%s%s" % (
+            method, path, auth if with_auth else "", headers)
+        if length:
+            head += "Content-Length: %d\r\n" % len(body)
+        cases.append((head + "\r\n").encode() + body)
+
+    runs = "/api/v1/runs/%d" % run
+    writes = [("POST", "/api/v1/runs"), ("POST", runs + "/finish"), ("POST", runs + "/submaps"),
+              ("POST", runs + "/poses"), ("POST", "/api/v1/lines/L/kmposts"),
+              ("POST", "/api/v1/pois"), ("PUT", "/api/v1/pois/1"), ("DELETE", "/api/v1/pois/1")]
+    for method, path in writes:  # no token, a wrong one, a token in the query
+        req(method, path, b"{}", with_auth=False)
+        req(method, path, b"{}", "Authorization: Bearer wrong-token-wrong-token\r\n", False)
+        req(method, path + "?token=" + token, b"{}", with_auth=False)
+        req(method, path, b"{}", "Content-Encoding: gzip\r\n")
+    json_bodies = [b"", b"null", b"[]", b"{", b"\xff\xfe{}", b'{"a":' * 5000 + b"1" + b"}" * 5000,
+                   b'{"line": 3, "vehicle": "v"}', b'{"line": "", "vehicle": "v"}',
+                   b'{"line": "x\u0001", "vehicle": "v"}', b'{"line": "l", "vehicle": "v", '
+                   b'"start_ns": -1}', b'{"line": "l", "vehicle": "v", "start_ns": 1.5}',
+                   b'{"line": "%s", "vehicle": "v"}' % (b"x" * 300), b"NaN", b"1e999"]
+    for body in json_bodies:
+        req("POST", "/api/v1/runs", body, "Content-Type: application/json\r\n")
+    good = pose(0)
+    for change in ({"sequence": -1}, {"sequence": 1.5}, {"sequence": "1"}, {"stamp_ns": None},
+                   {"p": [1, 2]}, {"p": [1e999, 0, 0]}, {"q": [0, 0, 0, 2]}, {"q": [0, 0, 0]},
+                   {"georeferenced": "yes"}, {"utm_zone": "99Q"}, {"utm_zone": 50},
+                   {"p": [-5.0, 3585200.0, 30.0]}, {"sequence": 1 << 63}):
+        bad = dict(good, **change)
+        req("POST", runs + "/poses", json.dumps({"poses": [bad]}).encode(),
+            "Content-Type: application/json\r\n")
+    for body in json_bodies[:6] + [b'{"poses": 5}', b'{"poses": [1, 2]}', b'{"pose": []}']:
+        req("POST", runs + "/poses", body, "Content-Type: application/json\r\n")
+    ok = submap_pcd(0)
+    for body in [b"", b"garbage", ok[:-7], ok.replace(b"DATA binary", b"DATA ascii"),
+                 ok.replace(b"POINTS 32000", b"POINTS 99999999999999999999"),
+                 ok.replace(b"POINTS 32000", b"POINTS -1"),
+                 ok.replace(b"FIELDS x y z intensity", b"FIELDS x y z"),
+                 ok.replace(b"zone 50N", b"zone 51N"), ok.replace(b"zone 50N", b"zone local"),
+                 ok.replace(b"zone 50N", b"zone 0Z"),
+                 ok.replace(b"origin 432100", b"origin -432100"),
+                 ok.replace(b"origin 432100.0000", b"origin nan"),
+                 ok.replace(b"stamps 1600000000", b"stamps 1600000009"),
+                 submap_pcd(0, sequence="-5"), submap_pcd(0, sequence="x"),
+                 submap_pcd(0, sequence_line=False), submap_pcd(0, header_extra=ok[:40]),
+                 submap_pcd(0, points=[(float("nan"), 0.0, 0.0)]),
+                 submap_pcd(0, points=[(20000.0, 0.0, 0.0)]), submap_pcd(0, points=[]),
+                 submap_pcd(0, points=[(0.0, 0.0, 0.0), (3000.0, 0.0, 0.0)])]:
+        req("POST", runs + "/submaps", body, "Content-Type: application/octet-stream\r\n")
+    for body in [b'{"km": "1", "easting": 1, "northing": 2}', b'{"km": 1}', b"[]",
+                 b'{"km": 1, "easting": 432100, "northing": 3585200}']:
+        req("POST", "/api/v1/lines/Nowhere/kmposts", body, "Content-Type: application/json\r\n")
+    for body in [b'{"kind": 1}', b'{"kind": "m", "utm_zone": "50N", "position": [1, 2]}',
+                 b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "properties": []}',
+                 b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "line": 5}']:
+        req("POST", "/api/v1/pois", body, "Content-Type: application/json\r\n")
+        req("PUT", "/api/v1/pois/1", body, "Content-Type: application/json\r\n")
+    req("POST", runs + "/finish", b'{"end_ns": "soon"}', "Content-Type: application/json\r\n")
+    req("POST", "/api/v1/runs/999/finish", b"{}")
+    req("POST", "/api/v1/runs/0/poses", json.dumps({"poses": [good]}).encode())
+    req("POST", "/api/v1/runs/99999999999999999999/submaps", ok)
+    req("DELETE", "/api/v1/pois/999")
+    reads = ["/api/v1/runs/999", "/api/v1/runs/abc", "/api/v1/runs/-1", "/api/v1/runs/1.0",
+             runs + "/tiles?level=-1", runs + "/tiles?level=4", runs + "/tiles?level=1e3",
+             runs + "/tiles?level=0x1", runs + "/tiles?bbox=1,2,3", runs + "/tiles?bbox=a,b,c,d",
+             runs + "/tiles?bbox=1,2,3,4,5", runs + "/tiles?bbox=nan,0,1,1",
+             runs + "/tiles/0/abc/1", runs + "/tiles/9/0/0", runs + "/tiles/0/1/99999999999999999999",
+             runs + "/tiles/-1/0/0", runs + "/trajectory?format=xml",
+             "/api/v1/runs/999/trajectory", runs + "/export", runs + "/export?format=xyz&bbox=0,0,1,1",
+             runs + "/export?level=9&bbox=0,0,1,1", runs + "/export?bbox=0,0,1",
+             runs + "/export?line=L&from_km=1", runs + "/export?line=L&from_km=a&to_km=1",
+             runs + "/export?half_width_m=-1&line=L&from_km=0&to_km=1",
+             runs + "/export?half_width_m=inf&bbox=0,0,1,1",
+             "/api/v1/lines/Nowhere", "/api/v1/lines/Nowhere/segment?from_km=0&to_km=1",
+             "/api/v1/lines/L/segment", "/api/v1/lines/L/segment?from_km=x&to_km=1",
+             "/api/v1/lines/L/segment?from_km=1e999&to_km=1",
+             "/api/v1/pois?bbox=1,2", "/api/v1/pois/abc", "/api/v1/pois/999", "/nowhere",
+             "/api/v1/runs/%zz", "/api/v1/%00", "/api/v1/runs?x=%", "/api/v1/runs/1/../../health",
+             "/" + "a" * 20000]
+    for path in reads:
+        req("GET", path, with_auth=False)
+    for bad_id in ("abc", "0", "-1", "999", "1e3", "01x"):
+        base = "/api/v1/runs/" + bad_id
+        req("GET", base, with_auth=False)
+        req("GET", base + "/tiles", with_auth=False)
+        req("GET", base + "/tiles/0/0/0", with_auth=False)
+        req("GET", base + "/trajectory", with_auth=False)
+        req("GET", base + "/export?bbox=0,0,1,1", with_auth=False)
+        req("POST", base + "/finish", b"{}")
+        req("POST", base + "/submaps", ok)
+        req("POST", base + "/poses", json.dumps({"poses": [good]}).encode())
+    for method in ("PATCH", "OPTIONS", "TRACE", "CONNECT", "PROPFIND", "BREW"):
+        req(method, "/api/v1/runs", b"{}")
+    protocol = [b"GARBAGE\r\n\r\n", b"GET\r\n\r\n", b"GET / HTTP/9.9\r\n\r\n",
+                b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n", b"GET /health HTTP/1.1\r\nNoColon\r\n\r\n",
+                b"GET /health HTTP/1.1\r\nX: a\x00b\r\n\r\n",
+                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: -5\r\n\r\n",
+                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 99999999999999999999999\r\n\r\n",
+                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 5\r\nContent-Length: 6\r\n\r\n",
+                b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: gzip\r\n\r\n",
+                b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: chunked\r\n" + auth.encode() +
+                b"\r\nzz\r\n", b"GET /h\xffealth HTTP/1.1\r\n\r\n",
+                b"GET http://evil/ HTTP/1.1\r\n\r\n", b"GET * HTTP/1.1\r\n\r\n"]
+    cases += protocol
+    return cases
+
+
+class BadInputs(unittest.TestCase):
+    """About two hundred malformed and hostile requests: each gets a 4xx with a JSON error (or
+    the connection closes on bytes that are no HTTP at all), never a 5xx; nothing changes."""
+
+    def test_every_bad_request_gets_a_4xx_and_changes_nothing(self):
+        server = Server()
+        try:
+            run = server.create_run()
+            self.assertEqual(server.request("POST", "/api/v1/runs/%d/submaps" % run, submap_pcd(0),
+                                            server.token)[0], 201)
+            self.assertEqual(server.write("POST", "/api/v1/runs/%d/poses" % run,
+                                          {"poses": [pose(0)]})[0], 200)
+            before = server.json("GET", "/api/v1/runs/%d" % run)[1]
+            cases = bad_requests(run, server.token)
+            self.assertGreaterEqual(len(cases), 192)
+            statuses = []
+            for case in cases:
+                answer, _ = raw_exchange(server.port, case, read_timeout=15)
+                status = status_of(answer)
+                statuses.append(status)
+                self.assertTrue(400 <= status < 500, (case[:200], answer[:300]))
+                error = json.loads(body_of(answer))["error"]
+                self.assertTrue(error["code"] and error["message"], answer)
+            self.assertTrue(server.alive())
+            self.assertEqual(server.json("GET", "/api/v1/runs/%d" % run)[1], before)
+            self.assertEqual(server.json("GET", "/api/v1/runs")[1]["runs"], [before])
+            _, _, metrics = server.request("GET", "/metrics")
+            self.assertNotIn(b'status="5', metrics)
+        finally:
+            server.cleanup()
+
+
+class StaticFiles(unittest.TestCase):
+    """6. The web root: nothing outside it, no NUL tricks, and the read token when reads need
+    one."""
+
+    def setUp(self):
+        import tempfile
+        self.dir = tempfile.mkdtemp(prefix="raillomer_web_")
+        web = os.path.join(self.dir, "web")
+        os.makedirs(os.path.join(web, "assets"))
+        with open(os.path.join(web, "index.html"), "w") as f:
+            f.write("<html>viewer</html>")
+        with open(os.path.join(web, "assets", "app-1a2b.js"), "w") as f:
+            f.write("console.log(1)")
+        with open(os.path.join(self.dir, "secret.txt"), "w") as f:
+            f.write("not for the web")
+        os.symlink(os.path.join(self.dir, "secret.txt"), os.path.join(web, "leak.txt"))
+        os.symlink("index.html", os.path.join(web, "home.html"))
+        self.web = web
+        self.server = None
+
+    def tearDown(self):
+        import shutil
+        if self.server:
+            self.assertTrue(self.server.alive(), self.server.log_text())
+            self.server.cleanup()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def test_nothing_outside_the_web_root_is_served(self):
+        self.server = Server(flags=["--web-root", self.web])
+        get = lambda path, **kw: self.server.request("GET", path, **kw)
+        self.assertEqual(get("/")[2], b"<html>viewer</html>")
+        self.assertEqual(get("/home.html")[0], 200)  # a symlink inside the root
+        status, _, body = get("/leak.txt")
+        self.assertEqual(status, 404)
+        self.assertNotIn(b"not for the web", body)
+        for path in ("/index.html%00.txt", "/index.html%00"):
+            status, _, body = get(path)
+            self.assertEqual(status, 400, path)
+        status, headers, _ = get("/assets/app-1a2b.js")
+        self.assertEqual(status, 200)
+        self.assertTrue(headers["content-type"].startswith("text/javascript"))
+        self.assertIn("immutable", headers["cache-control"])
+        status, headers, _ = get("/index.html")
+        self.assertEqual(get("/index.html", headers={"If-None-Match": headers["etag"]})[0], 304)
+        answer, _ = raw_exchange(self.server.port, b"GET /../secret.txt HTTP/1.1\r\nHost: x\r\n\r\n")
+        self.assertEqual(status_of(answer), 404)
+
+    def test_static_files_need_the_read_token_when_reads_do(self):
+        self.server = Server(config="reads_need_token: true\nread_token: read-token-0123456789\n",
+                             flags=["--web-root", self.web])
+        get = lambda path, **kw: self.server.request("GET", path, **kw)
+        self.assertEqual(get("/index.html")[0], 401)
+        self.assertEqual(get("/index.html", token="read-token-0123456789")[0], 200)
+        status, headers, _ = get("/index.html?token=read-token-0123456789")
+        self.assertEqual(status, 200)
+        cookie = headers["set-cookie"].split(";")[0]
+        self.assertEqual(cookie, "raillomer_token=read-token-0123456789")
+        self.assertEqual(get("/assets/app-1a2b.js", headers={"Cookie": cookie})[0], 200)
+        self.assertEqual(get("/index.html?token=wrong-token-0123456789")[0], 401)
+
+
+class LostSubmaps(unittest.TestCase):
+    """9. A submap acknowledged before a crash whose payload did not survive is logged at the
+    next start, counted in /metrics, and out of its run's counts until it is sent again."""
+
+    def test_lost_payloads_are_logged_counted_and_restored(self):
+        # No flusher: the submaps' points stay in memory and their payloads in incoming/.
+        server = Server(config="store:\n  flush_interval_ms: 0\n")
+        data = server.data
+        try:
+            run = server.create_run()
+            payloads = [submap_pcd(i) for i in range(3)]
+            for p in payloads:
+                status, _, body = server.request("POST", "/api/v1/runs/%d/submaps" % run, p,
+                                                 server.token)
+                self.assertEqual(status, 201, body)
+            self.assertEqual(server.stop(signal.SIGKILL), -signal.SIGKILL)
+            os.remove(os.path.join(data, "incoming", "%d-1.pcd" % run))  # a power cut
+            server = Server(data=data)
+            log = server.log_text()
+            self.assertIn("recovered 2 submaps", log)
+            self.assertIn("LOST 1 acknowledged submaps whose payload is gone (run %d: 1)" % run, log)
+            self.assertEqual(server.metric("raillomer_submaps_lost"), 1)
+            self.assertEqual(server.metric("raillomer_submaps_lost_total"), 1)
+            self.assertEqual(server.metric("raillomer_submaps_recovered_total"), 2)
+            info = server.json("GET", "/api/v1/runs/%d" % run)[1]
+            self.assertEqual((info["submaps"], info["submaps_lost"], info["points"]),
+                             (2, 1, 2 * 32000))
+            # Submaps 0 and 2 do not overlap: their tiles hold both whole.
+            tiles = wait_for_tiles(server, run)
+            self.assertEqual(sum(t["points"] for t in tiles), 2 * 32000)
+            status, _, _ = server.request("POST", "/api/v1/runs/%d/submaps" % run, payloads[1],
+                                          server.token)
+            self.assertEqual(status, 201)  # restored
+            info = server.json("GET", "/api/v1/runs/%d" % run)[1]
+            self.assertEqual((info["submaps"], info["submaps_lost"], info["points"]),
+                             (3, 0, 3 * 32000))
+            self.assertEqual(server.metric("raillomer_submaps_lost"), 0)
+        finally:
+            server.cleanup()
+            import shutil
+            shutil.rmtree(os.path.dirname(data), ignore_errors=True)
+
+
+if __name__ == "__main__":
+    unittest.main()
