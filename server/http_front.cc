@@ -6,7 +6,6 @@
 #include <atomic>
 #include <chrono>
 #include <optional>
-#include <regex>
 #include <thread>
 
 #include <boost/asio.hpp>
@@ -161,7 +160,7 @@ class HttpFront::Impl {
   class Session;
   struct CompiledRoute {
     HttpRoute route;
-    std::regex pattern;
+    PathPattern pattern;
   };
 
   Impl(HttpLimits limits, std::vector<HttpRoute> routes, std::string web_root, Hooks hooks)
@@ -172,7 +171,7 @@ class HttpFront::Impl {
         retry_(ioc_),
         workers_(static_cast<size_t>(std::max(1, limits.worker_threads))) {
     for (HttpRoute& r : routes) {
-      std::regex pattern(r.pattern);
+      PathPattern pattern(r.pattern);
       routes_.push_back({std::move(r), std::move(pattern)});
     }
   }
@@ -239,15 +238,11 @@ class HttpFront::Impl {
   /// matches when none has the method.
   const CompiledRoute* Find(const std::string& method,
                             const std::string& raw_path,
-                            std::smatch* match,
+                            std::vector<std::string_view>* captures,
                             std::vector<std::string>* allowed) const {
     for (const CompiledRoute& r : routes_) {
-      std::smatch m;
-      if (!std::regex_match(raw_path, m, r.pattern)) continue;
-      if (r.route.method == method) {
-        *match = m;
-        return &r;
-      }
+      if (!r.pattern.Match(raw_path, captures)) continue;
+      if (r.route.method == method) return &r;
       allowed->push_back(r.route.method);
     }
     return nullptr;
@@ -391,16 +386,16 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
 
   /// Finds the route, or the static file; false when the answer is already on its way.
   bool Route() {
-    std::smatch match;
+    std::vector<std::string_view> captures;
     std::vector<std::string> allowed;
-    const CompiledRoute* r = front_->Find(request_.method, raw_path_, &match, &allowed);
+    const CompiledRoute* r = front_->Find(request_.method, raw_path_, &captures, &allowed);
     if (r) {
       route_ = &r->route;
       route_name_ = route_->name;
       request_.matches.push_back(raw_path_);
-      for (size_t i = 1; i < match.size(); ++i) {
+      for (const std::string_view capture : captures) {
         std::string decoded;
-        if (!PercentDecode(match[i].str(), false, &decoded)) {
+        if (!PercentDecode(capture, false, &decoded)) {
           Refuse(400, "bad_request", "a path segment has a malformed %-escape or a NUL byte");
           return false;
         }
@@ -527,6 +522,10 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     keep_alive_ = parser_->keep_alive();
     if (static_file_) return AnswerFile();
     request_.body = std::move(parser_->get().body());
+    if (route_->fast_handler) {
+      HttpResponse res;
+      if (route_->fast_handler(request_, res)) return Answer(std::move(res));
+    }
     net::post(front_->workers_, [self = shared_from_this()] {
       HttpResponse res;
       self->front_->RunHandler(*self->route_, self->request_, res);

@@ -56,15 +56,20 @@ struct HttpResponse {
 using HttpHandler = std::function<void(const HttpRequest&, HttpResponse&)>;
 
 struct HttpRoute {
-  std::string method;   ///< GET, POST, PUT, PATCH or DELETE
-  std::string pattern;  ///< a regular expression over the raw (still percent-encoded) path
-  std::string name;     ///< for metrics
+  std::string method;  ///< GET, POST, PUT, PATCH or DELETE
+  /// The path with captures in braces, as OpenAPI writes it: "/api/v1/runs/{run}/tiles"
+  /// (a capture is one segment, matched still percent-encoded and decoded for the handler).
+  std::string pattern;
+  std::string name;  ///< for metrics
   Access access = Access::kRead;
   /// The largest body the route takes; a route that takes none still reads up to
   /// HttpLimits::max_small_body_bytes.
   uint64_t max_body_bytes = 0;
   bool ranges = false;  ///< a GET answer serves Range requests (one range)
   HttpHandler handler;
+  /// Optional: answers from memory on the event loop, without the hop to a worker, or
+  /// returns false to leave the request to `handler` (a cached tile is the case).
+  std::function<bool(const HttpRequest&, HttpResponse&)> fast_handler;
 };
 
 /// The limits every connection and request is held to, all enforced before a body is read

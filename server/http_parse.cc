@@ -143,4 +143,36 @@ bool EqualsIgnoreCase(std::string_view a, std::string_view b) {
   return true;
 }
 
+PathPattern::PathPattern(std::string_view pattern) {
+  size_t start = 1;  // after the leading '/'
+  while (start <= pattern.size()) {
+    const size_t end = std::min(pattern.find('/', start), pattern.size());
+    const std::string_view segment = pattern.substr(start, end - start);
+    const bool capture = segment.size() >= 2 && segment.front() == '{' && segment.back() == '}';
+    literals_.emplace_back(capture ? std::string_view() : segment);
+    captures_.push_back(capture);
+    start = end + 1;
+  }
+}
+
+bool PathPattern::Match(std::string_view raw_path, std::vector<std::string_view>* captures) const {
+  if (captures) captures->clear();
+  if (raw_path.empty() || raw_path[0] != '/') return false;
+  size_t start = 1, k = 0;
+  while (start <= raw_path.size()) {
+    if (k == literals_.size()) return false;
+    const size_t end = std::min(raw_path.find('/', start), raw_path.size());
+    const std::string_view segment = raw_path.substr(start, end - start);
+    if (captures_[k]) {
+      if (segment.empty()) return false;
+      if (captures) captures->push_back(segment);
+    } else if (segment != literals_[k]) {
+      return false;
+    }
+    ++k;
+    start = end + 1;
+  }
+  return k == literals_.size();
+}
+
 }  // namespace raillomer::server

@@ -47,4 +47,19 @@ std::string CookieValue(std::string_view header, std::string_view name);
 /// ASCII case-insensitive equality, for header names and tokens.
 bool EqualsIgnoreCase(std::string_view a, std::string_view b);
 
+/// A route's path as OpenAPI writes it: literal segments and captures in braces
+/// ("/api/v1/runs/{run}/tiles"). It matches a raw path of as many segments whose literals
+/// are equal and whose captures are not empty.
+class PathPattern {
+ public:
+  explicit PathPattern(std::string_view pattern);
+  /// True if `raw_path` matches; `captures` (if given) gets the captured segments, still
+  /// percent-encoded, in order.
+  bool Match(std::string_view raw_path, std::vector<std::string_view>* captures) const;
+
+ private:
+  std::vector<std::string> literals_;  ///< per segment; "" where it is a capture
+  std::vector<bool> captures_;
+};
+
 }  // namespace raillomer::server

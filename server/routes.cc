@@ -310,14 +310,9 @@ class Api {
   }
 
   void GetTile(const HttpRequest& req, HttpResponse& res) {
-    int64_t id = 0, level = 0, ix = 0, iy = 0;
-    constexpr int64_t kIndex = int64_t{1} << 40;
-    if (!PathId(req, res, &id)) return;
-    if (!ParseInt64(req.matches[2], 0, Levels() - 1, &level) ||
-        !ParseInt64(req.matches[3], -kIndex, kIndex, &ix) ||
-        !ParseInt64(req.matches[4], -kIndex, kIndex, &iy))
-      return res.SetError(404, "not_found", "no such tile");
-    const mapstore::TileKey key{static_cast<int>(level), ix, iy};
+    int64_t id = 0;
+    mapstore::TileKey key;
+    if (!TileOf(req, res, &id, &key)) return;
     std::shared_ptr<const TileCache::Entry> tile = c_.tiles->Get(id, key);
     if (!tile) {
       auto entry = std::make_shared<TileCache::Entry>();
@@ -326,6 +321,38 @@ class Api {
       tile = entry;
       c_.tiles->Put(tile);
     }
+    SendTile(req, res, tile);
+  }
+
+  /// GetTile on the event loop when the tile is in the cache (or the path names none).
+  bool GetCachedTile(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    mapstore::TileKey key;
+    if (!TileOf(req, res, &id, &key)) return true;
+    std::shared_ptr<const TileCache::Entry> tile = c_.tiles->Get(id, key);
+    if (!tile) return false;
+    SendTile(req, res, tile);
+    return true;
+  }
+
+  /// The run and tile of the path; false with a 404 set.
+  bool TileOf(const HttpRequest& req, HttpResponse& res, int64_t* id, mapstore::TileKey* key) {
+    int64_t level = 0, ix = 0, iy = 0;
+    constexpr int64_t kIndex = int64_t{1} << 40;
+    if (!PathId(req, res, id)) return false;
+    if (!ParseInt64(req.matches[2], 0, Levels() - 1, &level) ||
+        !ParseInt64(req.matches[3], -kIndex, kIndex, &ix) ||
+        !ParseInt64(req.matches[4], -kIndex, kIndex, &iy)) {
+      res.SetError(404, "not_found", "no such tile");
+      return false;
+    }
+    *key = mapstore::TileKey{static_cast<int>(level), ix, iy};
+    return true;
+  }
+
+  static void SendTile(const HttpRequest& req,
+                       HttpResponse& res,
+                       const std::shared_ptr<const TileCache::Entry>& tile) {
     const mapstore::TileInfo& info = tile->info;
     res.SetHeader("ETag", info.etag);
     // A tile of a live run changes as submaps arrive: revalidate with its ETag.
@@ -599,54 +626,54 @@ std::vector<HttpRoute> ApiRoutes(const ApiContext& context) {
                      const char* name,
                      Access access,
                      Method handler,
-                     uint64_t max_body_bytes = 0,
-                     bool ranges = false) {
-    return HttpRoute{
-        method,
-        pattern,
-        name,
-        access,
-        max_body_bytes,
-        ranges,
-        [api, handler](const HttpRequest& req, HttpResponse& res) { ((*api).*handler)(req, res); }};
+                     uint64_t max_body_bytes = 0) {
+    HttpRoute r;
+    r.method = method;
+    r.pattern = pattern;
+    r.name = name;
+    r.access = access;
+    r.max_body_bytes = max_body_bytes;
+    r.handler = [api, handler](const HttpRequest& req, HttpResponse& res) {
+      ((*api).*handler)(req, res);
+    };
+    return r;
   };
   const Access R = Access::kRead, W = Access::kWrite;
   const uint64_t json_body = config.max_json_bytes, submap_body = config.max_body_bytes;
+  HttpRoute tile =
+      route("GET", "/api/v1/runs/{run}/tiles/{level}/{ix}/{iy}", "tiles.get", R, &Api::GetTile);
+  tile.ranges = true;
+  tile.fast_handler = [api](const HttpRequest& req, HttpResponse& res) {
+    return api->GetCachedTile(req, res);
+  };
   return {
       route("GET", "/health", "health", R, &Api::Health),
       route("GET", "/metrics", "metrics", R, &Api::MetricsText),
       route("GET", "/api/v1/info", "info", R, &Api::Info),
       route("POST", "/api/v1/runs", "runs.create", W, &Api::CreateRun),
       route("GET", "/api/v1/runs", "runs.list", R, &Api::ListRuns),
-      route("GET", R"(/api/v1/runs/([^/]+))", "runs.get", R, &Api::GetRun),
-      route("POST", R"(/api/v1/runs/([^/]+)/finish)", "runs.finish", W, &Api::FinishRun),
+      route("GET", "/api/v1/runs/{run}", "runs.get", R, &Api::GetRun),
+      route("POST", "/api/v1/runs/{run}/finish", "runs.finish", W, &Api::FinishRun),
       route("POST",
-            R"(/api/v1/runs/([^/]+)/submaps)",
+            "/api/v1/runs/{run}/submaps",
             "ingest.submap",
             W,
             &Api::IngestSubmap,
             submap_body),
-      route(
-          "POST", R"(/api/v1/runs/([^/]+)/poses)", "ingest.poses", W, &Api::IngestPoses, json_body),
-      route("GET", R"(/api/v1/runs/([^/]+)/tiles)", "tiles.index", R, &Api::TileIndex),
-      route("GET",
-            R"(/api/v1/runs/([^/]+)/tiles/([^/]+)/([^/]+)/([^/]+))",
-            "tiles.get",
-            R,
-            &Api::GetTile,
-            0,
-            true),
-      route("GET", R"(/api/v1/runs/([^/]+)/trajectory)", "trajectory", R, &Api::Trajectory),
-      route("GET", R"(/api/v1/runs/([^/]+)/export)", "export", R, &Api::Export),
+      route("POST", "/api/v1/runs/{run}/poses", "ingest.poses", W, &Api::IngestPoses, json_body),
+      route("GET", "/api/v1/runs/{run}/tiles", "tiles.index", R, &Api::TileIndex),
+      tile,
+      route("GET", "/api/v1/runs/{run}/trajectory", "trajectory", R, &Api::Trajectory),
+      route("GET", "/api/v1/runs/{run}/export", "export", R, &Api::Export),
       route("GET", "/api/v1/lines", "lines.list", R, &Api::ListLines),
-      route("GET", R"(/api/v1/lines/([^/]+))", "lines.get", R, &Api::GetLine),
-      route("GET", R"(/api/v1/lines/([^/]+)/segment)", "lines.segment", R, &Api::Segment),
-      route("POST", R"(/api/v1/lines/([^/]+)/kmposts)", "lines.kmpost", W, &Api::PinKmPost),
+      route("GET", "/api/v1/lines/{line}", "lines.get", R, &Api::GetLine),
+      route("GET", "/api/v1/lines/{line}/segment", "lines.segment", R, &Api::Segment),
+      route("POST", "/api/v1/lines/{line}/kmposts", "lines.kmpost", W, &Api::PinKmPost),
       route("POST", "/api/v1/pois", "pois.create", W, &Api::CreatePoi),
       route("GET", "/api/v1/pois", "pois.list", R, &Api::ListPois),
-      route("GET", R"(/api/v1/pois/([^/]+))", "pois.get", R, &Api::GetPoi),
-      route("PUT", R"(/api/v1/pois/([^/]+))", "pois.update", W, &Api::UpdatePoi),
-      route("DELETE", R"(/api/v1/pois/([^/]+))", "pois.delete", W, &Api::DeletePoi),
+      route("GET", "/api/v1/pois/{id}", "pois.get", R, &Api::GetPoi),
+      route("PUT", "/api/v1/pois/{id}", "pois.update", W, &Api::UpdatePoi),
+      route("DELETE", "/api/v1/pois/{id}", "pois.delete", W, &Api::DeletePoi),
   };
 }
 

@@ -88,6 +88,25 @@ TEST(HttpParse, Cookies) {
   EXPECT_FALSE(EqualsIgnoreCase("Content-Length", "content-lengt"));
 }
 
+TEST(HttpParse, PathPatternsMatchSegmentBySegment) {
+  const PathPattern tile("/api/v1/runs/{run}/tiles/{level}/{ix}/{iy}");
+  std::vector<std::string_view> captures;
+  ASSERT_TRUE(tile.Match("/api/v1/runs/3/tiles/0/-12/40", &captures));
+  EXPECT_EQ(captures, (std::vector<std::string_view>{"3", "0", "-12", "40"}));
+  for (const char* other : {"/api/v1/runs/3/tiles/0/-12",
+                            "/api/v1/runs/3/tiles/0/-12/40/",
+                            "/api/v1/runs//tiles/0/1/2",
+                            "/api/v1/runs/3/tile/0/1/2",
+                            "",
+                            "api"})
+    EXPECT_FALSE(tile.Match(other, &captures)) << other;
+  const PathPattern line("/api/v1/lines/{line}");
+  ASSERT_TRUE(line.Match("/api/v1/lines/..%2Fx%2Fy", &captures));
+  EXPECT_EQ(captures[0], "..%2Fx%2Fy");
+  EXPECT_TRUE(PathPattern("/health").Match("/health", nullptr));
+  EXPECT_FALSE(PathPattern("/health").Match("/health/x", nullptr));
+}
+
 TEST(StaticFiles, ResolvesInsideTheRootOnly) {
   test::ScratchDir dir("raillomer_static_");
   const auto web = dir.path() / "web";
