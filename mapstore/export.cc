@@ -37,50 +37,68 @@ const char* ExtensionOf(ExportFormat format) {
   return "bin";
 }
 
+bool ExportEncoder::Begin(ExportFormat format,
+                          size_t count,
+                          const Eigen::AlignedBox3d& bounds,
+                          const std::string& utm_zone,
+                          std::string* out,
+                          std::string* error) {
+  format_ = format;
+  if (format == ExportFormat::kLas) {
+    api::las::Header header;
+    header.points = count;
+    header.bounds = bounds;
+    header.utm_zone = utm_zone;
+    header.software = "raillomer-server";
+    header.created = std::time(nullptr);
+    std::string why;
+    if (!api::las::EncodeHeader(header, out, &why)) {
+      if (error) *error = why;
+      return false;
+    }
+    offset_ = api::las::OffsetOf(header);
+    return true;
+  }
+  std::ostringstream h;
+  if (format == ExportFormat::kPly) {
+    h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer export, UTM zone " << utm_zone
+      << "\nelement vertex " << count
+      << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar "
+         "intensity\nend_header\n";
+  } else {
+    h << "# .PCD v0.7 - RailLoMer export, UTM zone " << utm_zone
+      << "\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 8 8 8 1\nTYPE F F F U\nCOUNT 1 1 1 1\n"
+         "WIDTH "
+      << count << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << count << "\nDATA binary\n";
+  }
+  *out += h.str();
+  return true;
+}
+
+void ExportEncoder::Append(const ExportPoint& p, std::string* out) const {
+  if (format_ == ExportFormat::kLas) return api::las::AppendRecord(out, p.p, offset_, p.intensity);
+  // PLY and PCD: the same record, three doubles and a byte.
+  AppendRaw(out, p.p.x());
+  AppendRaw(out, p.p.y());
+  AppendRaw(out, p.p.z());
+  AppendRaw(out, p.intensity);
+}
+
+size_t ExportEncoder::RecordBytes() const {
+  return format_ == ExportFormat::kLas ? api::las::kRecordBytes : 25;
+}
+
 std::string EncodeExport(const std::vector<ExportPoint>& points,
                          ExportFormat format,
                          const std::string& utm_zone,
                          std::string* error) {
+  Eigen::AlignedBox3d bounds;
+  for (const ExportPoint& p : points) bounds.extend(p.p);
   std::string out;
-  const size_t n = points.size();
-  if (format == ExportFormat::kPly || format == ExportFormat::kPcd) {
-    std::ostringstream h;
-    if (format == ExportFormat::kPly) {
-      h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer export, UTM zone " << utm_zone
-        << "\nelement vertex " << n
-        << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar "
-           "intensity\nend_header\n";
-    } else {
-      h << "# .PCD v0.7 - RailLoMer export, UTM zone " << utm_zone
-        << "\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 8 8 8 1\nTYPE F F F U\nCOUNT 1 1 1 1\n"
-           "WIDTH "
-        << n << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n << "\nDATA binary\n";
-    }
-    // The same records in both: three doubles and a byte.
-    out = h.str();
-    out.reserve(out.size() + 25 * n);
-    for (const ExportPoint& p : points) {
-      AppendRaw(&out, p.p.x());
-      AppendRaw(&out, p.p.y());
-      AppendRaw(&out, p.p.z());
-      AppendRaw(&out, p.intensity);
-    }
-  } else {
-    api::las::Header header;
-    header.points = n;
-    header.utm_zone = utm_zone;
-    header.software = "raillomer-server";
-    header.created = std::time(nullptr);
-    for (const ExportPoint& p : points) header.bounds.extend(p.p);
-    std::string why;
-    if (!api::las::EncodeHeader(header, &out, &why)) {
-      if (error) *error = why;
-      return std::string();
-    }
-    const Eigen::Vector3d offset = api::las::OffsetOf(header);
-    out.reserve(out.size() + api::las::kRecordBytes * n);
-    for (const ExportPoint& p : points) api::las::AppendRecord(&out, p.p, offset, p.intensity);
-  }
+  ExportEncoder encoder;
+  if (!encoder.Begin(format, points.size(), bounds, utm_zone, &out, error)) return std::string();
+  out.reserve(out.size() + encoder.RecordBytes() * points.size());
+  for (const ExportPoint& p : points) encoder.Append(p, &out);
   return out;
 }
 

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 namespace raillomer::mapstore {
 
@@ -17,6 +18,28 @@ const char* ExtensionOf(ExportFormat format);
 struct ExportPoint {
   Eigen::Vector3d p = Eigen::Vector3d::Zero();  ///< UTM
   uint8_t intensity = 0;
+};
+
+/// Writes an export file piece by piece: the header, which needs the count and (LAS) the
+/// bounds up front, then the points in as many calls as suit the writer.
+class ExportEncoder {
+ public:
+  /// The header of a file of `count` points within `bounds` in `utm_zone`; false with the
+  /// reason when the format cannot hold them (see api::las::EncodeHeader).
+  bool Begin(ExportFormat format,
+             size_t count,
+             const Eigen::AlignedBox3d& bounds,
+             const std::string& utm_zone,
+             std::string* out,
+             std::string* error);
+  /// Appends one point's record.
+  void Append(const ExportPoint& point, std::string* out) const;
+  /// The bytes of one point's record.
+  size_t RecordBytes() const;
+
+ private:
+  ExportFormat format_ = ExportFormat::kPly;
+  Eigen::Vector3d offset_ = Eigen::Vector3d::Zero();  ///< LAS records are relative to it
 };
 
 /// The points as a file: binary PLY (double x y z, uchar intensity), binary PCD (x y z as F 8,

@@ -601,12 +601,75 @@ Result MapStore::Segment(const std::string& name,
   return {};
 }
 
-Result MapStore::Export(const ExportRequest& request,
-                        std::vector<ExportPoint>* points,
-                        std::string* utm_zone) const {
-  points->clear();
+/// Which points of a run an export takes: those in its box and, along a line, within its half
+/// width of the centreline.
+struct ExportCursor::Filter {
   Eigen::AlignedBox2d box;
   std::vector<Eigen::Vector2d> centreline;
+  double half_width_m = 0.0, cell_m = 1.0;
+  std::unordered_map<uint64_t, std::vector<Eigen::Vector2d>> near;  ///< centreline by cell
+
+  static uint64_t Key(int64_t x, int64_t y) {
+    return (static_cast<uint64_t>(x) << 32) ^ static_cast<uint32_t>(y);
+  }
+  void Index() {
+    cell_m = std::max(1.0, half_width_m);
+    for (const Eigen::Vector2d& c : centreline)
+      near[Key(static_cast<int64_t>(std::floor(c.x() / cell_m)),
+               static_cast<int64_t>(std::floor(c.y() / cell_m)))]
+          .push_back(c);
+  }
+  bool Takes(const Eigen::Vector2d& p) const {
+    if (!box.contains(p)) return false;
+    if (centreline.empty()) return true;
+    const int64_t cx = static_cast<int64_t>(std::floor(p.x() / cell_m));
+    const int64_t cy = static_cast<int64_t>(std::floor(p.y() / cell_m));
+    for (int64_t dx = -1; dx <= 1; ++dx)
+      for (int64_t dy = -1; dy <= 1; ++dy) {
+        auto it = near.find(Key(cx + dx, cy + dy));
+        if (it == near.end()) continue;
+        for (const Eigen::Vector2d& c : it->second)
+          if ((c - p).squaredNorm() <= half_width_m * half_width_m) return true;
+      }
+    return false;
+  }
+};
+
+ExportCursor::ExportCursor(const MapStore* store, int64_t run_id, std::unique_ptr<Filter> filter)
+    : store_(store), run_id_(run_id), filter_(std::move(filter)) {}
+
+ExportCursor::~ExportCursor() = default;
+
+Result ExportCursor::Read(const TileKey& key, std::vector<ExportPoint>* points) {
+  points->clear();
+  std::string bytes, error;
+  Result r = store_->Tile(run_id_, key, nullptr, &bytes);
+  if (!r) return r;
+  TilePoints decoded;
+  if (!DecodeTile(bytes, &decoded, &error))
+    return Fail(Outcome::kError, "tile " + key.ToString() + ": " + error);
+  zone_ = decoded.utm_zone;
+  for (size_t i = 0; i < decoded.points.size(); ++i) {
+    const Eigen::Vector3d p = decoded.origin + decoded.points[i].cast<double>();
+    if (filter_->Takes(p.head<2>())) points->push_back({p, decoded.intensities[i]});
+  }
+  return {};
+}
+
+Result ExportCursor::Next(std::vector<ExportPoint>* points) {
+  if (done()) return Fail(Outcome::kInvalid, "the export has no more tiles");
+  const size_t k = next_++;
+  Result r = Read(tiles_[k], points);
+  if (!r) return r;
+  if (points->size() < counts_[k])
+    return Fail(Outcome::kError, "tile " + tiles_[k].ToString() + " lost points while exported");
+  points->resize(counts_[k]);  // a live run's tile may have grown since it was counted
+  return {};
+}
+
+Result MapStore::PrepareExport(const ExportRequest& request,
+                               std::unique_ptr<ExportCursor>* out) const {
+  auto filter = std::make_unique<ExportCursor::Filter>();
   if (!request.line.empty()) {
     if (!(request.half_width_m > 0.0 && request.half_width_m <= 200.0))
       return Fail(Outcome::kInvalid, "the half width must be in (0, 200] m");
@@ -614,64 +677,55 @@ Result MapStore::Export(const ExportRequest& request,
     Result r = Segment(request.line, request.from_m, request.to_m, &segment);
     if (!r) return r;
     for (const TrackSample& s : segment.samples) {
-      centreline.push_back(s.point.p.head<2>());
-      box.extend(s.point.p.head<2>());
+      filter->centreline.push_back(s.point.p.head<2>());
+      filter->box.extend(s.point.p.head<2>());
     }
-    box.min().array() -= request.half_width_m;
-    box.max().array() += request.half_width_m;
+    filter->box.min().array() -= request.half_width_m;
+    filter->box.max().array() += request.half_width_m;
+    filter->half_width_m = request.half_width_m;
+    filter->Index();
   } else if (request.has_box) {
-    box = request.box;
+    filter->box = request.box;
   } else {
     return Fail(Outcome::kInvalid, "an export needs a box or a line's km range");
   }
-  // The centreline's points by cell, to keep what lies within the half width of it.
-  const double cell = std::max(1.0, request.half_width_m);
-  std::unordered_map<uint64_t, std::vector<Eigen::Vector2d>> near;
-  auto key = [&](int64_t x, int64_t y) {
-    return (static_cast<uint64_t>(x) << 32) ^ static_cast<uint32_t>(y);
-  };
-  for (const Eigen::Vector2d& c : centreline)
-    near[key(static_cast<int64_t>(std::floor(c.x() / cell)),
-             static_cast<int64_t>(std::floor(c.y() / cell)))]
-        .push_back(c);
-  auto inside = [&](const Eigen::Vector2d& p) {
-    if (!box.contains(p)) return false;
-    if (centreline.empty()) return true;
-    const int64_t cx = static_cast<int64_t>(std::floor(p.x() / cell));
-    const int64_t cy = static_cast<int64_t>(std::floor(p.y() / cell));
-    for (int64_t dx = -1; dx <= 1; ++dx)
-      for (int64_t dy = -1; dy <= 1; ++dy) {
-        auto it = near.find(key(cx + dx, cy + dy));
-        if (it == near.end()) continue;
-        for (const Eigen::Vector2d& c : it->second)
-          if ((c - p).squaredNorm() <= request.half_width_m * request.half_width_m) return true;
-      }
-    return false;
-  };
   std::vector<TileInfo> tiles;
-  Result r = TilesInBox(request.run_id, request.level, box, &tiles);
+  Result r = TilesInBox(request.run_id, request.level, filter->box, &tiles);
   if (!r) return r;
-  utm_zone->clear();
+  std::unique_ptr<ExportCursor> cursor(new ExportCursor(this, request.run_id, std::move(filter)));
+  // The count (one pass, a tile at a time): the file's header needs it before any point.
+  std::vector<ExportPoint> points;
   for (const TileInfo& t : tiles) {
-    std::string bytes, error;
-    r = Tile(request.run_id, t.key, nullptr, &bytes);
+    r = cursor->Read(t.key, &points);
     if (!r) return r;
-    TilePoints decoded;
-    if (!DecodeTile(bytes, &decoded, &error))
-      return Fail(Outcome::kError, "tile " + t.key.ToString() + ": " + error);
-    *utm_zone = decoded.utm_zone;
-    for (size_t i = 0; i < decoded.points.size(); ++i) {
-      const Eigen::Vector3d p = decoded.origin + decoded.points[i].cast<double>();
-      if (!inside(p.head<2>())) continue;
-      if (points->size() >= request.max_points) {
-        points->clear();
-        return Fail(Outcome::kInvalid,
-                    "the export would hold more than " + std::to_string(request.max_points) +
-                        " points: narrow the box or take a coarser level");
-      }
-      points->push_back({p, decoded.intensities[i]});
-    }
+    if (points.empty()) continue;
+    cursor->tiles_.push_back(t.key);
+    cursor->counts_.push_back(points.size());
+    cursor->points_ += points.size();
+    for (const ExportPoint& p : points) cursor->bounds_.extend(p.p);
+    if (cursor->points_ > request.max_points)
+      return Fail(Outcome::kInvalid,
+                  "the export would hold more than " + std::to_string(request.max_points) +
+                      " points: narrow the box or take a coarser level");
   }
+  *out = std::move(cursor);
+  return {};
+}
+
+Result MapStore::Export(const ExportRequest& request,
+                        std::vector<ExportPoint>* points,
+                        std::string* utm_zone) const {
+  points->clear();
+  std::unique_ptr<ExportCursor> cursor;
+  Result r = PrepareExport(request, &cursor);
+  if (!r) return r;
+  std::vector<ExportPoint> tile;
+  while (!cursor->done()) {
+    r = cursor->Next(&tile);
+    if (!r) return r;
+    points->insert(points->end(), tile.begin(), tile.end());
+  }
+  *utm_zone = cursor->utm_zone();
   return {};
 }
 

@@ -159,6 +159,42 @@ struct RecoveryReport {
   std::vector<std::pair<int64_t, uint64_t>> recovered, lost;
 };
 
+class MapStore;
+
+/// An export read tile by tile: what it holds is counted when it is made (one pass over the
+/// tiles), then Next gives each tile's points in turn, so the points never all sit in memory.
+/// Made by MapStore::PrepareExport; used while the store is open. A tile that a live run adds
+/// to in between gives no more points than were counted.
+class ExportCursor {
+ public:
+  ~ExportCursor();
+  ExportCursor(const ExportCursor&) = delete;
+  ExportCursor& operator=(const ExportCursor&) = delete;
+
+  size_t points() const { return points_; }
+  const Eigen::AlignedBox3d& bounds() const { return bounds_; }
+  const std::string& utm_zone() const { return zone_; }
+  bool done() const { return next_ >= tiles_.size(); }
+  /// The points of the next tile (`points` is replaced).
+  Result Next(std::vector<ExportPoint>* points);
+
+ private:
+  friend class MapStore;
+  struct Filter;
+  ExportCursor(const MapStore* store, int64_t run_id, std::unique_ptr<Filter> filter);
+  /// A tile's points that the filter takes.
+  Result Read(const TileKey& key, std::vector<ExportPoint>* points);
+
+  const MapStore* store_;
+  int64_t run_id_;
+  std::unique_ptr<Filter> filter_;
+  std::vector<TileKey> tiles_;
+  std::vector<size_t> counts_;  ///< each tile's points when counted
+  size_t next_ = 0, points_ = 0;
+  Eigen::AlignedBox3d bounds_;
+  std::string zone_;
+};
+
 /// A folder holding every run as Draco tiles on a UTM grid with a level-of-detail pyramid, and
 /// an SQLite index (WAL) of runs, submaps, poses and tiles. A submap is acknowledged once its
 /// payload is in the incoming folder and its row committed; its points go into tiles held in
@@ -198,7 +234,9 @@ class MapStore {
                    LineInfo* out);
 
   /// The points of a run in a box or along a km range (tile points, within their stated
-  /// error); refused if they would be more than request.max_points.
+  /// error), counted; refused if they would be more than request.max_points.
+  Result PrepareExport(const ExportRequest& request, std::unique_ptr<ExportCursor>* cursor) const;
+  /// PrepareExport's points all at once.
   Result Export(const ExportRequest& request,
                 std::vector<ExportPoint>* points,
                 std::string* utm_zone) const;

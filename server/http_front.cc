@@ -151,6 +151,7 @@ void HttpResponse::SetError(int code_status, const std::string& code, const std:
 }
 
 uint64_t HttpResponse::BodySize() const {
+  if (produce) return produced_size;
   if (!file_path.empty()) return file_size;
   return shared_body ? shared_body->size() : body.size();
 }
@@ -639,6 +640,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   void WriteNext() {
+    if (response_.produce && body_first_ < body_end_) return Produce();
     std::vector<net::const_buffer> buffers;
     if (!head_sent_) buffers.push_back(net::buffer(head_));
     const uint64_t take = std::min(kWriteChunkBytes, body_end_ - body_first_);
@@ -655,6 +657,29 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     } else {
       pending_ = 0;
     }
+    Write(buffers);
+  }
+
+  /// The next piece of a produced body, made on a worker, then written.
+  void Produce() {
+    net::post(front_->workers_, [self = shared_from_this()] {
+      self->piece_.clear();
+      const bool ok = self->response_.produce(&self->piece_);
+      net::post(self->stream_.get_executor(), [self, ok] { self->WritePiece(ok); });
+    });
+  }
+
+  void WritePiece(bool ok) {
+    // A failed or misfit piece would make the length sent a lie: the connection closes.
+    if (!ok || piece_.empty() || piece_.size() > body_end_ - body_first_) return Close();
+    std::vector<net::const_buffer> buffers;
+    if (!head_sent_) buffers.push_back(net::buffer(head_));
+    buffers.push_back(net::buffer(piece_));
+    pending_ = piece_.size();
+    Write(buffers);
+  }
+
+  void Write(const std::vector<net::const_buffer>& buffers) {
     stream_.expires_after(std::chrono::seconds(limits().io_timeout_s));
     net::async_write(stream_, buffers, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec == beast::error::timeout) ++self->front_->body_timeouts_;
@@ -670,6 +695,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     if (fd_ >= 0) ::close(fd_);
     fd_ = -1;
     response_ = HttpResponse();
+    piece_ = std::string();
     if (keep_alive_) return ReadHeader();
     Linger();
   }
@@ -719,6 +745,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
   uint64_t body_first_ = 0, body_end_ = 0, pending_ = 0;
   int fd_ = -1;
   std::vector<char> chunk_;
+  std::string piece_;  ///< of a produced body
   std::unique_ptr<char[]> linger_;
   Clock::time_point linger_end_;
 };

@@ -33,7 +33,8 @@ struct HttpRequest {
 };
 
 /// A handler's answer. The body is one of: owned bytes, shared bytes (a cached tile, sent
-/// without a copy) or a file streamed from disk.
+/// without a copy), a file streamed from disk, or pieces made one after another on a worker
+/// (an export, which never sits in memory whole).
 struct HttpResponse {
   int status = 200;
   std::string content_type;
@@ -41,6 +42,10 @@ struct HttpResponse {
   std::shared_ptr<const std::string> shared_body;
   std::string file_path;  ///< with file_size: the body is this file
   uint64_t file_size = 0;
+  /// With produced_size (the whole body's bytes): appends the body's next piece; false on an
+  /// error, which closes the connection (the length sent cannot be kept).
+  std::function<bool(std::string* piece)> produce;
+  uint64_t produced_size = 0;
   std::vector<std::pair<std::string, std::string>> headers;
   bool close = false;  ///< the connection closes after this answer
 

@@ -1,6 +1,7 @@
 #include "server/routes.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -562,23 +563,70 @@ class Api {
     mapstore::ExportFormat format = mapstore::ExportFormat::kLas;
     if (req.HasParam("format") && !mapstore::ParseExportFormat(req.Param("format"), &format))
       return res.SetError(400, "invalid", "format must be ply, pcd or las");
-    std::vector<mapstore::ExportPoint> points;
-    std::string zone;
-    const mapstore::Result r = store_.Export(request, &points, &zone);
+    // Exports read every tile they cover twice (to count, then to send): a few at a time.
+    auto slot = std::make_shared<ExportSlot>(&exports_running_);
+    if (slot->running() > c_.config->max_concurrent_exports)
+      return res.SetError(503,
+                          "busy",
+                          std::to_string(c_.config->max_concurrent_exports) +
+                              " exports are running (max_concurrent_exports); try again shortly");
+    auto stream = std::make_shared<ExportStream>();
+    stream->slot = slot;
+    const mapstore::Result r = store_.PrepareExport(request, &stream->cursor);
     if (!r) return SendResult(res, r);
+    const mapstore::ExportCursor& cursor = *stream->cursor;
     std::string why;
-    std::string body = mapstore::EncodeExport(points, format, zone, &why);
-    if (body.empty())
+    if (!stream->encoder.Begin(
+            format, cursor.points(), cursor.bounds(), cursor.utm_zone(), &stream->head, &why))
       return res.SetError(413,
                           "too_large",
-                          std::to_string(points.size()) + " points: " + why +
+                          std::to_string(cursor.points()) + " points: " + why +
                               "; ask for ply or pcd, or a smaller box");
     res.SetHeader("Content-Disposition",
                   "attachment; filename=\"run-" + std::to_string(request.run_id) + "." +
                       mapstore::ExtensionOf(format) + "\"");
-    res.SetHeader("X-Points", std::to_string(points.size()));
-    res.SetContent(std::move(body), "application/octet-stream");
+    res.SetHeader("X-Points", std::to_string(cursor.points()));
+    res.content_type = "application/octet-stream";
+    // The file goes out a tile at a time: its points never sit in memory whole.
+    res.produced_size = stream->head.size() + cursor.points() * stream->encoder.RecordBytes();
+    res.produce = [stream](std::string* piece) { return stream->Next(piece); };
   }
+
+  /// One export under way: counted while it lives.
+  class ExportSlot {
+   public:
+    explicit ExportSlot(std::atomic<int>* running) : running_(running), now_(++*running) {}
+    ~ExportSlot() { --*running_; }
+    int running() const { return now_; }
+
+   private:
+    std::atomic<int>* running_;
+    int now_;
+  };
+
+  /// An export being sent: the header, then each tile's points encoded.
+  struct ExportStream {
+    std::shared_ptr<ExportSlot> slot;
+    std::unique_ptr<mapstore::ExportCursor> cursor;
+    mapstore::ExportEncoder encoder;
+    std::string head;
+    bool head_sent = false;
+    std::vector<mapstore::ExportPoint> points;
+
+    bool Next(std::string* piece) {
+      if (!head_sent) {
+        head_sent = true;
+        *piece = std::move(head);
+        if (!piece->empty()) return true;
+      }
+      while (piece->empty() && !cursor->done()) {
+        if (!cursor->Next(&points)) return false;
+        piece->reserve(points.size() * encoder.RecordBytes());
+        for (const mapstore::ExportPoint& p : points) encoder.Append(p, piece);
+      }
+      return !piece->empty();
+    }
+  };
 
   /// The export's run, level, box or km range from the path and query; false with a 400 set.
   bool ExportRequestOf(const HttpRequest& req, HttpResponse& res, mapstore::ExportRequest* out) {
@@ -613,6 +661,7 @@ class Api {
   ApiContext c_;
   mapstore::MapStore& store_;
   LiveHub& hub_;
+  std::atomic<int> exports_running_{0};
 };
 
 }  // namespace

@@ -29,6 +29,8 @@ bool ServerConfig::IsValid(std::string* error) const {
   if (http_threads < 1 || http_threads > 1024)
     return *error = "http_threads must be in [1, 1024]", false;
   if (max_export_points < 1) return *error = "max_export_points must be at least 1", false;
+  if (max_concurrent_exports < 1)
+    return *error = "max_concurrent_exports must be at least 1", false;
   if (ws_threads < 1 || ws_threads > 64) return *error = "ws_threads must be in [1, 64]", false;
   if (ws_max_clients < 1) return *error = "ws_max_clients must be at least 1", false;
   if (ws_queue_messages < 8) return *error = "ws_queue_messages must be at least 8", false;
@@ -60,6 +62,7 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
     root.Read("io_threads", &c->io_threads);
     root.Read("http_threads", &c->http_threads);
     root.Read("max_export_points", &c->max_export_points);
+    root.Read("max_concurrent_exports", &c->max_concurrent_exports);
     root.Read("ws_threads", &c->ws_threads);
     root.Read("ws_max_clients", &c->ws_max_clients);
     root.Read("ws_queue_messages", &c->ws_queue_messages);
@@ -117,6 +120,7 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"io_threads", s(c.io_threads)},
       {"http_threads", s(c.http_threads)},
       {"max_export_points", s(c.max_export_points)},
+      {"max_concurrent_exports", s(c.max_concurrent_exports)},
       {"ws_threads", s(c.ws_threads)},
       {"ws_max_clients", s(c.ws_max_clients)},
       {"ws_queue_messages", s(c.ws_queue_messages)},

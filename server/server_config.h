@@ -27,11 +27,14 @@ struct ServerConfig {
   /// A request's header must arrive within this time of the connection opening or of the
   /// previous answer; an idle keep-alive connection closes after it.
   int header_timeout_s = 10;
-  int request_timeout_s = 30;            ///< each read of a body and each write of an answer
-  int max_connections = 1000;            ///< HTTP connections open at once (503 beyond)
-  int io_threads = 2;                    ///< the HTTP event loop's threads (connections hold none)
-  int http_threads = 8;                  ///< threads that run request handlers
-  size_t max_export_points = 2'000'000;  ///< an export of more points is refused
+  int request_timeout_s = 30;  ///< each read of a body and each write of an answer
+  int max_connections = 1000;  ///< HTTP connections open at once (503 beyond)
+  int io_threads = 2;          ///< the HTTP event loop's threads (connections hold none)
+  int http_threads = 8;        ///< threads that run request handlers
+  /// An export of more points is refused. Exports are sent a tile at a time (their points
+  /// never sit in memory whole), so this bounds the work of one, not its memory.
+  size_t max_export_points = 200'000'000;
+  int max_concurrent_exports = 2;  ///< exports under way at once (503 beyond)
   int ws_threads = 2;
   int ws_max_clients = 256;        ///< live connections open at once, upgraded or not
   size_t ws_queue_messages = 512;  ///< per live client; beyond it old poses are dropped

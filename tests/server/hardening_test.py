@@ -6,6 +6,7 @@ numbers at their limits, lost submap payloads after a crash, and the store's fil
 
 Memory is the server's peak resident size (VmHWM) before and after the attack. Run one test
 with: python3 tests/server/hardening_test.py Hardening.test_gzip_body_is_refused_unread"""
+import http.client
 import json
 import os
 import signal
@@ -232,6 +233,37 @@ class Hardening(unittest.TestCase):
         self.assertEqual(status, 400)
         info = self.server.json("GET", "/api/v1/runs/%d" % run)[1]
         self.assertEqual((info["submaps"], info["poses"]), (0, 0))
+
+    def test_a_large_export_is_sent_without_holding_it(self):
+        # 50 submaps 40 m apart, 64 000 points each: 3.2 million points in the tiles.
+        run = self.server.create_run()
+        points = [(0.1 * x + 0.05, 0.1 * y + 0.05, 0.05) for x in range(400) for y in range(-80, 80)]
+        for i in range(0, 100, 2):
+            status, _, body = self.server.request("POST", "/api/v1/runs/%d/submaps" % run,
+                                                  submap_pcd(i, points=points), self.server.token)
+            self.assertEqual(status, 201, body)
+        self.assertEqual(self.server.write("POST", "/api/v1/runs/%d/finish" % run, {})[0], 200)
+        # A fresh process: the tiles on disk, nothing of the ingest in memory.
+        data = self.server.data
+        self.server.stop()
+        self.server = Server(data=data)
+        self.server.request("GET", "/health")
+        baseline = self.server.status("VmHWM")
+        conn = http.client.HTTPConnection("127.0.0.1", self.server.port, timeout=60)
+        conn.request("GET", "/api/v1/runs/%d/export?format=las&bbox=0,0,1000000,10000000" % run)
+        r = conn.getresponse()
+        self.assertEqual(r.status, 200)
+        self.assertEqual(int(r.getheader("X-Points")), 50 * 64000)
+        received = 0
+        while True:
+            piece = r.read(1 << 20)
+            if not piece:
+                break
+            received += len(piece)
+        conn.close()
+        self.assertEqual(received, 227 + 102 + 20 * 50 * 64000)  # header, zone key, records
+        growth = self.server.status("VmHWM") - baseline
+        self.assertLess(growth, UNAUTHENTICATED_GROWTH_MB, "peak memory grew by %.0f MB" % growth)
 
     def test_pose_batches_are_bounded(self):
         run = self.server.create_run()
