@@ -155,6 +155,22 @@ class Hardening(unittest.TestCase):
         self.assertEqual(closed, 300)
         self.assertGreaterEqual(self.server.metric("raillomer_http_header_timeouts_total"), 300)
 
+    # 3. The live hub bounds its connections too, upgraded or not.
+    def test_the_live_hub_bounds_its_connections(self):
+        self.server.cleanup()
+        self.server = Server(config="ws_max_clients: 8\nheader_timeout_s: 2\n")
+        held = [socket.create_connection(("127.0.0.1", self.server.ws_port)) for _ in range(8)]
+        time.sleep(0.2)
+        answer, _ = raw_exchange(self.server.ws_port, b"GET /live HTTP/1.1\r\nHost: x\r\n\r\n")
+        self.assertEqual(status_of(answer), 503, answer)
+        self.assertIn(b"ws_max_clients", answer)
+        # The held ones never sent an upgrade: the header deadline closes them, and room returns.
+        time.sleep(2.5)
+        for s in held:
+            s.close()
+        answer, _ = raw_exchange(self.server.ws_port, b"GET /nowhere HTTP/1.1\r\nHost: x\r\n\r\n")
+        self.assertEqual(status_of(answer), 404, answer)
+
     # 4. Headers are bounded in size: a flood is refused (431) before it is held.
     def test_header_flood_is_refused(self):
         def flood():
