@@ -1,0 +1,245 @@
+#include "mapstore/run_registration.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+
+#include <Eigen/Eigenvalues>
+
+namespace raillomer::mapstore {
+namespace {
+
+/// A cell of a cubic grid.
+struct Cell {
+  int64_t x, y, z;
+  bool operator==(const Cell& o) const { return x == o.x && y == o.y && z == o.z; }
+};
+struct CellHash {
+  size_t operator()(const Cell& c) const {
+    return static_cast<size_t>(c.x * 73856093) ^ static_cast<size_t>(c.y * 19349663) ^
+           static_cast<size_t>(c.z * 83492791);
+  }
+};
+
+Cell CellOf(const Eigen::Vector3d& p, double side) {
+  return {static_cast<int64_t>(std::floor(p.x() / side)),
+          static_cast<int64_t>(std::floor(p.y() / side)),
+          static_cast<int64_t>(std::floor(p.z() / side))};
+}
+
+/// The fixed cloud on a grid of cells as large as the search radius: a point's neighbours
+/// within the radius lie in its cell and the 26 around it.
+class Grid {
+ public:
+  Grid(const std::vector<Eigen::Vector3d>& points, double side) : points_(points), side_(side) {
+    for (size_t i = 0; i < points.size(); ++i) cells_[CellOf(points[i], side)].push_back(i);
+  }
+
+  /// The indices of the points within `radius` (at most the grid's side) of `p`.
+  void Near(const Eigen::Vector3d& p, double radius, std::vector<size_t>* out) const {
+    out->clear();
+    const Cell c = CellOf(p, side_);
+    for (int64_t dx = -1; dx <= 1; ++dx)
+      for (int64_t dy = -1; dy <= 1; ++dy)
+        for (int64_t dz = -1; dz <= 1; ++dz) {
+          const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
+          if (it == cells_.end()) continue;
+          for (size_t i : it->second)
+            if ((points_[i] - p).squaredNorm() <= radius * radius) out->push_back(i);
+        }
+  }
+
+  /// The nearest point within `radius`; false if there is none.
+  bool Nearest(const Eigen::Vector3d& p, double radius, size_t* index) const {
+    const Cell c = CellOf(p, side_);
+    double best = radius * radius;
+    bool found = false;
+    for (int64_t dx = -1; dx <= 1; ++dx)
+      for (int64_t dy = -1; dy <= 1; ++dy)
+        for (int64_t dz = -1; dz <= 1; ++dz) {
+          const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
+          if (it == cells_.end()) continue;
+          for (size_t i : it->second) {
+            const double d = (points_[i] - p).squaredNorm();
+            if (d <= best) {
+              best = d;
+              *index = i;
+              found = true;
+            }
+          }
+        }
+    return found;
+  }
+
+ private:
+  const std::vector<Eigen::Vector3d>& points_;
+  double side_;
+  std::unordered_map<Cell, std::vector<size_t>, CellHash> cells_;
+};
+
+/// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere).
+std::vector<Eigen::Vector3d> Normals(const std::vector<Eigen::Vector3d>& points,
+                                     const RegistrationOptions& o) {
+  const Grid grid(points, o.normal_radius_m);
+  std::vector<Eigen::Vector3d> normals(points.size(), Eigen::Vector3d::Zero());
+  std::vector<size_t> near;
+  for (size_t i = 0; i < points.size(); ++i) {
+    grid.Near(points[i], o.normal_radius_m, &near);
+    if (near.size() < 5) continue;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (size_t k : near) mean += points[k];
+    mean /= static_cast<double>(near.size());
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (size_t k : near) cov += (points[k] - mean) * (points[k] - mean).transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+    const Eigen::Vector3d values = eig.eigenvalues();  // ascending
+    if (values.sum() > 0.0 && values(0) <= o.planarity * values.sum())
+      normals[i] = eig.eigenvectors().col(0);
+  }
+  return normals;
+}
+
+/// A correspondence: the moved point, its partner and the partner's normal (zero: point to
+/// point).
+struct Pair {
+  Eigen::Vector3d p, q, n;
+};
+
+double Residual(const Pair& c) {
+  return c.n.isZero() ? (c.p - c.q).norm() : std::abs(c.n.dot(c.p - c.q));
+}
+
+}  // namespace
+
+bool RegistrationOptions::IsValid(std::string* error) const {
+  if (!(voxel_m > 0.0 && max_correspondence_m > 0.0 && normal_radius_m > 0.0))
+    return *error = "voxel_m, max_correspondence_m and normal_radius_m must be positive", false;
+  if (!(initial_correspondence_m >= max_correspondence_m))
+    return *error = "initial_correspondence_m must be at least max_correspondence_m", false;
+  if (!(planarity > 0.0 && planarity < 1.0 / 3.0))
+    return *error = "planarity must be in (0, 1/3)", false;
+  if (max_iterations < 1) return *error = "max_iterations must be at least 1", false;
+  if (!(kernel_floor_m > 0.0)) return *error = "kernel_floor_m must be positive", false;
+  return true;
+}
+
+std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& points,
+                                            double voxel_m) {
+  std::unordered_map<Cell, std::pair<Eigen::Vector3d, int>, CellHash> sums;
+  for (const Eigen::Vector3d& p : points) {
+    auto& [sum, n] = sums.try_emplace(CellOf(p, voxel_m), Eigen::Vector3d::Zero(), 0).first->second;
+    sum += p;
+    ++n;
+  }
+  std::vector<Eigen::Vector3d> out;
+  out.reserve(sums.size());
+  for (const auto& [cell, s] : sums) out.push_back(s.first / s.second);
+  return out;
+}
+
+namespace {
+
+/// One stage of the registration at a correspondence distance, from `result`'s transform.
+void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
+                   const std::vector<Eigen::Vector3d>& moving,
+                   double correspondence_m,
+                   const RegistrationOptions& o,
+                   RegistrationResult* result) {
+  RegistrationOptions stage = o;
+  stage.normal_radius_m = std::max(o.normal_radius_m, 2.5 * o.voxel_m);
+  const std::vector<Eigen::Vector3d> normals = Normals(fixed, stage);
+  const Grid grid(fixed, correspondence_m);
+  std::vector<Pair> pairs;
+  std::vector<double> residuals;
+  result->converged = false;
+  for (int iteration = 0; iteration < o.max_iterations; ++iteration) {
+    ++result->iterations;
+    // Correspondences: each moved point and the nearest fixed one.
+    pairs.clear();
+    for (const Eigen::Vector3d& m : moving) {
+      const Eigen::Vector3d p = result->T_fixed_moving * m;
+      size_t k = 0;
+      if (grid.Nearest(p, correspondence_m, &k)) pairs.push_back({p, fixed[k], normals[k]});
+    }
+    result->pairs = pairs.size();
+    if (pairs.size() < 6) return;
+    residuals.resize(pairs.size());
+    for (size_t i = 0; i < pairs.size(); ++i) residuals[i] = Residual(pairs[i]);
+    std::vector<double> sorted = residuals;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    // The ground agrees at once (its median residual is soon near zero): the scale keeps room
+    // for the few structures (masts, walls) that still disagree by up to the stage's distance.
+    const double scale = std::max(
+        {o.kernel_floor_m, 1.5 * sorted[sorted.size() / 2], 0.5 * correspondence_m});
+    // Gauss-Newton on a left perturbation [dt, dtheta]: d(R p + t) = dt + dtheta x (R p + t).
+    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    double inlier_sq = 0.0;
+    result->inliers = 0;
+    for (size_t i = 0; i < pairs.size(); ++i) {
+      const Pair& c = pairs[i];
+      // Geman-McClure weight: residuals well beyond the scale (what changed) count for little.
+      const double u = residuals[i] / scale;
+      const double w = 1.0 / ((1.0 + u * u) * (1.0 + u * u));
+      if (residuals[i] <= scale) {
+        ++result->inliers;
+        inlier_sq += residuals[i] * residuals[i];
+      }
+      auto add = [&](const Eigen::Vector3d& n, double r) {
+        Eigen::Matrix<double, 6, 1> J;
+        J << n, c.p.cross(n);
+        H += w * J * J.transpose();
+        b += w * J * r;
+      };
+      if (!c.n.isZero()) {
+        add(c.n, c.n.dot(c.p - c.q));
+      } else {
+        for (int a = 0; a < 3; ++a) add(Eigen::Vector3d::Unit(a), c.p[a] - c.q[a]);
+      }
+    }
+    result->rms_m = result->inliers > 0 ? std::sqrt(inlier_sq / result->inliers) : 0.0;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> translation(H.topLeftCorner<3, 3>());
+    result->translation_conditioning =
+        translation.eigenvalues()(2) > 0.0
+            ? translation.eigenvalues()(0) / translation.eigenvalues()(2)
+            : 0.0;
+    // A little damping keeps a direction the stretch cannot see (along a bare straight) still.
+    const Eigen::Matrix<double, 6, 1> step =
+        -(H + 1e-9 * H.trace() * Eigen::Matrix<double, 6, 6>::Identity()).ldlt().solve(b);
+    Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d dtheta = step.tail<3>();
+    if (dtheta.norm() > 0.0)
+      delta.linear() = Eigen::AngleAxisd(dtheta.norm(), dtheta.normalized()).toRotationMatrix();
+    delta.translation() = step.head<3>();
+    result->T_fixed_moving = delta * result->T_fixed_moving;
+    // How far the step moved the cloud: its translation and the rotation at 50 m.
+    if (step.head<3>().norm() + 50.0 * dtheta.norm() < o.converged_step_m) {
+      result->converged = true;
+      return;
+    }
+  }
+}
+
+}  // namespace
+
+RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_points,
+                                  const std::vector<Eigen::Vector3d>& moving_points,
+                                  const Eigen::Isometry3d& initial,
+                                  const RegistrationOptions& o) {
+  RegistrationResult result;
+  result.T_fixed_moving = initial;
+  double distance = std::max(o.initial_correspondence_m, o.max_correspondence_m);
+  while (true) {
+    RegistrationOptions stage = o;
+    stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
+    const std::vector<Eigen::Vector3d> fixed = VoxelCentroids(fixed_points, stage.voxel_m);
+    const std::vector<Eigen::Vector3d> moving = VoxelCentroids(moving_points, stage.voxel_m);
+    if (fixed.size() < 10 || moving.size() < 10) return result;
+    RegisterStage(fixed, moving, distance, stage, &result);
+    if (distance <= o.max_correspondence_m) break;
+    distance = std::max(o.max_correspondence_m, 0.5 * distance);
+  }
+  return result;
+}
+
+}  // namespace raillomer::mapstore

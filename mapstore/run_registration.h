@@ -1,0 +1,58 @@
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace raillomer::mapstore {
+
+/// Settings of the run-to-run registration of one stretch.
+struct RegistrationOptions {
+  /// Coarse to fine: the first stage pairs points up to this far apart (the runs' GNSS
+  /// placements differ by metres), each next stage half as far, down to max_correspondence_m;
+  /// each stage thins both clouds to voxels of a fifth of its distance (at least voxel_m).
+  double initial_correspondence_m = 4.0;
+  double max_correspondence_m = 0.5;
+  double voxel_m = 0.2;
+  double normal_radius_m = 0.5;  ///< a fixed point's neighbourhood for its surface normal
+  /// A neighbourhood is a plane when its smallest eigenvalue is below this share of the sum;
+  /// other points pair point to point.
+  double planarity = 0.05;
+  int max_iterations = 30;  ///< per stage
+  /// The robust kernel's (Geman-McClure) scale: 1.5 times the median residual, never below
+  /// half the stage's correspondence distance nor this, so that what changed between the runs
+  /// does not pull.
+  double kernel_floor_m = 0.03;
+  double converged_step_m = 0.0005;  ///< stop when a step moves the cloud less than this
+  bool IsValid(std::string* error) const;
+};
+
+/// What a registration came to.
+struct RegistrationResult {
+  Eigen::Isometry3d T_fixed_moving = Eigen::Isometry3d::Identity();
+  bool converged = false;
+  int iterations = 0;
+  size_t pairs = 0;    ///< correspondences in the last iteration
+  size_t inliers = 0;  ///< of them within the kernel's scale
+  double rms_m = 0.0;  ///< RMS of the inliers' residuals (point to plane where planar)
+  /// The smallest eigenvalue of the normal equations' translation block over the largest: near
+  /// zero where the stretch cannot tell a shift (a featureless straight along the track).
+  double translation_conditioning = 0.0;
+};
+
+/// Registers `moving` onto `fixed`, robust point-to-plane ICP from `initial` (T_fixed_moving).
+/// Both clouds are in one local frame with coordinates of a few hundred metres at most (take
+/// UTM minus a stretch origin): doubles, but small.
+RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed,
+                                  const std::vector<Eigen::Vector3d>& moving,
+                                  const Eigen::Isometry3d& initial,
+                                  const RegistrationOptions& options);
+
+/// The centroids of the points in each voxel of side `voxel_m`.
+std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& points,
+                                            double voxel_m);
+
+}  // namespace raillomer::mapstore
