@@ -115,6 +115,18 @@ int64_t NowNs() {
       .count();
 }
 
+/// Answers a GET of one stored record by the path's id: `get(id, &record)`, sent as JSON by
+/// `to_json`, or the store's error.
+template <typename Record, typename Get, typename ToJson>
+void SendOne(const HttpRequest& req, HttpResponse& res, const char* what, Get get, ToJson to_json) {
+  int64_t id = 0;
+  if (!PathId(req, res, &id, what)) return;
+  Record record;
+  const mapstore::Result r = get(id, &record);
+  if (!r) return SendResult(res, r);
+  SendJson(res, to_json(record));
+}
+
 /// The API's handlers over the context's store, hub and metrics.
 class Api {
  public:
@@ -224,12 +236,8 @@ class Api {
   }
 
   void GetRun(const HttpRequest& req, HttpResponse& res) {
-    int64_t id = 0;
-    if (!PathId(req, res, &id)) return;
-    mapstore::RunInfo info;
-    const mapstore::Result r = store_.GetRun(id, &info);
-    if (!r) return SendResult(res, r);
-    SendJson(res, RunJson(info));
+    SendOne<mapstore::RunInfo>(
+        req, res, "run", [this](int64_t id, auto* run) { return store_.GetRun(id, run); }, RunJson);
   }
 
   void FinishRun(const HttpRequest& req, HttpResponse& res) {
@@ -527,12 +535,12 @@ class Api {
   }
 
   void GetPoi(const HttpRequest& req, HttpResponse& res) {
-    int64_t id = 0;
-    if (!PathId(req, res, &id, "point of interest")) return;
-    mapstore::Poi poi;
-    const mapstore::Result r = store_.GetPoi(id, &poi);
-    if (!r) return SendResult(res, r);
-    SendJson(res, PoiJson(poi));
+    SendOne<mapstore::Poi>(
+        req,
+        res,
+        "point of interest",
+        [this](int64_t id, auto* poi) { return store_.GetPoi(id, poi); },
+        PoiJson);
   }
 
   void UpdatePoi(const HttpRequest& req, HttpResponse& res) {

@@ -572,6 +572,29 @@ TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
   EXPECT_GE(routes, 12);
 }
 
+/// The lines of a TUM file that are poses.
+int TumPoses(const fs::path& file) {
+  std::ifstream in(file);
+  int poses = 0;
+  for (std::string line; std::getline(in, line);)
+    if (!line.empty() && line[0] != '#') ++poses;
+  return poses;
+}
+
+/// The store in `dir`/data holds `poses` poses and `submaps` submaps, each numbered apart 0, 1,
+/// 2, ... without a gap or a repeat (read with the sqlite3 tool).
+void ExpectNumberedOnce(const fs::path& dir, int poses, int submaps) {
+  const CommandResult sql =
+      RunCommand("sqlite3 " + ShellQuote((dir / "data" / "index.sqlite").string()) +
+                     " 'SELECT count(*), max(sequence) FROM poses; SELECT count(*), "
+                     "max(sequence) FROM submaps;'",
+                 dir);
+  EXPECT_EQ(sql.out,
+            std::to_string(poses) + "|" + std::to_string(poses - 1) + "\n" +
+                std::to_string(submaps) + "|" + std::to_string(submaps - 1) + "\n")
+      << sql.err;
+}
+
 TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
   ScratchDir scratch("raillomer_server_");
   const fs::path dir = scratch.path();
@@ -607,36 +630,14 @@ TEST(Server, AnOutageWhileTheEstimatorStreamsLosesNothingAndDuplicatesNothing) {
   // Every pose and submap the estimator wrote is on the server once: the sequence numbers run
   // without a gap, and the counts match what the estimator wrote itself.
   const json summary = json::parse(ReadText(dir / "estimate" / "summary.json"));
-  std::ifstream trajectory(dir / "estimate" / "trajectory.tum");
-  int poses = 0;
-  for (std::string line; std::getline(trajectory, line);)
-    if (!line.empty() && line[0] != '#') ++poses;
+  const int poses = TumPoses(dir / "estimate" / "trajectory.tum");
   const CurlResult run = Curl(ShellQuote(server->Url("/api/v1/runs/1")), dir);
   const json r = json::parse(run.body);
   EXPECT_EQ(r["status"], "finished");
   EXPECT_EQ(r["poses"], poses);
   EXPECT_EQ(r["submaps"], summary["submaps"]["count"]);
   server->Stop(SIGTERM);
-  // Poses and submaps are numbered apart: 0, 1, 2, ... each, without a gap or a repeat.
-  const CommandResult sql =
-      RunCommand("sqlite3 " + ShellQuote((dir / "data" / "index.sqlite").string()) +
-                     " 'SELECT count(*), max(sequence) FROM poses; SELECT count(*), "
-                     "max(sequence) FROM submaps;'",
-                 dir);
-  const int submaps = summary["submaps"]["count"].get<int>();
-  EXPECT_EQ(sql.out,
-            std::to_string(poses) + "|" + std::to_string(poses - 1) + "\n" +
-                std::to_string(submaps) + "|" + std::to_string(submaps - 1) + "\n")
-      << sql.err;
-}
-
-/// The lines of a TUM file that are poses.
-int TumPoses(const fs::path& file) {
-  std::ifstream in(file);
-  int poses = 0;
-  for (std::string line; std::getline(in, line);)
-    if (!line.empty() && line[0] != '#') ++poses;
-  return poses;
+  ExpectNumberedOnce(dir, poses, summary["submaps"]["count"].get<int>());
 }
 
 /// The estimator streaming the first 20 s of the simulated demo run (7 submaps) into `server`
@@ -726,15 +727,7 @@ TEST(Server, AnEstimatorRestartedOnItsOutboxResumesTheRunWithoutADuplicate) {
     EXPECT_LE(Metric(*server, "raillomer_submaps_duplicate_total", dir), 1);
     EXPECT_LE(Metric(*server, "raillomer_poses_duplicate_total", dir), 10);
     server->Stop(SIGTERM);
-    const CommandResult sql =
-        RunCommand("sqlite3 " + ShellQuote((dir / "data" / "index.sqlite").string()) +
-                       " 'SELECT count(*), max(sequence) FROM poses; SELECT count(*), "
-                       "max(sequence) FROM submaps;'",
-                   dir);
-    EXPECT_EQ(sql.out,
-              std::to_string(poses) + "|" + std::to_string(poses - 1) + "\n" +
-                  std::to_string(submaps) + "|" + std::to_string(submaps - 1) + "\n")
-        << sql.err;
+    ExpectNumberedOnce(dir, poses, submaps);
   }
 }
 
