@@ -13,8 +13,9 @@ packages=(
   libceres-dev libpcl-dev
   # simulator ray casting
   libembree-dev
-  # map store: Draco tiles (and Debian's draco_decoder, an independent check), the SQLite index
-  libdraco-dev draco libsqlite3-dev sqlite3
+  # map store: Draco tiles (and Debian's draco_decoder, an independent check), the SQLite index,
+  # OctoMap for change detection's occupancy
+  libdraco-dev draco libsqlite3-dev sqlite3 liboctomap-dev
   # server: HTTP, WebSocket (Boost.Beast); tests with clients that are not ours; load tests
   libcpp-httplib-dev libboost-dev python3-websockets curl wrk
   # ROS1 bags without ROS

@@ -6,26 +6,10 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "mapstore/grid_cell.h"
+
 namespace raillomer::mapstore {
 namespace {
-
-/// A cell of a cubic grid.
-struct Cell {
-  int64_t x, y, z;
-  bool operator==(const Cell& o) const { return x == o.x && y == o.y && z == o.z; }
-};
-struct CellHash {
-  size_t operator()(const Cell& c) const {
-    return static_cast<size_t>(c.x * 73856093) ^ static_cast<size_t>(c.y * 19349663) ^
-           static_cast<size_t>(c.z * 83492791);
-  }
-};
-
-Cell CellOf(const Eigen::Vector3d& p, double side) {
-  return {static_cast<int64_t>(std::floor(p.x() / side)),
-          static_cast<int64_t>(std::floor(p.y() / side)),
-          static_cast<int64_t>(std::floor(p.z() / side))};
-}
 
 /// The fixed cloud on a grid of cells as large as the search radius: a point's neighbours
 /// within the radius lie in its cell and the 26 around it.
@@ -38,7 +22,7 @@ class Grid {
   /// The indices of the points within `radius` (at most the grid's side) of `p`.
   void Near(const Eigen::Vector3d& p, double radius, std::vector<size_t>* out) const {
     out->clear();
-    const Cell c = CellOf(p, side_);
+    const GridCell c = CellOf(p, side_);
     for (int64_t dx = -1; dx <= 1; ++dx)
       for (int64_t dy = -1; dy <= 1; ++dy)
         for (int64_t dz = -1; dz <= 1; ++dz) {
@@ -51,7 +35,7 @@ class Grid {
 
   /// The nearest point within `radius`; false if there is none.
   bool Nearest(const Eigen::Vector3d& p, double radius, size_t* index) const {
-    const Cell c = CellOf(p, side_);
+    const GridCell c = CellOf(p, side_);
     double best = radius * radius;
     bool found = false;
     for (int64_t dx = -1; dx <= 1; ++dx)
@@ -74,7 +58,7 @@ class Grid {
  private:
   const std::vector<Eigen::Vector3d>& points_;
   double side_;
-  std::unordered_map<Cell, std::vector<size_t>, CellHash> cells_;
+  std::unordered_map<GridCell, std::vector<size_t>, GridCellHash> cells_;
 };
 
 /// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere).
@@ -125,7 +109,7 @@ bool RegistrationOptions::IsValid(std::string* error) const {
 
 std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& points,
                                             double voxel_m) {
-  std::unordered_map<Cell, std::pair<Eigen::Vector3d, int>, CellHash> sums;
+  std::unordered_map<GridCell, std::pair<Eigen::Vector3d, int>, GridCellHash> sums;
   for (const Eigen::Vector3d& p : points) {
     auto& [sum, n] = sums.try_emplace(CellOf(p, voxel_m), Eigen::Vector3d::Zero(), 0).first->second;
     sum += p;
@@ -169,8 +153,8 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     // The ground agrees at once (its median residual is soon near zero): the scale keeps room
     // for the few structures (masts, walls) that still disagree by up to the stage's distance.
-    const double scale = std::max(
-        {o.kernel_floor_m, 1.5 * sorted[sorted.size() / 2], 0.5 * correspondence_m});
+    const double scale =
+        std::max({o.kernel_floor_m, 1.5 * sorted[sorted.size() / 2], 0.5 * correspondence_m});
     // Gauss-Newton on a left perturbation [dt, dtheta]: d(R p + t) = dt + dtheta x (R p + t).
     Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();

@@ -1,0 +1,215 @@
+#include "mapstore/change_detection.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <unordered_set>
+
+#include <octomap/OcTree.h>
+
+#include "mapstore/grid_cell.h"
+
+namespace raillomer::mapstore {
+namespace {
+
+using VoxelMap = std::unordered_set<GridCell, GridCellHash>;
+
+VoxelMap Voxels(const std::vector<Eigen::Vector3d>& points, double voxel_m) {
+  VoxelMap voxels;
+  voxels.reserve(points.size());
+  for (const Eigen::Vector3d& p : points) voxels.insert(CellOf(p, voxel_m));
+  return voxels;
+}
+
+/// The cell offsets whose centres lie within `radius_m` of a cell's centre.
+std::vector<GridCell> OffsetsWithin(double radius_m, double voxel_m) {
+  const int64_t r = static_cast<int64_t>(std::ceil(radius_m / voxel_m));
+  const double limit = (radius_m / voxel_m) * (radius_m / voxel_m) + 1e-9;
+  std::vector<GridCell> offsets;
+  for (int64_t x = -r; x <= r; ++x)
+    for (int64_t y = -r; y <= r; ++y)
+      for (int64_t z = -r; z <= r; ++z)
+        if (static_cast<double>(x * x + y * y + z * z) <= limit) offsets.push_back({x, y, z});
+  return offsets;
+}
+
+/// The voxels of `of` with no voxel of `in` within the offsets.
+std::vector<GridCell> Missing(const VoxelMap& of,
+                              const VoxelMap& in,
+                              const std::vector<GridCell>& offsets) {
+  std::vector<GridCell> missing;
+  for (const GridCell& c : of) {
+    const bool near = std::any_of(
+        offsets.begin(), offsets.end(), [&](const GridCell& d) { return in.count(c + d) > 0; });
+    if (!near) missing.push_back(c);
+  }
+  return missing;
+}
+
+/// Connected groups of the cells, joined where they lie within the offsets of each other.
+std::vector<std::vector<GridCell>> Clusters(const std::vector<GridCell>& cells,
+                                            const std::vector<GridCell>& offsets) {
+  VoxelMap left(cells.begin(), cells.end());
+  std::vector<std::vector<GridCell>> clusters;
+  for (const GridCell& seed : cells) {
+    if (!left.erase(seed)) continue;
+    std::vector<GridCell> cluster{seed};
+    std::deque<GridCell> queue{seed};
+    while (!queue.empty()) {
+      const GridCell c = queue.front();
+      queue.pop_front();
+      for (const GridCell& d : offsets) {
+        if (!left.erase(c + d)) continue;
+        cluster.push_back(c + d);
+        queue.push_back(c + d);
+      }
+    }
+    clusters.push_back(std::move(cluster));
+  }
+  return clusters;
+}
+
+/// A run's occupied voxels as an OctoMap: every other cell is unknown, which a ray crosses.
+class Occupancy {
+ public:
+  Occupancy(const RunStretch& run, double occupancy_m) : run_(run), tree_(occupancy_m) {
+    const float step = static_cast<float>(occupancy_m);
+    for (const Eigen::Vector3d& p : run.points)
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz)
+            tree_.updateNode(
+                octomap::point3d(p.x() + dx * step, p.y() + dy * step, p.z() + dz * step),
+                true,
+                true);
+    tree_.updateInnerOccupancy();
+  }
+
+  /// Whether this run saw `v` empty: a ray from one of its sensors that had `v` in view passed
+  /// through it and hit something beyond. `reached` tells if some ray got that far at all
+  /// (not occluded before it).
+  bool SeenEmpty(const Eigen::Vector3d& v, const ChangeOptions& o, bool* reached) const {
+    *reached = false;
+    std::vector<size_t> in_view;
+    for (size_t i = 0; i < run_.sensors.size(); ++i)
+      if (InView(run_.sensors[i], v, o)) in_view.push_back(i);
+    const size_t n = std::min(o.sensors_sampled, in_view.size());
+    for (size_t k = 0; k < n; ++k) {
+      const Eigen::Vector3d origin = run_.sensors[in_view[k * in_view.size() / n]].translation();
+      const Eigen::Vector3d ray = v - origin;
+      const double range = ray.norm();
+      octomap::point3d end;
+      const bool hit = tree_.castRay(octomap::point3d(origin.x(), origin.y(), origin.z()),
+                                     octomap::point3d(ray.x(), ray.y(), ray.z()),
+                                     end,
+                                     true,
+                                     range + 30.0);
+      if (!hit) continue;  // no return: a Livox reports nothing, so nothing is known
+      const double at = (Eigen::Vector3d(end.x(), end.y(), end.z()) - origin).norm();
+      if (at < range - 2.5 * o.occupancy_m) continue;  // occluded before it
+      *reached = true;
+      if (at > range + o.beyond_m) return true;
+    }
+    return false;
+  }
+
+ private:
+  static bool InView(const Eigen::Isometry3d& sensor,
+                     const Eigen::Vector3d& v,
+                     const ChangeOptions& o) {
+    const Eigen::Vector3d d = sensor.inverse() * v;
+    const double range = d.norm();
+    if (d.x() <= 0.0 || range < o.min_range_m || range > o.max_range_m) return false;
+    const double azimuth = std::atan2(d.y(), d.x()) * 180.0 / M_PI;
+    const double elevation = std::atan2(d.z(), std::hypot(d.x(), d.y())) * 180.0 / M_PI;
+    return std::abs(azimuth) <= o.fov_half_azimuth_deg &&
+           std::abs(elevation) <= o.fov_half_elevation_deg;
+  }
+
+  const RunStretch& run_;
+  octomap::OcTree tree_;
+};
+
+/// A cluster as a change if it is large enough and the other run saw its place empty.
+bool Confirm(const std::vector<GridCell>& cluster,
+             StretchChange::Kind kind,
+             const Occupancy& other,
+             const ChangeOptions& o,
+             StretchChange* change) {
+  change->kind = kind;
+  change->voxels.clear();
+  change->box.setEmpty();
+  for (const GridCell& c : cluster) {
+    change->voxels.push_back(CentreOf(c, o.voxel_m));
+    change->box.extend(change->voxels.back());
+  }
+  change->box.min().array() -= 0.5 * o.voxel_m;
+  change->box.max().array() += 0.5 * o.voxel_m;
+  change->centre = change->box.center();
+  if (cluster.size() < o.min_object_voxels || change->box.sizes().maxCoeff() < o.min_object_m)
+    return false;
+  const size_t n = std::min(o.voxels_sampled, cluster.size());
+  size_t seen = 0;
+  change->samples = 0;
+  for (size_t k = 0; k < n; ++k) {
+    bool reached = false;
+    seen += other.SeenEmpty(change->voxels[k * cluster.size() / n], o, &reached);
+    change->samples += reached;
+  }
+  change->seen_empty_share = static_cast<double>(seen) / static_cast<double>(n);
+  return true;
+}
+
+}  // namespace
+
+bool ChangeOptions::IsValid(std::string* error) const {
+  if (!(voxel_m > 0.0 && level_of_detection_m >= voxel_m && cluster_gap_m >= voxel_m))
+    return *error = "voxel_m must be positive, level_of_detection_m and cluster_gap_m at least it",
+           false;
+  if (!(min_range_m >= 0.0 && max_range_m > min_range_m))
+    return *error = "max_range_m must be above min_range_m", false;
+  if (!(seen_empty_share > 0.0 && seen_empty_share <= 1.0))
+    return *error = "seen_empty_share must be in (0, 1]", false;
+  if (voxels_sampled < 1 || sensors_sampled < 1)
+    return *error = "voxels_sampled and sensors_sampled must be at least 1", false;
+  return true;
+}
+
+std::vector<StretchChange> CompareStretch(const RunStretch& reference,
+                                          const RunStretch& later,
+                                          const ChangeOptions& o,
+                                          StretchSummary* summary) {
+  StretchSummary s;
+  const VoxelMap ref = Voxels(reference.points, o.voxel_m);
+  const VoxelMap now = Voxels(later.points, o.voxel_m);
+  const std::vector<GridCell> near = OffsetsWithin(o.level_of_detection_m, o.voxel_m);
+  const std::vector<GridCell> joined = OffsetsWithin(o.cluster_gap_m, o.voxel_m);
+  const std::vector<GridCell> added = Missing(now, ref, near);
+  const std::vector<GridCell> removed = Missing(ref, now, near);
+  s.candidates_added = added.size();
+  s.candidates_removed = removed.size();
+  std::vector<StretchChange> changes;
+  // What one run has is a change only where the other run saw the place: its occupancy.
+  auto confirm = [&](const std::vector<GridCell>& cells,
+                     StretchChange::Kind kind,
+                     const RunStretch& other_run) {
+    if (cells.empty()) return;
+    const Occupancy other(other_run, o.occupancy_m);
+    for (const std::vector<GridCell>& cluster : Clusters(cells, joined)) {
+      StretchChange change;
+      if (!Confirm(cluster, kind, other, o, &change)) continue;
+      ++s.objects;
+      if (change.seen_empty_share >= o.seen_empty_share) {
+        changes.push_back(std::move(change));
+      } else {
+        ++s.not_observed;
+      }
+    }
+  };
+  confirm(added, StretchChange::Kind::kAdded, reference);
+  confirm(removed, StretchChange::Kind::kRemoved, later);
+  if (summary) *summary = s;
+  return changes;
+}
+
+}  // namespace raillomer::mapstore

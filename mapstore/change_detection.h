@@ -1,0 +1,74 @@
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace raillomer::mapstore {
+
+/// One run's part of a stretch, in the stretch's local frame (UTM minus its origin), the later
+/// run already registered onto the reference: its map points and where its LiDARs were.
+struct RunStretch {
+  std::vector<Eigen::Vector3d> points;
+  /// Sensor poses (x forward, z up): each LiDAR looked along x within the field of view below.
+  std::vector<Eigen::Isometry3d> sensors;
+};
+
+/// Settings of the comparison of a stretch.
+struct ChangeOptions {
+  double voxel_m = 0.1;  ///< the maps' voxel (the store's level 0)
+  /// A voxel of one run with no voxel of the other within this is a candidate change: the
+  /// level of detection before the stretch's own noise and misregistration are added.
+  double level_of_detection_m = 0.15;
+  double cluster_gap_m = 0.25;            ///< candidate voxels this close form one object
+  double min_object_m = 0.3;              ///< objects smaller in every direction are not reported
+  size_t min_object_voxels = 6;           ///< nor objects of fewer voxels
+  double fov_half_azimuth_deg = 40.85;    ///< Livox Horizon: 81.7 deg wide
+  double fov_half_elevation_deg = 25.25;  ///< two units, +-12.7 deg pitch, 25.1 deg each
+  double min_range_m = 2.0, max_range_m = 100.0;
+  /// The other run's occupancy for the ray test: its points on a grid this coarse, each grown
+  /// by a cell every way, so that a surface it sampled sparsely (far off, at a grazing angle)
+  /// still stops a ray instead of letting it through its gaps.
+  double occupancy_m = 0.2;
+  /// The other run saw a candidate voxel empty when one of its rays passed through it and hit
+  /// something at least this far beyond (a hit nearer is that voxel's own surface).
+  double beyond_m = 0.6;
+  size_t voxels_sampled = 12;  ///< candidate voxels of an object tested for being seen empty
+  size_t sensors_sampled = 6;  ///< sensor poses tried per voxel, spread over those in view
+  /// An object is a change when at least this share of its sampled voxels were seen empty;
+  /// otherwise the other run did not see its place (occluded, beyond range): not observed.
+  double seen_empty_share = 0.3;
+  bool IsValid(std::string* error) const;
+};
+
+/// Something one run has and the other saw empty.
+struct StretchChange {
+  enum class Kind { kAdded, kRemoved };
+  Kind kind = Kind::kAdded;
+  std::vector<Eigen::Vector3d> voxels;  ///< centres, local frame
+  Eigen::AlignedBox3d box;              ///< of the voxels, grown by half a voxel
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  double seen_empty_share = 0.0;  ///< of the sampled voxels the other run saw empty
+  size_t samples = 0;             ///< sampled voxels that some ray of the other run reached
+};
+
+/// What a comparison found and left out, for the record.
+struct StretchSummary {
+  size_t candidates_added = 0, candidates_removed = 0;  ///< voxels
+  size_t objects = 0;                                   ///< clusters of the minimum size
+  size_t not_observed = 0;  ///< of them, the other run did not see the place
+};
+
+/// Compares a stretch of a later run with the reference: voxels one has and the other has not
+/// within the level of detection, clustered into objects, each kept only where the other run's
+/// rays (OctoMap's castRay over its occupied voxels, from its sensor poses that had the place in
+/// view) passed through it: what a run could not see is not observed, never removed.
+std::vector<StretchChange> CompareStretch(const RunStretch& reference,
+                                          const RunStretch& later,
+                                          const ChangeOptions& options,
+                                          StretchSummary* summary = nullptr);
+
+}  // namespace raillomer::mapstore
