@@ -1,0 +1,121 @@
+// raillomer-changes: compares a run of a line with a reference run in a store folder, offline
+// (the server's own detection does the same as runs arrive), and prints the changes.
+#include <cstdio>
+#include <fstream>
+#include <string>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include "mapstore/run_comparison.h"
+
+using namespace raillomer::mapstore;
+
+namespace {
+
+const char* KindName(StretchChange::Kind kind) {
+  return kind == StretchChange::Kind::kAdded ? "added" : "removed";
+}
+
+nlohmann::json ChangeJson(const RunChange& c) {
+  return {{"kind", KindName(c.kind)},
+          {"utm", {c.centre_utm.x(), c.centre_utm.y(), c.centre_utm.z()}},
+          {"utm_zone", c.utm_zone},
+          {"chainage_m", c.chainage_m},
+          {"offset_m", c.offset_m},
+          {"side", c.offset_m >= 0.0 ? "left" : "right"},
+          {"size_m", {c.size_m.x(), c.size_m.y(), c.size_m.z()}},
+          {"height_above_rail_m", {c.height_above_rail_min_m, c.height_above_rail_max_m}},
+          {"margin_m", c.margin_m},
+          {"intrudes_envelope", c.intrudes_envelope},
+          {"confidence", c.seen_empty_share},
+          {"voxels", c.voxels}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "raillomer-changes: compares a run of a line with a reference run of the same line in a "
+      "store folder (stop the server serving it first) and prints each change with its "
+      "kilometre, side, offset, size and margin against the structure gauge.\n\n"
+      "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--json <file>]"};
+  std::string data_dir, json_path;
+  int64_t run = 0, reference = 0;
+  app.add_option("--data", data_dir, "the store's folder")->required();
+  app.add_option("--run", run, "the run to compare")->required();
+  app.add_option("--reference", reference, "the run to compare with (default: the line's)");
+  app.add_option("--json", json_path, "also write the changes and the summary as JSON here");
+  CLI11_PARSE(app, argc, argv);
+  std::string error;
+  StoreOptions store_options;
+  store_options.flush_interval_ms = 0;
+  auto store = MapStore::Open(data_dir, store_options, &error);
+  if (!store) {
+    std::fprintf(stderr, "raillomer-changes: %s\n", error.c_str());
+    return 2;
+  }
+  RunInfo info;
+  LineInfo line;
+  Result r = store->GetRun(run, &info);
+  if (r) r = store->GetLine(info.line, &line);
+  if (r && reference == 0) reference = line.reference_run;
+  if (!r || reference == 0 || reference == run) {
+    std::fprintf(stderr,
+                 "raillomer-changes: %s\n",
+                 !r ? r.message.c_str() : "no reference run: name one with --reference");
+    return 2;
+  }
+  std::vector<RunChange> changes;
+  RunComparisonSummary summary;
+  r = CompareRuns(*store, reference, run, RunComparisonOptions(), &changes, &summary, [](double s) {
+    std::fprintf(stderr, "\rraillomer-changes: km %.3f", s / 1000.0);
+  });
+  std::fprintf(stderr, "\n");
+  if (!r) {
+    std::fprintf(stderr, "raillomer-changes: %s\n", r.message.c_str());
+    return 2;
+  }
+  std::printf(
+      "run %lld against run %lld (line '%s'): %.2f km in %zu stretches, registration "
+      "RMS %.3f m; %zu objects differed, %zu not observed by the other run\n",
+      static_cast<long long>(run),
+      static_cast<long long>(reference),
+      info.line.c_str(),
+      summary.km,
+      summary.stretches_compared,
+      summary.registration_rms_m,
+      summary.objects,
+      summary.not_observed);
+  std::printf("%-8s %10s %7s %6s %18s %9s %9s %5s\n",
+              "kind",
+              "km",
+              "offset",
+              "side",
+              "size m (a x c x h)",
+              "margin",
+              "intrudes",
+              "conf");
+  for (const RunChange& c : changes)
+    std::printf("%-8s %10.3f %7.2f %6s %6.1f %5.1f %5.1f %9.2f %9s %5.2f\n",
+                KindName(c.kind),
+                c.chainage_m / 1000.0,
+                c.offset_m,
+                c.offset_m >= 0.0 ? "left" : "right",
+                c.size_m.x(),
+                c.size_m.y(),
+                c.size_m.z(),
+                c.margin_m,
+                c.intrudes_envelope ? "yes" : "no",
+                c.seen_empty_share);
+  if (!json_path.empty()) {
+    nlohmann::json out = {{"run", run},
+                          {"reference_run", reference},
+                          {"km", summary.km},
+                          {"registration_rms_m", summary.registration_rms_m},
+                          {"changes", nlohmann::json::array()}};
+    for (const RunChange& c : changes) out["changes"].push_back(ChangeJson(c));
+    std::ofstream(json_path) << out.dump(1) << "\n";
+  }
+  return 0;
+}
