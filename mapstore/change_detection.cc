@@ -149,14 +149,14 @@ bool Confirm(const std::vector<GridCell>& cluster,
   if (cluster.size() < o.min_object_voxels || change->box.sizes().maxCoeff() < o.min_object_m)
     return false;
   const size_t n = std::min(o.voxels_sampled, cluster.size());
-  size_t seen = 0;
-  change->samples = 0;
+  change->seen_empty = change->samples = 0;
   for (size_t k = 0; k < n; ++k) {
     bool reached = false;
-    seen += other.SeenEmpty(change->voxels[k * cluster.size() / n], o, &reached);
+    change->seen_empty += other.SeenEmpty(change->voxels[k * cluster.size() / n], o, &reached);
     change->samples += reached;
   }
-  change->seen_empty_share = static_cast<double>(seen) / static_cast<double>(n);
+  change->seen_empty_share =
+      change->samples > 0 ? static_cast<double>(change->seen_empty) / change->samples : 0.0;
   return true;
 }
 
@@ -199,7 +199,7 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
       StretchChange change;
       if (!Confirm(cluster, kind, other, o, &change)) continue;
       ++s.objects;
-      if (change.seen_empty_share >= o.seen_empty_share) {
+      if (change.seen_empty >= o.min_seen_voxels && change.seen_empty_share >= o.seen_empty_share) {
         changes.push_back(std::move(change));
       } else {
         ++s.not_observed;

@@ -36,11 +36,14 @@ struct ChangeOptions {
   /// The other run saw a candidate voxel empty when one of its rays passed through it and hit
   /// something at least this far beyond (a hit nearer is that voxel's own surface).
   double beyond_m = 0.6;
-  size_t voxels_sampled = 12;  ///< candidate voxels of an object tested for being seen empty
+  size_t voxels_sampled = 16;  ///< candidate voxels of an object tested for being seen empty
   size_t sensors_sampled = 6;  ///< sensor poses tried per voxel, spread over those in view
-  /// An object is a change when at least this share of its sampled voxels were seen empty;
-  /// otherwise the other run did not see its place (occluded, beyond range): not observed.
-  double seen_empty_share = 0.3;
+  /// An object is a change when the other run's rays reached at least min_seen_voxels of its
+  /// sampled voxels and passed through this share of those they reached. A voxel no ray
+  /// reached (occluded, beyond range, or towards the sky, where a LiDAR gets no return) is no
+  /// evidence either way: an object with too few reached is not observed.
+  double seen_empty_share = 0.5;
+  size_t min_seen_voxels = 2;
   bool IsValid(std::string* error) const;
 };
 
@@ -51,8 +54,9 @@ struct StretchChange {
   std::vector<Eigen::Vector3d> voxels;  ///< centres, local frame
   Eigen::AlignedBox3d box;              ///< of the voxels, grown by half a voxel
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  double seen_empty_share = 0.0;  ///< of the sampled voxels the other run saw empty
+  double seen_empty_share = 0.0;  ///< of the sampled voxels the other run reached, seen empty
   size_t samples = 0;             ///< sampled voxels that some ray of the other run reached
+  size_t seen_empty = 0;          ///< of them, those it passed through
 };
 
 /// What a comparison found and left out, for the record.

@@ -154,7 +154,8 @@ RunChange Place(const StretchChange& c,
     extent.extend(Eigen::Vector3d(s.point.chainage_m + a, o, p.z()));
   }
   out.size_m = extent.sizes();
-  out.intrudes_envelope = out.margin_m < 0.0;
+  // What is gone cannot be in the way: only what is there now intrudes.
+  out.intrudes_envelope = c.kind == StretchChange::Kind::kAdded && out.margin_m < 0.0;
   return out;
 }
 
@@ -188,11 +189,13 @@ Result CompareRuns(const MapStore& store,
   if (!r) return r;
   const StructureGauge gauge(o.clearance);
   double rms_sq = 0.0;
-  for (double from = line.chainage_offset_m; from < line.chainage_offset_m + line.length_m;
-       from += o.stretch_m) {
+  const double first = std::max(line.chainage_offset_m, o.from_m);
+  const double last = std::min(line.chainage_offset_m + line.length_m, o.to_m);
+  for (double from = first; from < last; from += o.stretch_m) {
     ++summary->stretches;
     TrackSegment segment;
-    if (!store.Segment(line.name, from, from + o.stretch_m, &segment) || segment.samples.size() < 2)
+    if (!store.Segment(line.name, from, std::min(from + o.stretch_m, last), &segment) ||
+        segment.samples.size() < 2)
       continue;
     const Stretch stretch(std::move(segment.samples));
     std::vector<Eigen::Vector3d> utm;
@@ -216,9 +219,13 @@ Result CompareRuns(const MapStore& store,
     const std::vector<StretchChange> found =
         CompareStretch(ref_part, later_part, o.change, &stretch_summary);
     const double drop = RailDrop(stretch, ref_part.points);
-    for (const StretchChange& c : found)
-      changes->push_back(
-          Place(c, stretch, std::isnan(drop) ? 0.0 : drop, gauge, reference.utm_zone));
+    for (const StretchChange& c : found) {
+      RunChange placed =
+          Place(c, stretch, std::isnan(drop) ? 0.0 : drop, gauge, reference.utm_zone);
+      // The later run's points reach 5 m further out (room for the registration's shift):
+      // what lies beyond the corridor there has nothing of the reference to compare with.
+      if (std::abs(placed.offset_m) <= o.corridor_m) changes->push_back(std::move(placed));
+    }
     ++summary->stretches_compared;
     summary->km += (stretch.last_m() - stretch.first_m()) / 1000.0;
     summary->objects += stretch_summary.objects;

@@ -2,6 +2,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,10 @@ struct RunComparisonOptions {
   double stretch_m = 80.0;     ///< compared a stretch of chainage at a time
   double corridor_m = 20.0;    ///< points this far from the centreline take part
   double look_back_m = 100.0;  ///< sensor poses this far before a stretch saw into it
+  /// The part of the line compared, chainage in metres (the line's offset included); the whole
+  /// line by default.
+  double from_m = -std::numeric_limits<double>::infinity();
+  double to_m = std::numeric_limits<double>::infinity();
   RegistrationOptions registration;
   ChangeOptions change;
   ClearanceOptions clearance;
@@ -33,8 +38,8 @@ struct RunChange {
   double offset_m = 0.0;    ///< from the track centre, positive left of increasing chainage
   Eigen::Vector3d size_m = Eigen::Vector3d::Zero();  ///< along, across, height
   double height_above_rail_min_m = 0.0, height_above_rail_max_m = 0.0;
-  double margin_m = 0.0;  ///< against the structure gauge, negative inside
-  bool intrudes_envelope = false;
+  double margin_m = 0.0;           ///< against the structure gauge, negative inside
+  bool intrudes_envelope = false;  ///< added and inside the gauge (a removed object is gone)
   double seen_empty_share = 0.0;
   size_t voxels = 0;
 };

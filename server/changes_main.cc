@@ -39,13 +39,17 @@ int main(int argc, char** argv) {
       "raillomer-changes: compares a run of a line with a reference run of the same line in a "
       "store folder (stop the server serving it first) and prints each change with its "
       "kilometre, side, offset, size and margin against the structure gauge.\n\n"
-      "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--json <file>]"};
+      "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--from-km <km>] "
+      "[--to-km <km>] [--json <file>]"};
   std::string data_dir, json_path;
   int64_t run = 0, reference = 0;
   app.add_option("--data", data_dir, "the store's folder")->required();
   app.add_option("--run", run, "the run to compare")->required();
   app.add_option("--reference", reference, "the run to compare with (default: the line's)");
   app.add_option("--json", json_path, "also write the changes and the summary as JSON here");
+  double from_km = -1e9, to_km = 1e9;
+  app.add_option("--from-km", from_km, "compare from this kilometre of the line (default: start)");
+  app.add_option("--to-km", to_km, "compare up to this kilometre (default: the line's end)");
   CLI11_PARSE(app, argc, argv);
   std::string error;
   StoreOptions store_options;
@@ -68,7 +72,10 @@ int main(int argc, char** argv) {
   }
   std::vector<RunChange> changes;
   RunComparisonSummary summary;
-  r = CompareRuns(*store, reference, run, RunComparisonOptions(), &changes, &summary, [](double s) {
+  RunComparisonOptions options;
+  options.from_m = 1000.0 * from_km;
+  options.to_m = 1000.0 * to_km;
+  r = CompareRuns(*store, reference, run, options, &changes, &summary, [](double s) {
     std::fprintf(stderr, "\rraillomer-changes: km %.3f", s / 1000.0);
   });
   std::fprintf(stderr, "\n");

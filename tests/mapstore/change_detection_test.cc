@@ -72,7 +72,7 @@ TEST(ChangeDetection, ABoxAddedBesideTheTrackIsFoundWhereItIs) {
   // What the run saw of it: its faces towards the track, within a voxel of the box.
   EXPECT_LT((changes[0].centre.head<2>() - box.center().head<2>()).norm(), 0.6);
   EXPECT_GT(changes[0].box.sizes().z(), 1.2);
-  EXPECT_GE(changes[0].seen_empty_share, 0.3);
+  EXPECT_GE(changes[0].seen_empty_share, 0.5);
   // The box's shadow on the ground behind it was not seen by the later run: not observed.
   EXPECT_GE(summary.not_observed, 1u);
 }
@@ -95,9 +95,13 @@ TEST(ChangeDetection, APoleHiddenBehindAWagonIsNotObservedNotRemoved) {
                                                             Scan({kBuilding, low_pole, wagon}, 1.0),
                                                             ChangeOptions(),
                                                             &summary);
+  // Only the wagon (in pieces where its far end is sparsely seen), within half a metre.
+  Box near_wagon = wagon;
+  near_wagon.min().array() -= 0.5;
+  near_wagon.max().array() += 0.5;
   for (const StretchChange& c : changes) {
     EXPECT_EQ(c.kind, StretchChange::Kind::kAdded) << c.centre.transpose();
-    EXPECT_TRUE(wagon.contains(c.centre)) << c.centre.transpose();
+    EXPECT_TRUE(near_wagon.contains(c.centre)) << c.centre.transpose();
   }
   EXPECT_FALSE(changes.empty()) << "the wagon was not found";
   EXPECT_GE(summary.not_observed, 1u);
