@@ -170,7 +170,7 @@ class HttpFront::Impl {
         hooks_(std::move(hooks)),
         acceptor_(ioc_),
         retry_(ioc_),
-        workers_(static_cast<size_t>(std::max(1, limits.worker_threads))) {
+        workers_(static_cast<size_t>(std::max(1, limits.http_threads))) {
     for (HttpRoute& r : routes) {
       PathPattern pattern(r.pattern);
       routes_.push_back({std::move(r), std::move(pattern)});
@@ -493,7 +493,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
 
   void Continue() {
     static const std::string kContinue = "HTTP/1.1 100 Continue\r\n\r\n";
-    stream_.expires_after(std::chrono::seconds(limits().io_timeout_s));
+    stream_.expires_after(std::chrono::seconds(limits().request_timeout_s));
     net::async_write(
         stream_, net::buffer(kContinue), [self = shared_from_this()](beast::error_code ec, size_t) {
           if (ec) return self->Close();
@@ -502,7 +502,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   void ReadBody() {
-    stream_.expires_after(std::chrono::seconds(limits().io_timeout_s));
+    stream_.expires_after(std::chrono::seconds(limits().request_timeout_s));
     http::async_read_some(
         stream_, buffer_, *parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
           if (ec == http::error::body_limit) return self->RefuseBodyTooLarge();
@@ -680,7 +680,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   void Write(const std::vector<net::const_buffer>& buffers) {
-    stream_.expires_after(std::chrono::seconds(limits().io_timeout_s));
+    stream_.expires_after(std::chrono::seconds(limits().request_timeout_s));
     net::async_write(stream_, buffers, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec == beast::error::timeout) ++self->front_->body_timeouts_;
       if (ec) return self->Close();

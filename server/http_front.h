@@ -80,15 +80,15 @@ struct HttpRoute {
 /// The limits every connection and request is held to, all enforced before a body is read
 /// and before the handler runs.
 struct HttpLimits {
-  int io_threads = 2;      ///< the event loop's threads: connections hold none
-  int worker_threads = 8;  ///< threads that run handlers (the store's reads and writes)
+  int io_threads = 2;    ///< the event loop's threads: connections hold none
+  int http_threads = 8;  ///< threads that run handlers (the store's reads and writes)
   int max_connections = 1000;
   uint64_t max_header_bytes = 16 * 1024;      ///< request line and header fields together
   uint64_t max_small_body_bytes = 64 * 1024;  ///< for routes that take no body
   /// A request's header must arrive within this time of the connection opening or of the
   /// previous answer (an idle keep-alive connection is closed after it).
   int header_timeout_s = 10;
-  int io_timeout_s = 30;  ///< each read of a body and each write of an answer
+  int request_timeout_s = 30;  ///< each read of a body and each write of an answer
 };
 
 struct HttpFrontStats {

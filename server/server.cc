@@ -25,17 +25,6 @@ bool ConstantTimeEqual(const std::string& a, const std::string& b) {
   return diff == 0;
 }
 
-HttpLimits LimitsOf(const ServerConfig& c) {
-  HttpLimits l;
-  l.io_threads = c.io_threads;
-  l.worker_threads = c.http_threads;
-  l.max_connections = c.max_connections;
-  l.max_header_bytes = c.max_header_bytes;
-  l.header_timeout_s = c.header_timeout_s;
-  l.io_timeout_s = c.request_timeout_s;
-  return l;
-}
-
 }  // namespace
 
 class Server::Impl {
@@ -67,7 +56,7 @@ class Server::Impl {
       metrics_.Observe(route, status, seconds);
     };
     http_ = std::make_unique<HttpFront>(
-        LimitsOf(config_), ApiRoutes(context), config_.web_root, std::move(hooks));
+        config_.http, ApiRoutes(context), config_.web_root, std::move(hooks));
     if (!http_->Start(config_.host, config_.port, error)) {
       *error += " (in use, or not an address of this machine?)";
       return false;
@@ -82,7 +71,7 @@ class Server::Impl {
     o.threads = config_.ws_threads;
     o.queue_messages = config_.ws_queue_messages;
     o.max_clients = config_.ws_max_clients;
-    o.header_timeout_s = config_.header_timeout_s;
+    o.header_timeout_s = config_.http.header_timeout_s;
     hub_ = std::make_unique<LiveHub>(o, [this](const std::string& t) { return CanRead(t); });
     return hub_->Start(error);
   }

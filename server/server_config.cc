@@ -17,16 +17,17 @@ bool ServerConfig::IsValid(std::string* error) const {
   if (max_body_bytes < 1024) return *error = "max_body_bytes must be at least 1024", false;
   if (max_json_bytes < 1024) return *error = "max_json_bytes must be at least 1024", false;
   if (max_poses_per_batch < 1) return *error = "max_poses_per_batch must be at least 1", false;
-  if (max_header_bytes < 1024 || max_header_bytes > (1u << 20))
+  if (http.max_header_bytes < 1024 || http.max_header_bytes > (1u << 20))
     return *error = "max_header_bytes must be in [1024, 1048576]", false;
-  if (header_timeout_s < 1 || header_timeout_s > 600)
+  if (http.header_timeout_s < 1 || http.header_timeout_s > 600)
     return *error = "header_timeout_s must be in [1, 600]", false;
-  if (request_timeout_s < 1 || request_timeout_s > 3600)
+  if (http.request_timeout_s < 1 || http.request_timeout_s > 3600)
     return *error = "request_timeout_s must be in [1, 3600]", false;
-  if (max_connections < 8 || max_connections > 1000000)
+  if (http.max_connections < 8 || http.max_connections > 1000000)
     return *error = "max_connections must be in [8, 1000000]", false;
-  if (io_threads < 1 || io_threads > 64) return *error = "io_threads must be in [1, 64]", false;
-  if (http_threads < 1 || http_threads > 1024)
+  if (http.io_threads < 1 || http.io_threads > 64)
+    return *error = "io_threads must be in [1, 64]", false;
+  if (http.http_threads < 1 || http.http_threads > 1024)
     return *error = "http_threads must be in [1, 1024]", false;
   if (max_export_points < 1) return *error = "max_export_points must be at least 1", false;
   if (max_concurrent_exports < 1)
@@ -55,12 +56,12 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
     root.Read("max_body_bytes", &c->max_body_bytes);
     root.Read("max_json_bytes", &c->max_json_bytes);
     root.Read("max_poses_per_batch", &c->max_poses_per_batch);
-    root.Read("max_header_bytes", &c->max_header_bytes);
-    root.Read("header_timeout_s", &c->header_timeout_s);
-    root.Read("request_timeout_s", &c->request_timeout_s);
-    root.Read("max_connections", &c->max_connections);
-    root.Read("io_threads", &c->io_threads);
-    root.Read("http_threads", &c->http_threads);
+    root.Read("max_header_bytes", &c->http.max_header_bytes);
+    root.Read("header_timeout_s", &c->http.header_timeout_s);
+    root.Read("request_timeout_s", &c->http.request_timeout_s);
+    root.Read("max_connections", &c->http.max_connections);
+    root.Read("io_threads", &c->http.io_threads);
+    root.Read("http_threads", &c->http.http_threads);
     root.Read("max_export_points", &c->max_export_points);
     root.Read("max_concurrent_exports", &c->max_concurrent_exports);
     root.Read("ws_threads", &c->ws_threads);
@@ -113,12 +114,12 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"max_body_bytes", s(c.max_body_bytes)},
       {"max_json_bytes", s(c.max_json_bytes)},
       {"max_poses_per_batch", s(c.max_poses_per_batch)},
-      {"max_header_bytes", s(c.max_header_bytes)},
-      {"header_timeout_s", s(c.header_timeout_s)},
-      {"request_timeout_s", s(c.request_timeout_s)},
-      {"max_connections", s(c.max_connections)},
-      {"io_threads", s(c.io_threads)},
-      {"http_threads", s(c.http_threads)},
+      {"max_header_bytes", s(c.http.max_header_bytes)},
+      {"header_timeout_s", s(c.http.header_timeout_s)},
+      {"request_timeout_s", s(c.http.request_timeout_s)},
+      {"max_connections", s(c.http.max_connections)},
+      {"io_threads", s(c.http.io_threads)},
+      {"http_threads", s(c.http.http_threads)},
       {"max_export_points", s(c.max_export_points)},
       {"max_concurrent_exports", s(c.max_concurrent_exports)},
       {"ws_threads", s(c.ws_threads)},

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "mapstore/map_store.h"
+#include "server/http_front.h"
 
 namespace raillomer::server {
 
@@ -20,17 +21,12 @@ struct ServerConfig {
   /// Reads (GET, the live hub) need a token too when true: read_token, or the ingest token.
   bool reads_need_token = false;
   std::string read_token;
-  size_t max_body_bytes = 64u << 20;    ///< a submap body beyond it is refused (413)
-  size_t max_json_bytes = 8u << 20;     ///< a pose batch's JSON body beyond it is refused (413)
-  size_t max_poses_per_batch = 10000;   ///< more poses in one batch are refused (413)
-  size_t max_header_bytes = 16u << 10;  ///< request line and headers together (431 beyond)
-  /// A request's header must arrive within this time of the connection opening or of the
-  /// previous answer; an idle keep-alive connection closes after it.
-  int header_timeout_s = 10;
-  int request_timeout_s = 30;  ///< each read of a body and each write of an answer
-  int max_connections = 1000;  ///< HTTP connections open at once (503 beyond)
-  int io_threads = 2;          ///< the HTTP event loop's threads (connections hold none)
-  int http_threads = 8;        ///< threads that run request handlers
+  size_t max_body_bytes = 64u << 20;   ///< a submap body beyond it is refused (413)
+  size_t max_json_bytes = 8u << 20;    ///< a pose batch's JSON body beyond it is refused (413)
+  size_t max_poses_per_batch = 10000;  ///< more poses in one batch are refused (413)
+  /// The HTTP front's limits and threads: the keys io_threads, http_threads, max_connections,
+  /// max_header_bytes, header_timeout_s and request_timeout_s at the top level.
+  HttpLimits http;
   /// An export of more points is refused. Exports are sent a tile at a time (their points
   /// never sit in memory whole), so this bounds the work of one, not its memory.
   size_t max_export_points = 200'000'000;
