@@ -15,7 +15,7 @@ packages=(
   libembree-dev
   # map store: Draco tiles (and Debian's draco_decoder, an independent check), the SQLite index,
   # OctoMap for change detection's occupancy
-  libdraco-dev draco libsqlite3-dev sqlite3 liboctomap-dev
+  libdraco-dev draco libsqlite3-dev sqlite3 liboctomap-dev zlib1g-dev
   # server: HTTP, WebSocket (Boost.Beast); tests with clients that are not ours; load tests
   libcpp-httplib-dev libboost-dev python3-websockets curl wrk
   # ROS1 bags without ROS

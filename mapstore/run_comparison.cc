@@ -1,13 +1,21 @@
 #include "mapstore/run_comparison.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
+#include <unordered_set>
+
+#include "mapstore/grid_cell.h"
 
 namespace raillomer::mapstore {
 namespace {
 
 Result Fail(Outcome outcome, std::string message) { return {outcome, std::move(message)}; }
+
+/// How far the later run's points reach beyond the reference's before registration: room for
+/// the GNSS's difference between runs.
+constexpr double kShiftRoomM = 5.0;
 
 /// The stretch's centreline: chainage to position, direction and the geometry around it.
 class Stretch {
@@ -44,16 +52,28 @@ class Stretch {
     return d.norm() > 0.0 ? Eigen::Vector2d(d.normalized()) : Eigen::Vector2d::UnitX();
   }
 
-  /// Points within `corridor_m` of the centreline, in the stretch's frame (UTM minus origin).
+  /// Points within `corridor_m` of the centreline and at most `beyond_m` past its ends, in the
+  /// stretch's frame (UTM minus origin).
   std::vector<Eigen::Vector3d> Local(const std::vector<Eigen::Vector3d>& utm,
-                                     double corridor_m) const {
+                                     double corridor_m,
+                                     double beyond_m) const {
     std::vector<Eigen::Vector3d> out;
-    for (const Eigen::Vector3d& p : utm) {
-      double offset = 0.0, along = 0.0;
-      Nearest(p, &offset, &along);
-      if (std::abs(offset) <= corridor_m && std::abs(along) <= 1.0) out.push_back(p - origin());
-    }
+    for (const Eigen::Vector3d& p : utm)
+      if (Within(p, corridor_m, beyond_m)) out.push_back(p - origin());
     return out;
+  }
+
+  bool Within(const Eigen::Vector3d& p_utm, double corridor_m, double beyond_m) const {
+    double offset = 0.0, along = 0.0;
+    Nearest(p_utm, &offset, &along);
+    return std::abs(offset) <= corridor_m && std::abs(along) <= std::max(beyond_m, 1.0);
+  }
+
+  /// The UTM point `along_m` of chainage past sample `s` and `offset_m` to its left.
+  Eigen::Vector2d ToUtm(const TrackSample& s, double along_m, double offset_m) const {
+    const size_t i = static_cast<size_t>(&s - samples_.data());
+    const Eigen::Vector2d t = Tangent(i);
+    return s.point.p.head<2>() + along_m * t + offset_m * Eigen::Vector2d(-t.y(), t.x());
   }
 
   Eigen::AlignedBox2d Box(double margin_m) const {
@@ -122,116 +142,374 @@ double RailDrop(const Stretch& stretch, const std::vector<Eigen::Vector3d>& loca
   return heads[heads.size() * 9 / 10];
 }
 
-/// A change of a stretch placed on the line and checked against the gauge.
+/// The compared parts of a stretch and what placing a change there needs.
+struct StretchParts {
+  RunStretch reference, later;
+  double rail_drop_m = 0.0;
+  double lod_m = 0.0;
+};
+
+size_t PointsInBox(const std::vector<Eigen::Vector3d>& points, const Eigen::AlignedBox3d& box) {
+  return static_cast<size_t>(std::count_if(
+      points.begin(), points.end(), [&](const Eigen::Vector3d& p) { return box.contains(p); }));
+}
+
+/// A change of a stretch placed on the line and checked against the gauge and the vegetation
+/// rule.
 RunChange Place(const StretchChange& c,
                 const Stretch& stretch,
-                double rail_drop_m,
+                const StretchParts& parts,
                 const StructureGauge& gauge,
                 const std::string& zone) {
   RunChange out;
-  out.kind = c.kind;
+  out.kind = c.kind == StretchChange::Kind::kAdded ? ChangeKind::kAdded : ChangeKind::kRemoved;
   out.utm_zone = zone;
   out.voxels = c.voxels.size();
   out.seen_empty_share = c.seen_empty_share;
+  // Reached often and seen empty throughout: near 1; a few rays, or a split verdict: lower.
+  out.confidence = c.seen_empty_share * (1.0 - std::exp(-static_cast<double>(c.samples) / 3.0));
+  out.lod_m = parts.lod_m;
   out.centre_utm = c.centre + stretch.origin();
   double offset = 0.0, along = 0.0;
   const TrackSample& at = stretch.Nearest(out.centre_utm, &offset, &along);
   out.chainage_m = at.point.chainage_m + along;
   out.offset_m = offset;
   out.margin_m = std::numeric_limits<double>::infinity();
+  out.vegetation_margin_m = std::numeric_limits<double>::infinity();
   out.height_above_rail_min_m = std::numeric_limits<double>::infinity();
   out.height_above_rail_max_m = -std::numeric_limits<double>::infinity();
-  Eigen::AlignedBox3d extent;  // along, across, up
+  Eigen::AlignedBox3d extent;  // along (from `at`), across, up
   for (const Eigen::Vector3d& v : c.voxels) {
     const Eigen::Vector3d p = v + stretch.origin();
     double o = 0.0, a = 0.0;
     const TrackSample& s = stretch.Nearest(p, &o, &a);
-    const TrackSection section{s.point.p.z() + rail_drop_m, s.point.cant_m, s.curvature_per_m};
+    const TrackSection section{
+        s.point.p.z() + parts.rail_drop_m, s.point.cant_m, s.curvature_per_m};
     const SectionPoint q = ToSection(section, o, p.z());
     out.margin_m = std::min(out.margin_m, gauge.Margin(section, q));
+    out.vegetation_margin_m = std::min(out.vegetation_margin_m, gauge.VegetationMargin(q));
     out.height_above_rail_min_m = std::min(out.height_above_rail_min_m, q.height_m);
     out.height_above_rail_max_m = std::max(out.height_above_rail_max_m, q.height_m);
-    extent.extend(Eigen::Vector3d(s.point.chainage_m + a, o, p.z()));
+    extent.extend(Eigen::Vector3d(s.point.chainage_m + a - at.point.chainage_m, o, p.z()));
   }
   out.size_m = extent.sizes();
-  // What is gone cannot be in the way: only what is there now intrudes.
-  out.intrudes_envelope = c.kind == StretchChange::Kind::kAdded && out.margin_m < 0.0;
+  const double half = 0.5 * ChangeOptions().voxel_m;
+  out.size_m.array() += 2.0 * half;
+  for (const auto& [a, o] : {std::pair{extent.min().x() - half, extent.min().y() - half},
+                             {extent.max().x() + half, extent.min().y() - half},
+                             {extent.max().x() + half, extent.max().y() + half},
+                             {extent.min().x() - half, extent.max().y() + half}})
+    out.footprint_utm.push_back(stretch.ToUtm(at, a, o));
+  Eigen::AlignedBox3d box = c.box;
+  box.min().array() -= half;
+  box.max().array() += half;
+  out.points_reference = PointsInBox(parts.reference.points, box);
+  out.points_later = PointsInBox(parts.later.points, box);
   return out;
+}
+
+/// Added objects that grow out of what the reference had above the ground (a crown, a hedge)
+/// become vegetation.
+void MarkVegetation(const Stretch& stretch,
+                    const StretchParts& parts,
+                    const RunComparisonOptions& o,
+                    const std::vector<StretchChange>& found,
+                    std::vector<RunChange>* placed) {
+  std::unordered_set<GridCell, GridCellHash> high;
+  const auto build = [&] {
+    for (const Eigen::Vector3d& q : parts.reference.points) {
+      double offset = 0.0, along = 0.0;
+      const TrackSample& s = stretch.Nearest(q + stretch.origin(), &offset, &along);
+      const double above = q.z() + stretch.origin().z() - s.point.p.z() - parts.rail_drop_m;
+      if (above > o.vegetation_above_rail_m) high.insert(CellOf(q, o.vegetation_near_m));
+    }
+  };
+  for (size_t i = 0; i < placed->size(); ++i) {
+    RunChange& c = (*placed)[i];
+    if (c.kind != ChangeKind::kAdded || c.height_above_rail_min_m < 0.5) continue;
+    if (high.empty()) build();
+    size_t near = 0;
+    for (const Eigen::Vector3d& v : found[i].voxels) {
+      const GridCell cell = CellOf(v, o.vegetation_near_m);
+      bool hit = false;
+      for (int64_t dx = -1; dx <= 1 && !hit; ++dx)
+        for (int64_t dy = -1; dy <= 1 && !hit; ++dy)
+          for (int64_t dz = -1; dz <= 1 && !hit; ++dz)
+            hit = high.count(cell + GridCell{dx, dy, dz}) > 0;
+      near += hit ? 1 : 0;
+    }
+    if (near >= o.vegetation_share * static_cast<double>(found[i].voxels.size()))
+      c.kind = ChangeKind::kVegetation;
+  }
+}
+
+bool SameShape(const RunChange& a, const RunChange& b, double tolerance) {
+  for (int k = 0; k < 3; ++k) {
+    const double big = std::max(a.size_m[k], b.size_m[k]);
+    if (std::abs(a.size_m[k] - b.size_m[k]) > tolerance * big + 0.2) return false;
+  }
+  return true;
+}
+
+/// An added and a removed object of one shape near each other become one moved object, where
+/// it stands now.
+void PairMoved(const RunComparisonOptions& o, std::vector<RunChange>* placed) {
+  std::vector<bool> gone(placed->size(), false);
+  for (size_t i = 0; i < placed->size(); ++i) {
+    RunChange& added = (*placed)[i];
+    if (added.kind != ChangeKind::kAdded) continue;
+    size_t best = placed->size();
+    double best_d = o.moved_within_m;
+    for (size_t j = 0; j < placed->size(); ++j) {
+      const RunChange& removed = (*placed)[j];
+      if (gone[j] || removed.kind != ChangeKind::kRemoved) continue;
+      const double d = (removed.centre_utm - added.centre_utm).head<2>().norm();
+      if (d < best_d && SameShape(added, removed, o.moved_size_tolerance)) {
+        best = j;
+        best_d = d;
+      }
+    }
+    if (best == placed->size()) continue;
+    gone[best] = true;
+    added.kind = ChangeKind::kMoved;
+    added.moved_from_utm = (*placed)[best].centre_utm;
+    added.moved_m = best_d;
+    added.confidence = std::min(added.confidence, (*placed)[best].confidence);
+  }
+  size_t k = 0;
+  for (size_t i = 0; i < placed->size(); ++i) {
+    if (gone[i]) continue;
+    if (k != i) (*placed)[k] = std::move((*placed)[i]);
+    ++k;
+  }
+  placed->resize(k);
+}
+
+/// The chainage range of poses on the line (NaN where off it); false if none lies on it.
+bool ChainageRange(const MapStore& store,
+                   int64_t run,
+                   const std::vector<api::StreamPose>& poses,
+                   double* first_m,
+                   double* last_m) {
+  std::vector<double> chainage;
+  if (poses.empty() || !store.ChainageOfPoses(run, poses, &chainage)) return false;
+  *first_m = std::numeric_limits<double>::infinity();
+  *last_m = -std::numeric_limits<double>::infinity();
+  for (double c : chainage) {
+    if (std::isnan(c)) continue;
+    *first_m = std::min(*first_m, c);
+    *last_m = std::max(*last_m, c);
+  }
+  return *first_m <= *last_m;
 }
 
 }  // namespace
 
+const char* ToString(ChangeKind kind) {
+  switch (kind) {
+    case ChangeKind::kAdded:
+      return "added";
+    case ChangeKind::kRemoved:
+      return "removed";
+    case ChangeKind::kMoved:
+      return "moved";
+    case ChangeKind::kVegetation:
+      return "vegetation";
+  }
+  return "added";
+}
+
+bool ParseChangeKind(const std::string& name, ChangeKind* kind) {
+  for (ChangeKind k :
+       {ChangeKind::kAdded, ChangeKind::kRemoved, ChangeKind::kMoved, ChangeKind::kVegetation})
+    if (name == ToString(k)) {
+      *kind = k;
+      return true;
+    }
+  return false;
+}
+
+bool RunComparisonOptions::IsValid(std::string* error) const {
+  if (!(stretch_m >= 10.0 && corridor_m > 0.0 && overlap_m >= 0.0 && look_back_m >= 0.0 &&
+        moved_within_m >= 0.0 && moved_size_tolerance >= 0.0 && vegetation_share > 0.0 &&
+        vegetation_near_m > 0.0)) {
+    *error = "comparison options out of range (stretch_m >= 10, corridor_m > 0, ...)";
+    return false;
+  }
+  return change.IsValid(error) && clearance.IsValid(error) && registration.IsValid(error);
+}
+
+RunComparison::RunComparison(const MapStore& store, const RunComparisonOptions& options)
+    : store_(store), options_(options) {}
+
+Result RunComparison::Prepare(const MapStore& store,
+                              int64_t reference_run,
+                              int64_t later_run,
+                              const RunComparisonOptions& o,
+                              std::unique_ptr<RunComparison>* out) {
+  std::string error;
+  if (!o.IsValid(&error)) return Fail(Outcome::kInvalid, error);
+  if (reference_run == later_run)
+    return Fail(Outcome::kInvalid, "a run cannot be compared with itself");
+  std::unique_ptr<RunComparison> c(new RunComparison(store, o));
+  Result r = store.GetRun(later_run, &c->later_);
+  if (!r) return r;
+  r = store.GetRun(reference_run, &c->reference_);
+  if (!r) return Fail(r.outcome, "reference: " + r.message);
+  if (c->reference_.line != c->later_.line)
+    return Fail(Outcome::kInvalid,
+                "run " + std::to_string(later_run) + " is of line '" + c->later_.line + "', run " +
+                    std::to_string(reference_run) + " of '" + c->reference_.line + "'");
+  if (c->reference_.status != "finished")
+    return Fail(Outcome::kConflict,
+                "the reference run " + std::to_string(reference_run) + " is still live");
+  if (!c->later_.utm_zone.empty() && c->reference_.utm_zone != c->later_.utm_zone)
+    return Fail(Outcome::kInvalid,
+                "the runs lie in different UTM zones (" + c->reference_.utm_zone + " and " +
+                    c->later_.utm_zone + ")");
+  r = store.GetLine(c->reference_.line, &c->line_);
+  if (!r) return r;
+  if (c->line_.reference_run == 0)
+    return Fail(Outcome::kConflict, "line '" + c->line_.name + "' has no centreline yet");
+  r = store.Trajectory(reference_run, &c->reference_poses_);
+  if (r) r = store.Trajectory(later_run, &c->later_poses_);
+  if (!r) return r;
+  double ref_first = 0.0, ref_last = 0.0, first = 0.0, last = 0.0;
+  if (!ChainageRange(store, reference_run, c->reference_poses_, &ref_first, &ref_last))
+    return Fail(Outcome::kInvalid,
+                "the reference run " + std::to_string(reference_run) +
+                    " has no pose on the line's centreline");
+  c->later_reach_m_ = -std::numeric_limits<double>::infinity();
+  if (ChainageRange(store, later_run, c->later_poses_, &first, &last)) {
+    if (last < ref_first || first > ref_last)
+      return Fail(Outcome::kInvalid,
+                  "runs " + std::to_string(later_run) + " and " + std::to_string(reference_run) +
+                      " do not overlap along the line");
+    c->later_reach_m_ = last;
+  } else if (!c->later_poses_.empty() && c->later_.status == "finished") {
+    return Fail(Outcome::kInvalid,
+                "run " + std::to_string(later_run) + " has no pose on line '" + c->line_.name +
+                    "''s centreline: it does not overlap the reference");
+  }
+  const double start = c->line_.chainage_offset_m, end = start + c->line_.length_m;
+  for (int i = 0; start + i * o.stretch_m < end; ++i) {
+    StretchRange s{i, start + i * o.stretch_m, std::min(start + (i + 1) * o.stretch_m, end)};
+    s.from_m = std::max(s.from_m, o.from_m);
+    s.to_m = std::min(s.to_m, o.to_m);
+    if (s.from_m < s.to_m) c->stretches_.push_back(s);
+  }
+  *out = std::move(c);
+  return {};
+}
+
+Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) const {
+  const auto t0 = std::chrono::steady_clock::now();
+  const RunComparisonOptions& o = options_;
+  *out = StretchOutcome();
+  out->range = range;
+  TrackSegment segment;
+  if (!store_.Segment(line_.name, range.from_m, range.to_m, &segment) ||
+      segment.samples.size() < 2) {
+    out->skipped = "too short a piece of centreline";
+    return {};
+  }
+  const Stretch stretch(std::move(segment.samples));
+  out->origin = stretch.origin();
+  std::vector<Eigen::Vector3d> utm;
+  StretchParts parts;
+  // Both runs reach overlap_m past the stretch's ends (the later 5 m more every way, room for
+  // the registration's shift), so an object across an end is seen whole; the stretch that
+  // holds its centre reports it.
+  const double reach = o.corridor_m + o.overlap_m + kShiftRoomM;
+  Result r = PointsIn(store_, reference_.id, stretch.Box(reach), &utm);
+  if (!r) return r;
+  parts.reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
+  r = PointsIn(store_, later_.id, stretch.Box(reach + kShiftRoomM), &utm);
+  if (!r) return r;
+  parts.later.points = stretch.Local(utm, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
+  const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
+  parts.reference.sensors = SensorsIn(reference_poses_, seen_from, stretch.origin());
+  parts.later.sensors = SensorsIn(later_poses_, seen_from, stretch.origin());
+  if (parts.reference.points.size() < 1000 || parts.later.points.size() < 1000) {
+    out->skipped = "fewer than 1000 points of a run there";
+    return {};
+  }
+  // The later run onto the reference: its points and its sensors.
+  const RegistrationResult fit = RegisterClouds(
+      parts.reference.points, parts.later.points, Eigen::Isometry3d::Identity(), o.registration);
+  // Registered, the later run's points are cut a metre beyond the reference's: what the
+  // reference has near its cut is compared with all the later run has there.
+  std::vector<Eigen::Vector3d> registered;
+  for (const Eigen::Vector3d& p : parts.later.points) {
+    const Eigen::Vector3d q = fit.T_fixed_moving * p;
+    if (stretch.Within(q + stretch.origin(), o.corridor_m + 1.0, o.overlap_m + 1.0))
+      registered.push_back(q);
+  }
+  parts.later.points = std::move(registered);
+  for (Eigen::Isometry3d& s : parts.later.sensors) s = fit.T_fixed_moving * s;
+  out->compared = true;
+  out->registration_rms_m = fit.rms_m;
+  out->T_reference_later = fit.T_fixed_moving;
+  const std::vector<StretchChange> found =
+      CompareStretch(parts.reference, parts.later, o.change, &out->summary);
+  const double drop = RailDrop(stretch, parts.reference.points);
+  parts.rail_drop_m = std::isnan(drop) ? 0.0 : drop;
+  // M3C2's LoD95 with each map's voxel quantisation (sigma = voxel / sqrt 12) and the
+  // registration's residual, never below the comparison's own threshold.
+  const double quantisation = o.change.voxel_m / std::sqrt(12.0);
+  parts.lod_m =
+      std::max(o.change.level_of_detection_m,
+               1.96 * std::sqrt(2.0 * quantisation * quantisation + fit.rms_m * fit.rms_m));
+  const StructureGauge gauge(o.clearance);
+  const double line_start = line_.chainage_offset_m, line_end = line_start + line_.length_m;
+  const bool first = range.from_m <= line_start + 1e-6, last = range.to_m >= line_end - 1e-6;
+  std::vector<RunChange> placed;
+  for (const StretchChange& c : found)
+    placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
+  MarkVegetation(stretch, parts, o, found, &placed);
+  PairMoved(o, &placed);
+  for (RunChange& c : placed) {
+    // The later run's points reach a metre beyond the reference's every way: what lies beyond
+    // the corridor there has nothing of the reference to compare with; an object centred in
+    // the overlap with the next or previous stretch is that stretch's.
+    if (std::abs(c.offset_m) > o.corridor_m || (c.chainage_m < range.from_m && !first) ||
+        (c.chainage_m >= range.to_m && !last))
+      continue;
+    // What is gone cannot be in the way: only what is there now intrudes.
+    c.intrudes_envelope = c.kind != ChangeKind::kRemoved && c.margin_m < 0.0;
+    c.stretch = range.index;
+    out->changes.push_back(std::move(c));
+  }
+  out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return {};
+}
+
 Result CompareRuns(const MapStore& store,
                    int64_t reference_run,
                    int64_t later_run,
-                   const RunComparisonOptions& o,
+                   const RunComparisonOptions& options,
                    std::vector<RunChange>* changes,
                    RunComparisonSummary* summary,
-                   const std::function<void(double)>& progress) {
+                   const std::function<Result(const StretchOutcome&)>& each_stretch) {
   changes->clear();
   *summary = RunComparisonSummary();
-  RunInfo reference, later;
-  Result r = store.GetRun(reference_run, &reference);
-  if (r) r = store.GetRun(later_run, &later);
+  std::unique_ptr<RunComparison> comparison;
+  Result r = RunComparison::Prepare(store, reference_run, later_run, options, &comparison);
   if (!r) return r;
-  if (reference.line != later.line)
-    return Fail(Outcome::kInvalid,
-                "run " + std::to_string(later_run) + " is of line '" + later.line + "', run " +
-                    std::to_string(reference_run) + " of '" + reference.line + "'");
-  if (reference.utm_zone != later.utm_zone)
-    return Fail(Outcome::kInvalid, "the runs lie in different UTM zones");
-  LineInfo line;
-  r = store.GetLine(reference.line, &line);
-  if (!r) return r;
-  std::vector<api::StreamPose> reference_poses, later_poses;
-  r = store.Trajectory(reference_run, &reference_poses);
-  if (r) r = store.Trajectory(later_run, &later_poses);
-  if (!r) return r;
-  const StructureGauge gauge(o.clearance);
   double rms_sq = 0.0;
-  const double first = std::max(line.chainage_offset_m, o.from_m);
-  const double last = std::min(line.chainage_offset_m + line.length_m, o.to_m);
-  for (double from = first; from < last; from += o.stretch_m) {
+  for (const StretchRange& range : comparison->stretches()) {
     ++summary->stretches;
-    TrackSegment segment;
-    if (!store.Segment(line.name, from, std::min(from + o.stretch_m, last), &segment) ||
-        segment.samples.size() < 2)
-      continue;
-    const Stretch stretch(std::move(segment.samples));
-    std::vector<Eigen::Vector3d> utm;
-    RunStretch ref_part, later_part;
-    r = PointsIn(store, reference_run, stretch.Box(o.corridor_m), &utm);
+    StretchOutcome outcome;
+    r = comparison->Compare(range, &outcome);
+    if (r && each_stretch) r = each_stretch(outcome);
     if (!r) return r;
-    ref_part.points = stretch.Local(utm, o.corridor_m);
-    r = PointsIn(store, later_run, stretch.Box(o.corridor_m + 5.0), &utm);
-    if (!r) return r;
-    later_part.points = stretch.Local(utm, o.corridor_m + 5.0);
-    const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
-    ref_part.sensors = SensorsIn(reference_poses, seen_from, stretch.origin());
-    later_part.sensors = SensorsIn(later_poses, seen_from, stretch.origin());
-    if (ref_part.points.size() < 1000 || later_part.points.size() < 1000) continue;
-    // The later run onto the reference: its points and its sensors.
-    const RegistrationResult fit = RegisterClouds(
-        ref_part.points, later_part.points, Eigen::Isometry3d::Identity(), o.registration);
-    for (Eigen::Vector3d& p : later_part.points) p = fit.T_fixed_moving * p;
-    for (Eigen::Isometry3d& s : later_part.sensors) s = fit.T_fixed_moving * s;
-    StretchSummary stretch_summary;
-    const std::vector<StretchChange> found =
-        CompareStretch(ref_part, later_part, o.change, &stretch_summary);
-    const double drop = RailDrop(stretch, ref_part.points);
-    for (const StretchChange& c : found) {
-      RunChange placed =
-          Place(c, stretch, std::isnan(drop) ? 0.0 : drop, gauge, reference.utm_zone);
-      // The later run's points reach 5 m further out (room for the registration's shift):
-      // what lies beyond the corridor there has nothing of the reference to compare with.
-      if (std::abs(placed.offset_m) <= o.corridor_m) changes->push_back(std::move(placed));
-    }
+    if (!outcome.compared) continue;
+    for (RunChange& c : outcome.changes) changes->push_back(std::move(c));
     ++summary->stretches_compared;
-    summary->km += (stretch.last_m() - stretch.first_m()) / 1000.0;
-    summary->objects += stretch_summary.objects;
-    summary->not_observed += stretch_summary.not_observed;
-    rms_sq += fit.rms_m * fit.rms_m;
-    if (progress) progress(stretch.last_m());
+    summary->km += (range.to_m - range.from_m) / 1000.0;
+    summary->objects += outcome.summary.objects;
+    summary->not_observed += outcome.summary.not_observed;
+    rms_sq += outcome.registration_rms_m * outcome.registration_rms_m;
   }
   if (summary->stretches_compared > 0)
     summary->registration_rms_m = std::sqrt(rms_sq / summary->stretches_compared);

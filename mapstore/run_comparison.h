@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,7 @@ namespace raillomer::mapstore {
 struct RunComparisonOptions {
   double stretch_m = 80.0;     ///< compared a stretch of chainage at a time
   double corridor_m = 20.0;    ///< points this far from the centreline take part
+  double overlap_m = 10.0;     ///< ... and this far past the stretch's ends
   double look_back_m = 100.0;  ///< sensor poses this far before a stretch saw into it
   /// The part of the line compared, chainage in metres (the line's offset included); the whole
   /// line by default.
@@ -27,21 +29,73 @@ struct RunComparisonOptions {
   RegistrationOptions registration;
   ChangeOptions change;
   ClearanceOptions clearance;
+  /// An added and a removed object pair as one moved object when they lie this close and
+  /// their sizes differ by at most moved_size_tolerance (a share of each dimension).
+  double moved_within_m = 10.0;
+  double moved_size_tolerance = 0.35;
+  /// Added growth is vegetation when this share of its voxels lies within vegetation_near_m of
+  /// the reference's points higher than vegetation_above_rail_m (a crown it grows out of).
+  double vegetation_share = 0.3;
+  double vegetation_near_m = 1.0;
+  double vegetation_above_rail_m = 1.5;
+  bool IsValid(std::string* error) const;
 };
+
+/// What a change is: something there now that the reference saw empty (`added`), something
+/// the reference had that the later run saw empty (`removed`), an added and a removed object
+/// of one shape near each other (`moved`), or added growth on what the reference had above
+/// the ground (`vegetation`).
+enum class ChangeKind { kAdded, kRemoved, kMoved, kVegetation };
+const char* ToString(ChangeKind kind);
+/// The kind named `name`; false if there is none.
+bool ParseChangeKind(const std::string& name, ChangeKind* kind);
 
 /// A change between two runs, placed on the line.
 struct RunChange {
-  StretchChange::Kind kind = StretchChange::Kind::kAdded;
+  ChangeKind kind = ChangeKind::kAdded;
+  int stretch = 0;                                       ///< the stretch it was found in
   Eigen::Vector3d centre_utm = Eigen::Vector3d::Zero();  ///< in the reference run's map
   std::string utm_zone;
+  /// The footprint's corners (UTM easting, northing): the extent along and across the track.
+  std::vector<Eigen::Vector2d> footprint_utm;
   double chainage_m = 0.0;  ///< the line's chainage (its offset included)
   double offset_m = 0.0;    ///< from the track centre, positive left of increasing chainage
   Eigen::Vector3d size_m = Eigen::Vector3d::Zero();  ///< along, across, height
   double height_above_rail_min_m = 0.0, height_above_rail_max_m = 0.0;
   double margin_m = 0.0;           ///< against the structure gauge, negative inside
-  bool intrudes_envelope = false;  ///< added and inside the gauge (a removed object is gone)
+  bool intrudes_envelope = false;  ///< there now and inside the gauge (what is gone is not)
+  /// Against the vegetation zone: negative when something there now grows taller than the
+  /// rule allows, +infinity when nothing of it lies in the zone.
+  double vegetation_margin_m = 0.0;
+  double lod_m = 0.0;       ///< the smallest change told from noise and misregistration there
+  double confidence = 0.0;  ///< 0-1: how much of it the other run saw empty, and how often
   double seen_empty_share = 0.0;
   size_t voxels = 0;
+  size_t points_reference = 0, points_later = 0;  ///< in its box, in each run
+  /// A moved object: where it stood in the reference, and how far it went.
+  Eigen::Vector3d moved_from_utm = Eigen::Vector3d::Zero();
+  double moved_m = 0.0;
+};
+
+/// A stretch of the line: the chainage it covers (the line's offset included).
+struct StretchRange {
+  int index = 0;
+  double from_m = 0.0, to_m = 0.0;
+};
+
+/// One stretch compared: whether both runs had enough of it, the later run's registration onto
+/// the reference (the transform in the stretch's frame, whose origin is `origin`), and what
+/// differed.
+struct StretchOutcome {
+  StretchRange range;
+  bool compared = false;
+  std::string skipped;  ///< why it was not compared
+  double registration_rms_m = 0.0;
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::Isometry3d T_reference_later = Eigen::Isometry3d::Identity();
+  StretchSummary summary;
+  std::vector<RunChange> changes;
+  double seconds = 0.0;
 };
 
 /// What a comparison did, stretch by stretch.
@@ -52,16 +106,53 @@ struct RunComparisonSummary {
   size_t objects = 0, not_observed = 0;
 };
 
-/// Compares a later run of a line with a reference run, stretch by stretch along the line's
+/// A later run of a line compared with a reference run, stretch by stretch along the line's
 /// centreline: each stretch of the later run registered onto the reference, then compared on
 /// occupancy (CompareStretch), each change placed on the line and checked against the
-/// structure gauge. `progress` (if given) is called after each stretch with its chainage.
+/// structure gauge. Stretches are numbered from the centreline's start, so a stretch keeps its
+/// number while the later run grows.
+class RunComparison {
+ public:
+  /// Checks the runs (one line, one zone, the reference finished, the runs overlapping where
+  /// the later has poses) and reads their poses; kInvalid / kNotFound / kConflict naming why.
+  static Result Prepare(const MapStore& store,
+                        int64_t reference_run,
+                        int64_t later_run,
+                        const RunComparisonOptions& options,
+                        std::unique_ptr<RunComparison>* out);
+
+  /// The stretches within the options' range.
+  const std::vector<StretchRange>& stretches() const { return stretches_; }
+  /// How far along the line (chainage) the later run's poses reach; -infinity with none.
+  double later_reach_m() const { return later_reach_m_; }
+  const LineInfo& line() const { return line_; }
+  const RunInfo& reference() const { return reference_; }
+  const RunInfo& later() const { return later_; }
+
+  /// Compares one stretch.
+  Result Compare(const StretchRange& range, StretchOutcome* out) const;
+
+ private:
+  RunComparison(const MapStore& store, const RunComparisonOptions& options);
+
+  const MapStore& store_;
+  RunComparisonOptions options_;
+  RunInfo reference_, later_;
+  LineInfo line_;
+  std::vector<api::StreamPose> reference_poses_, later_poses_;
+  std::vector<StretchRange> stretches_;
+  double later_reach_m_ = 0.0;
+};
+
+/// Compares every stretch of a later run with a reference run (RunComparison) and collects
+/// the changes. `each_stretch` (if given) gets each stretch's outcome first; an error it
+/// returns ends the comparison.
 Result CompareRuns(const MapStore& store,
                    int64_t reference_run,
                    int64_t later_run,
                    const RunComparisonOptions& options,
                    std::vector<RunChange>* changes,
                    RunComparisonSummary* summary,
-                   const std::function<void(double chainage_m)>& progress = nullptr);
+                   const std::function<Result(const StretchOutcome&)>& each_stretch = nullptr);
 
 }  // namespace raillomer::mapstore

@@ -119,6 +119,53 @@ UPDATE runs SET
   points = points -
     (SELECT COALESCE(SUM(points), 0) FROM submaps WHERE run_id = runs.id AND tiled = -1);
 )sql",
+      // 5: change detection: a run's comparison with its reference (one row per run), each
+      // compared stretch (one transaction with its changes, so a restart resumes at the first
+      // stretch without a row), and the changes found with the status engineers give them.
+      R"sql(
+CREATE TABLE change_detection (
+  run_id INTEGER PRIMARY KEY REFERENCES runs(id),
+  reference_run INTEGER NOT NULL REFERENCES runs(id),
+  status TEXT NOT NULL CHECK (status IN ('pending', 'running', 'done', 'failed')),
+  error TEXT NOT NULL DEFAULT '',
+  requested_ns INTEGER NOT NULL,
+  updated_ns INTEGER NOT NULL
+);
+CREATE TABLE change_stretches (
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  stretch INTEGER NOT NULL,
+  reference_run INTEGER NOT NULL,
+  from_m REAL NOT NULL, to_m REAL NOT NULL,
+  compared INTEGER NOT NULL,
+  rms_m REAL NOT NULL,
+  transform TEXT NOT NULL,
+  seconds REAL NOT NULL,
+  done_ns INTEGER NOT NULL,
+  PRIMARY KEY (run_id, stretch)
+) WITHOUT ROWID;
+CREATE TABLE changes (
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  reference_run INTEGER NOT NULL,
+  stretch INTEGER NOT NULL,
+  line TEXT NOT NULL,
+  kind TEXT NOT NULL,
+  chainage_m REAL NOT NULL,
+  offset_m REAL NOT NULL,
+  utm_zone TEXT NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  properties TEXT NOT NULL,
+  intrudes INTEGER NOT NULL,
+  size_max_m REAL NOT NULL,
+  status TEXT NOT NULL DEFAULT 'new',
+  note TEXT NOT NULL DEFAULT '',
+  closed_by_run INTEGER,
+  created_ns INTEGER NOT NULL,
+  updated_ns INTEGER NOT NULL
+);
+CREATE INDEX changes_by_run ON changes (run_id, chainage_m);
+CREATE INDEX changes_by_line ON changes (line, status);
+)sql",
   };
   return migrations;
 }

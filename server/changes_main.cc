@@ -1,5 +1,6 @@
 // raillomer-changes: compares a run of a line with a reference run in a store folder, offline
 // (the server's own detection does the same as runs arrive), and prints the changes.
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <string>
@@ -7,18 +8,15 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include "mapstore/change_store.h"
 #include "mapstore/run_comparison.h"
 
 using namespace raillomer::mapstore;
 
 namespace {
 
-const char* KindName(StretchChange::Kind kind) {
-  return kind == StretchChange::Kind::kAdded ? "added" : "removed";
-}
-
 nlohmann::json ChangeJson(const RunChange& c) {
-  return {{"kind", KindName(c.kind)},
+  return {{"kind", ToString(c.kind)},
           {"utm", {c.centre_utm.x(), c.centre_utm.y(), c.centre_utm.z()}},
           {"utm_zone", c.utm_zone},
           {"chainage_m", c.chainage_m},
@@ -28,8 +26,44 @@ nlohmann::json ChangeJson(const RunChange& c) {
           {"height_above_rail_m", {c.height_above_rail_min_m, c.height_above_rail_max_m}},
           {"margin_m", c.margin_m},
           {"intrudes_envelope", c.intrudes_envelope},
-          {"confidence", c.seen_empty_share},
+          {"lod_m", c.lod_m},
+          {"confidence", c.confidence},
           {"voxels", c.voxels}};
+}
+
+/// CompareRuns, printing progress; with `save`, each stretch is stored as the server stores it.
+Result Compare(const MapStore& store,
+               int64_t reference,
+               int64_t run,
+               const RunComparisonOptions& options,
+               bool save,
+               std::vector<RunChange>* changes,
+               RunComparisonSummary* summary) {
+  std::unique_ptr<ChangeStore> saved;
+  if (save) {
+    std::string error;
+    saved = ChangeStore::Open(store.IndexPath(), &error);
+    if (!saved) return {Outcome::kError, error};
+  }
+  bool requested = false;
+  Result r = CompareRuns(
+      store, reference, run, options, changes, summary, [&](const StretchOutcome& outcome) {
+        std::fprintf(stderr, "\rraillomer-changes: km %.3f", outcome.range.to_m / 1000.0);
+        if (!saved) return Result{};
+        // The run's earlier changes go once the runs are known to compare.
+        if (!requested) {
+          requested = true;
+          const Result q = saved->Request(run, reference, true, nullptr);
+          if (!q) return q;
+        }
+        std::vector<StoredChange> found, closed;
+        return saved->SaveStretch(run, reference, outcome, &found, &closed);
+      });
+  if (!r || !saved) return r;
+  RunInfo info;
+  r = store.GetRun(run, &info);
+  if (r && info.status == "finished") r = saved->SetStatus(run, "done", "");
+  return r;
 }
 
 }  // namespace
@@ -42,11 +76,16 @@ int main(int argc, char** argv) {
       "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--from-km <km>] "
       "[--to-km <km>] [--json <file>]"};
   std::string data_dir, json_path;
+  bool save = false;
   int64_t run = 0, reference = 0;
   app.add_option("--data", data_dir, "the store's folder")->required();
   app.add_option("--run", run, "the run to compare")->required();
   app.add_option("--reference", reference, "the run to compare with (default: the line's)");
   app.add_option("--json", json_path, "also write the changes and the summary as JSON here");
+  app.add_flag("--save",
+               save,
+               "store the changes in the store as the server's own detection does (replacing the "
+               "run's earlier ones), for the server to serve");
   double from_km = -1e9, to_km = 1e9;
   app.add_option("--from-km", from_km, "compare from this kilometre of the line (default: start)");
   app.add_option("--to-km", to_km, "compare up to this kilometre (default: the line's end)");
@@ -70,14 +109,12 @@ int main(int argc, char** argv) {
                  !r ? r.message.c_str() : "no reference run: name one with --reference");
     return 2;
   }
-  std::vector<RunChange> changes;
-  RunComparisonSummary summary;
   RunComparisonOptions options;
   options.from_m = 1000.0 * from_km;
   options.to_m = 1000.0 * to_km;
-  r = CompareRuns(*store, reference, run, options, &changes, &summary, [](double s) {
-    std::fprintf(stderr, "\rraillomer-changes: km %.3f", s / 1000.0);
-  });
+  std::vector<RunChange> changes;
+  RunComparisonSummary summary;
+  r = Compare(*store, reference, run, options, save, &changes, &summary);
   std::fprintf(stderr, "\n");
   if (!r) {
     std::fprintf(stderr, "raillomer-changes: %s\n", r.message.c_str());
@@ -105,7 +142,7 @@ int main(int argc, char** argv) {
               "conf");
   for (const RunChange& c : changes)
     std::printf("%-8s %10.3f %7.2f %6s %6.1f %5.1f %5.1f %9.2f %9s %5.2f\n",
-                KindName(c.kind),
+                ToString(c.kind),
                 c.chainage_m / 1000.0,
                 c.offset_m,
                 c.offset_m >= 0.0 ? "left" : "right",
@@ -114,7 +151,7 @@ int main(int argc, char** argv) {
                 c.size_m.z(),
                 c.margin_m,
                 c.intrudes_envelope ? "yes" : "no",
-                c.seen_empty_share);
+                c.confidence);
   if (!json_path.empty()) {
     nlohmann::json out = {{"run", run},
                           {"reference_run", reference},

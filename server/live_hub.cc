@@ -416,6 +416,13 @@ void LiveHub::PublishRun(const mapstore::RunInfo& run) {
   impl_->Publish(std::move(m));
 }
 
+void LiveHub::PublishMessage(int64_t run_id, std::string json_text) {
+  auto m = std::make_shared<Message>();
+  m->run_id = run_id;
+  m->text = std::move(json_text);
+  impl_->Publish(std::move(m));
+}
+
 HubStats LiveHub::stats() const {
   HubStats s;
   s.clients = impl_->clients_;

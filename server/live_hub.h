@@ -23,7 +23,8 @@ struct HubStats {
 /// ?token=... or an Authorization header when reads need a token), sends
 /// {"subscribe": [run ids]} or {"subscribe": "all"} (and {"unsubscribe": [...]}), and receives
 /// JSON messages: "pose" (each pose as it is ingested), "tiles" (tiles written, with their
-/// versions) and "run" (a run created or finished). Each client has a bounded queue: when a
+/// versions), "run" (a run created or finished) and "change" (changes found or closed, with
+/// the run's detection state). Each client has a bounded queue: when a
 /// client cannot keep up, its oldest queued poses are dropped first and counted, so a slow
 /// client never holds up the others.
 class LiveHub {
@@ -54,6 +55,8 @@ class LiveHub {
   void PublishPose(int64_t run_id, const api::StreamPose& pose);
   void PublishTiles(const std::vector<mapstore::TileUpdate>& updates);
   void PublishRun(const mapstore::RunInfo& run);
+  /// Any other message of a run (a JSON object's text with its "type"): `change` messages.
+  void PublishMessage(int64_t run_id, std::string json_text);
   HubStats stats() const;
 
  private:

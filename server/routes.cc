@@ -10,85 +10,12 @@
 #include "mapstore/schema.h"
 #include "server/api_json.h"
 #include "server/http_parse.h"
+#include "server/route_util.h"
 
 namespace raillomer::server {
 namespace {
 
 using nlohmann::json;
-
-int StatusOf(mapstore::Outcome outcome) {
-  switch (outcome) {
-    case mapstore::Outcome::kOk:
-    case mapstore::Outcome::kDuplicate:
-      return 200;
-    case mapstore::Outcome::kInvalid:
-      return 400;
-    case mapstore::Outcome::kNotFound:
-      return 404;
-    case mapstore::Outcome::kConflict:
-      return 409;
-    case mapstore::Outcome::kError:
-      return 500;
-  }
-  return 500;
-}
-
-void SendResult(HttpResponse& res, const mapstore::Result& r) {
-  res.SetError(StatusOf(r.outcome), mapstore::ToString(r.outcome), r.message);
-}
-
-void SendJson(HttpResponse& res, const json& j, const char* type = "application/json") {
-  res.SetContent(j.dump(-1, ' ', false, json::error_handler_t::replace), type);
-}
-
-/// A JSON body as an object; false (and a 400 set) if it is not one.
-bool ParseObject(const HttpRequest& req, HttpResponse& res, json* out) {
-  *out = json::parse(req.body, nullptr, false);
-  if (out->is_discarded() || !out->is_object()) {
-    res.SetError(400, "invalid", "the body must be a JSON object");
-    return false;
-  }
-  return true;
-}
-
-/// The id in the path's first capture; a 404 if it is not one the store could hold.
-bool PathId(const HttpRequest& req, HttpResponse& res, int64_t* id, const char* what = "run") {
-  if (req.matches.size() < 2 ||
-      !ParseInt64(req.matches[1], 1, std::numeric_limits<int64_t>::max(), id)) {
-    res.SetError(404, "not_found", std::string("no such ") + what);
-    return false;
-  }
-  return true;
-}
-
-/// An optional integer query parameter in [min, max]; a 400 naming it if it is not one.
-bool IntParam(const HttpRequest& req,
-              HttpResponse& res,
-              const char* name,
-              int64_t min,
-              int64_t max,
-              int64_t* value) {
-  if (!req.HasParam(name)) return true;
-  if (!ParseInt64(req.Param(name), min, max, value)) {
-    res.SetError(400,
-                 "invalid",
-                 std::string(name) + " must be a whole number in [" + std::to_string(min) + ", " +
-                     std::to_string(max) + "] (got '" + req.Param(name) + "')");
-    return false;
-  }
-  return true;
-}
-
-/// An optional number query parameter; a 400 naming it if it is not a finite number.
-bool NumberParam(const HttpRequest& req, HttpResponse& res, const char* name, double* value) {
-  if (!req.HasParam(name)) return true;
-  if (!ParseFiniteDouble(req.Param(name), value)) {
-    res.SetError(
-        400, "invalid", std::string(name) + " must be a number (got '" + req.Param(name) + "')");
-    return false;
-  }
-  return true;
-}
 
 /// bbox=min_easting,min_northing,max_easting,max_northing; false (and a 400) if malformed.
 bool BoxParam(const HttpRequest& req, HttpResponse& res, Eigen::AlignedBox2d* box) {
@@ -252,6 +179,7 @@ class Api {
     const mapstore::Result r = store_.FinishRun(id, end_ns, &info);
     if (!r) return SendResult(res, r);
     if (r.outcome == mapstore::Outcome::kOk) hub_.PublishRun(info);
+    if (c_.change_worker) c_.change_worker->Notify();
     SendJson(res, RunJson(info));
   }
 
@@ -677,24 +605,7 @@ class Api {
 std::vector<HttpRoute> ApiRoutes(const ApiContext& context) {
   auto api = std::make_shared<Api>(context);
   const ServerConfig& config = *context.config;
-  using Method = void (Api::*)(const HttpRequest&, HttpResponse&);
-  auto route = [api](const char* method,
-                     const char* pattern,
-                     const char* name,
-                     Access access,
-                     Method handler,
-                     uint64_t max_body_bytes = 0) {
-    HttpRoute r;
-    r.method = method;
-    r.pattern = pattern;
-    r.name = name;
-    r.access = access;
-    r.max_body_bytes = max_body_bytes;
-    r.handler = [api, handler](const HttpRequest& req, HttpResponse& res) {
-      ((*api).*handler)(req, res);
-    };
-    return r;
-  };
+  auto route = [api](auto... args) { return MemberRoute(api, args...); };
   const Access R = Access::kRead, W = Access::kWrite;
   const uint64_t json_body = config.max_json_bytes, submap_body = config.max_body_bytes;
   HttpRoute tile =
@@ -703,7 +614,7 @@ std::vector<HttpRoute> ApiRoutes(const ApiContext& context) {
   tile.fast_handler = [api](const HttpRequest& req, HttpResponse& res) {
     return api->GetCachedTile(req, res);
   };
-  return {
+  std::vector<HttpRoute> routes = {
       route("GET", "/health", "health", R, &Api::Health),
       route("GET", "/metrics", "metrics", R, &Api::MetricsText),
       route("GET", "/api/v1/info", "info", R, &Api::Info),
@@ -732,6 +643,8 @@ std::vector<HttpRoute> ApiRoutes(const ApiContext& context) {
       route("PUT", "/api/v1/pois/{id}", "pois.update", W, &Api::UpdatePoi),
       route("DELETE", "/api/v1/pois/{id}", "pois.delete", W, &Api::DeletePoi),
   };
+  for (HttpRoute& r : ChangeRoutes(context)) routes.push_back(std::move(r));
+  return routes;
 }
 
 }  // namespace raillomer::server

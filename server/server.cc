@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <mutex>
 
+#include "server/change_json.h"
 #include "server/http_front.h"
 #include "server/live_hub.h"
 #include "server/metrics.h"
@@ -41,12 +42,15 @@ class Server::Impl {
       tiles_.Invalidate(u);
       hub_->PublishTiles(u);
     });
+    if (!StartChanges(error)) return false;
     ApiContext context;
     context.config = &config_;
     context.store = store_.get();
     context.hub = hub_.get();
     context.metrics = &metrics_;
     context.tiles = &tiles_;
+    context.changes = changes_.get();
+    context.change_worker = worker_.get();
     context.front_stats = [this] { return http_->stats(); };
     HttpFront::Hooks hooks;
     hooks.authorize = [this](const std::string& token, Access access) {
@@ -76,14 +80,54 @@ class Server::Impl {
     return hub_->Start(error);
   }
 
+  /// Change detection's records and its worker, which announces what it finds on the hub.
+  bool StartChanges(std::string* error) {
+    changes_ = mapstore::ChangeStore::Open(store_->IndexPath(), error);
+    if (!changes_) return false;
+    worker_ = std::make_unique<ChangeWorker>(
+        store_.get(),
+        changes_.get(),
+        config_.changes,
+        [this](const std::vector<mapstore::StoredChange>& found,
+               const std::vector<mapstore::StoredChange>& closed,
+               const mapstore::DetectionState& state) { AnnounceChanges(found, closed, state); });
+    worker_->Start();
+    return true;
+  }
+
+  void AnnounceChanges(const std::vector<mapstore::StoredChange>& found,
+                       const std::vector<mapstore::StoredChange>& closed,
+                       const mapstore::DetectionState& state) {
+    nlohmann::json features = nlohmann::json::array(), closing = nlohmann::json::array();
+    for (const mapstore::StoredChange& c : found) features.push_back(ChangeFeature(c));
+    for (const mapstore::StoredChange& c : closed) closing.push_back(ChangeFeature(c));
+    hub_->PublishMessage(state.run_id,
+                         nlohmann::json{{"type", "change"},
+                                        {"run", state.run_id},
+                                        {"changes", features},
+                                        {"closed", closing},
+                                        {"detection", DetectionJson(state, "")},
+                                        {"sent_ns", NowNs()}}
+                             .dump());
+  }
+
+  static int64_t NowNs() {
+    return std::chrono::duration_cast<std::chrono::nanoseconds>(
+               std::chrono::system_clock::now().time_since_epoch())
+        .count();
+  }
+
   void Stop() {
     {
       std::lock_guard<std::mutex> lock(stop_mu_);
       if (stopped_) return;
       stopped_ = true;
     }
-    if (http_) http_->Stop();  // running handlers finish first
+    if (http_) http_->Stop();      // running handlers finish first
+    if (worker_) worker_->Stop();  // the stretch under way finishes first
     if (hub_) hub_->Stop();
+    worker_.reset();
+    changes_.reset();
     store_.reset();  // writes the last tiles
     stop_cv_.notify_all();
   }
@@ -106,6 +150,8 @@ class Server::Impl {
   ServerConfig config_;
   std::string token_path_;
   std::unique_ptr<mapstore::MapStore> store_;
+  std::unique_ptr<mapstore::ChangeStore> changes_;
+  std::unique_ptr<ChangeWorker> worker_;
   std::unique_ptr<LiveHub> hub_;
   std::unique_ptr<HttpFront> http_;
   Metrics metrics_;

@@ -39,8 +39,39 @@ bool ServerConfig::IsValid(std::string* error) const {
     return *error = "ingest_token must be at least 16 characters", false;
   if (!read_token.empty() && read_token.size() < 16)
     return *error = "read_token must be at least 16 characters", false;
-  return store.IsValid(error);
+  if (changes.past_m < 0.0) return *error = "changes.past_m must be at least 0", false;
+  if (changes.poll_ms < 10) return *error = "changes.poll_ms must be at least 10", false;
+  return store.IsValid(error) && changes.comparison.IsValid(error);
 }
+
+namespace {
+
+/// The `changes:` section.
+void ReadChanges(api::MapReader& c, ChangeWorkerOptions* o) {
+  mapstore::RunComparisonOptions& k = o->comparison;
+  c.Read("enabled", &o->enabled);
+  c.Read("past_m", &o->past_m);
+  c.Read("poll_ms", &o->poll_ms);
+  c.Read("stretch_m", &k.stretch_m);
+  c.Read("corridor_m", &k.corridor_m);
+  c.Read("level_of_detection_m", &k.change.level_of_detection_m);
+  c.Read("min_object_m", &k.change.min_object_m);
+  c.Read("vegetation_zone_m", &k.clearance.vegetation_zone_m);
+  c.Read("vegetation_allowance_m", &k.clearance.vegetation_allowance_m);
+  if (c.Has("gauge_outline")) {
+    std::vector<std::vector<double>> corners;
+    c.Read("gauge_outline", &corners);
+    k.clearance.gauge_outline.clear();
+    for (const std::vector<double>& corner : corners) {
+      if (corner.size() != 2)
+        c.Fail(c.Node("gauge_outline"),
+               "key 'changes.gauge_outline' must list [lateral_m, height_m] corners");
+      k.clearance.gauge_outline.emplace_back(corner[0], corner[1]);
+    }
+  }
+}
+
+}  // namespace
 
 bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* error) {
   try {
@@ -85,6 +116,11 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
       s.Read("flush_dirty_points", &o.flush_dirty_points);
       s.Finish();
     }
+    if (root.Has("changes")) {
+      api::MapReader changes(root.Node("changes"), "changes", path);
+      ReadChanges(changes, &c->changes);
+      changes.Finish();
+    }
     root.Finish();
   } catch (const api::YamlError& e) {
     *error = e.what();
@@ -103,6 +139,10 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
     return out.str();
   };
   const mapstore::StoreOptions& o = c.store;
+  const mapstore::RunComparisonOptions& k = c.changes.comparison;
+  std::string outline;
+  for (const Eigen::Vector2d& p : k.clearance.gauge_outline)
+    outline += (outline.empty() ? "" : " ") + s(p.x()) + "," + s(p.y());
   return {
       {"data_dir", c.data_dir},
       {"host", c.host},
@@ -138,6 +178,16 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"store.encode_threads", s(o.encode_threads)},
       {"store.flush_interval_ms", s(o.flush_interval_ms)},
       {"store.flush_dirty_points", s(o.flush_dirty_points)},
+      {"changes.enabled", c.changes.enabled ? "true" : "false"},
+      {"changes.past_m", s(c.changes.past_m)},
+      {"changes.poll_ms", s(c.changes.poll_ms)},
+      {"changes.stretch_m", s(k.stretch_m)},
+      {"changes.corridor_m", s(k.corridor_m)},
+      {"changes.level_of_detection_m", s(k.change.level_of_detection_m)},
+      {"changes.min_object_m", s(k.change.min_object_m)},
+      {"changes.vegetation_zone_m", s(k.clearance.vegetation_zone_m)},
+      {"changes.vegetation_allowance_m", s(k.clearance.vegetation_allowance_m)},
+      {"changes.gauge_outline", outline},
   };
 }
 

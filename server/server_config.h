@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "mapstore/map_store.h"
+#include "server/change_worker.h"
 #include "server/http_front.h"
 
 namespace raillomer::server {
@@ -36,6 +37,9 @@ struct ServerConfig {
   size_t ws_queue_messages = 512;  ///< per live client; beyond it old poses are dropped
   std::string web_root;            ///< the viewer's static files (empty: none served)
   mapstore::StoreOptions store;
+  /// Change detection (the `changes:` section): on or off, when a live run's stretch is
+  /// compared, the comparison's stretch and corridor, and the clearance it checks against.
+  ChangeWorkerOptions changes;
 
   bool IsValid(std::string* error) const;
 };

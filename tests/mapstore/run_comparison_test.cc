@@ -72,7 +72,7 @@ TEST(RunComparison, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
   ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects, " << summary.not_observed
                                 << " not observed";
   const RunChange& c = changes[0];
-  EXPECT_EQ(c.kind, StretchChange::Kind::kAdded);
+  EXPECT_EQ(c.kind, ChangeKind::kAdded);
   EXPECT_NEAR(c.chainage_m, 75.6, 0.6);
   EXPECT_NEAR(c.offset_m, 3.0, 0.3);  // left of the track
   EXPECT_GT(c.margin_m, 0.0);         // 2.6 m from the centre: outside the 2.44 m gauge

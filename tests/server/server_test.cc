@@ -554,7 +554,7 @@ TEST(Server, ServesEveryRouteOfItsOpenApiDescription) {
       const size_t at = path.find(from);
       if (at != std::string::npos) path.replace(at, from.size(), to);
     }
-    for (const char* method : {"get", "post", "put", "delete"}) {
+    for (const char* method : {"get", "post", "put", "patch", "delete"}) {
       if (!entry.second[method]) continue;
       ++routes;
       std::string upper = method;

@@ -1,0 +1,421 @@
+#include "mapstore/change_store.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include <nlohmann/json.hpp>
+
+#include "mapstore/sqlite.h"
+
+namespace raillomer::mapstore {
+namespace {
+
+using nlohmann::json;
+
+Result Fail(Outcome outcome, std::string message) { return {outcome, std::move(message)}; }
+Result DbError(const std::string& what, const std::string& message) {
+  return Fail(Outcome::kError, what + ": " + message);
+}
+
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+json Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
+Eigen::Vector3d VecOf(const json& j) {
+  return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>());
+}
+/// Infinity (nothing in a zone) has no JSON number: null.
+json Finite(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+double FiniteOf(const json& j) {
+  return j.is_null() ? std::numeric_limits<double>::infinity() : j.get<double>();
+}
+
+/// What detection measured of a change, kept as one JSON text.
+std::string PropertiesOf(const RunChange& c) {
+  json footprint = json::array();
+  for (const Eigen::Vector2d& p : c.footprint_utm) footprint.push_back({p.x(), p.y()});
+  return json{{"size_m", Vec(c.size_m)},
+              {"height_above_rail_m", {c.height_above_rail_min_m, c.height_above_rail_max_m}},
+              {"margin_m", Finite(c.margin_m)},
+              {"vegetation_margin_m", Finite(c.vegetation_margin_m)},
+              {"lod_m", c.lod_m},
+              {"confidence", c.confidence},
+              {"seen_empty_share", c.seen_empty_share},
+              {"voxels", c.voxels},
+              {"points", {c.points_reference, c.points_later}},
+              {"footprint_utm", footprint},
+              {"moved_from_utm", Vec(c.moved_from_utm)},
+              {"moved_m", c.moved_m}}
+      .dump();
+}
+
+void ReadProperties(const std::string& text, RunChange* c) {
+  const json j = json::parse(text, nullptr, false);
+  if (j.is_discarded()) return;
+  c->size_m = VecOf(j.at("size_m"));
+  c->height_above_rail_min_m = j.at("height_above_rail_m").at(0);
+  c->height_above_rail_max_m = j.at("height_above_rail_m").at(1);
+  c->margin_m = FiniteOf(j.at("margin_m"));
+  c->vegetation_margin_m = FiniteOf(j.at("vegetation_margin_m"));
+  c->lod_m = j.at("lod_m");
+  c->confidence = j.at("confidence");
+  c->seen_empty_share = j.at("seen_empty_share");
+  c->voxels = j.at("voxels");
+  c->points_reference = j.at("points").at(0);
+  c->points_later = j.at("points").at(1);
+  for (const json& p : j.at("footprint_utm"))
+    c->footprint_utm.emplace_back(p.at(0).get<double>(), p.at(1).get<double>());
+  c->moved_from_utm = VecOf(j.at("moved_from_utm"));
+  c->moved_m = j.at("moved_m");
+}
+
+constexpr const char* kChangeColumns =
+    "id, run_id, reference_run, stretch, line, kind, chainage_m, offset_m, utm_zone, x, y, z, "
+    "properties, intrudes, status, note, IFNULL(closed_by_run, 0), created_ns, updated_ns";
+
+StoredChange ChangeOf(const Statement& q) {
+  StoredChange s;
+  s.id = q.Int(0);
+  s.run_id = q.Int(1);
+  s.reference_run = q.Int(2);
+  s.change.stretch = static_cast<int>(q.Int(3));
+  s.line = q.Text(4);
+  ParseChangeKind(q.Text(5), &s.change.kind);
+  s.change.chainage_m = q.Double(6);
+  s.change.offset_m = q.Double(7);
+  s.change.utm_zone = q.Text(8);
+  s.change.centre_utm = Eigen::Vector3d(q.Double(9), q.Double(10), q.Double(11));
+  ReadProperties(q.Text(12), &s.change);
+  s.change.intrudes_envelope = q.Int(13) != 0;
+  s.status = q.Text(14);
+  s.note = q.Text(15);
+  s.closed_by_run = q.Int(16);
+  s.created_ns = q.Int(17);
+  s.updated_ns = q.Int(18);
+  return s;
+}
+
+std::string TransformText(const StretchOutcome& o) {
+  json m = json::array();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) m.push_back(o.T_reference_later.matrix()(r, c));
+  return json{{"origin", Vec(o.origin)}, {"T", m}}.dump();
+}
+
+}  // namespace
+
+bool IsChangeStatus(const std::string& status, bool settable_only) {
+  for (const char* s : {"new", "confirmed", "dismissed", "fixed"})
+    if (status == s) return true;
+  return !settable_only && status == "closed";
+}
+
+ChangeStore::ChangeStore() : db_(std::make_unique<Database>()) {}
+ChangeStore::~ChangeStore() = default;
+
+std::unique_ptr<ChangeStore> ChangeStore::Open(const std::string& index_path, std::string* error) {
+  std::unique_ptr<ChangeStore> store(new ChangeStore());
+  if (!store->db_->Open(index_path, false, error)) return nullptr;
+  return store;
+}
+
+Result ChangeStore::Request(int64_t run, int64_t reference, bool restart, DetectionState* out) {
+  std::lock_guard<std::mutex> lock(mu_);
+  DetectionState found;
+  const Result r = DetectionLocked(run, &found);
+  if (r && !restart && found.reference_run == reference) {
+    if (out) *out = found;
+    return {Outcome::kDuplicate, ""};
+  }
+  Transaction t(*db_);
+  if (!t.ok()) return DbError("cannot begin", db_->Message());
+  const int64_t now = NowNs();
+  Statement drop_changes(*db_, "DELETE FROM changes WHERE run_id = ?");
+  Statement drop_stretches(*db_, "DELETE FROM change_stretches WHERE run_id = ?");
+  Statement set(*db_,
+                "INSERT INTO change_detection (run_id, reference_run, status, error, "
+                "requested_ns, updated_ns) VALUES (?, ?, 'pending', '', ?, ?) "
+                "ON CONFLICT (run_id) DO UPDATE SET reference_run = excluded.reference_run, "
+                "status = 'pending', error = '', requested_ns = excluded.requested_ns, "
+                "updated_ns = excluded.updated_ns");
+  std::string error;
+  if (!drop_changes.Bind(1, run).Run() || !drop_stretches.Bind(1, run).Run() ||
+      !set.Bind(1, run).Bind(2, reference).Bind(3, now).Bind(4, now).Run() || !t.Commit(&error))
+    return DbError("cannot store the detection request", db_->Message() + error);
+  return out ? DetectionLocked(run, out) : Result{};
+}
+
+Result ChangeStore::DetectionLocked(int64_t run, DetectionState* out) const {
+  Statement q(*db_,
+              "SELECT d.reference_run, d.status, d.error, d.requested_ns, d.updated_ns, "
+              "(SELECT count(*) FROM change_stretches s WHERE s.run_id = d.run_id), "
+              "(SELECT count(*) FROM change_stretches s WHERE s.run_id = d.run_id AND compared), "
+              "(SELECT IFNULL(SUM(to_m - from_m), 0) FROM change_stretches s "
+              " WHERE s.run_id = d.run_id AND compared), "
+              "(SELECT IFNULL(AVG(rms_m * rms_m), 0) FROM change_stretches s "
+              " WHERE s.run_id = d.run_id AND compared), "
+              "(SELECT MAX(to_m) FROM change_stretches s WHERE s.run_id = d.run_id), "
+              "(SELECT IFNULL(SUM(seconds), 0) FROM change_stretches s WHERE s.run_id = d.run_id) "
+              "FROM change_detection d WHERE d.run_id = ?");
+  q.Bind(1, run);
+  if (!q.Step()) {
+    if (!q.error().empty()) return DbError("cannot read the detection", q.error());
+    return Fail(Outcome::kNotFound, "no change detection for run " + std::to_string(run));
+  }
+  out->run_id = run;
+  out->reference_run = q.Int(0);
+  out->status = q.Text(1);
+  out->error = q.Text(2);
+  out->requested_ns = q.Int(3);
+  out->updated_ns = q.Int(4);
+  out->stretches_done = static_cast<int>(q.Int(5));
+  out->stretches_compared = static_cast<int>(q.Int(6));
+  out->km = q.Double(7) / 1000.0;
+  out->registration_rms_m = std::sqrt(q.Double(8));
+  out->compared_to_m = q.IsNull(9) ? -std::numeric_limits<double>::infinity() : q.Double(9);
+  out->seconds = q.Double(10);
+  return {};
+}
+
+Result ChangeStore::Detection(int64_t run, DetectionState* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return DetectionLocked(run, out);
+}
+
+Result ChangeStore::Detections(std::vector<DetectionState>* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  out->clear();
+  std::vector<int64_t> runs;
+  {
+    Statement q(*db_, "SELECT run_id FROM change_detection ORDER BY run_id");
+    while (q.Step()) runs.push_back(q.Int(0));
+    if (!q.error().empty()) return DbError("cannot list detections", q.error());
+  }
+  for (int64_t run : runs) {
+    out->emplace_back();
+    const Result r = DetectionLocked(run, &out->back());
+    if (!r) return r;
+  }
+  return {};
+}
+
+Result ChangeStore::StoredStretches(int64_t run, std::set<int>* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  out->clear();
+  Statement q(*db_, "SELECT stretch FROM change_stretches WHERE run_id = ?");
+  q.Bind(1, run);
+  while (q.Step()) out->insert(static_cast<int>(q.Int(0)));
+  if (!q.error().empty()) return DbError("cannot list stretches", q.error());
+  return {};
+}
+
+Result ChangeStore::SaveStretch(int64_t run,
+                                int64_t reference,
+                                const StretchOutcome& o,
+                                std::vector<StoredChange>* stored,
+                                std::vector<StoredChange>* closed) {
+  std::lock_guard<std::mutex> lock(mu_);
+  stored->clear();
+  closed->clear();
+  Transaction t(*db_);
+  if (!t.ok()) return DbError("cannot begin", db_->Message());
+  DetectionState state;
+  Result r = DetectionLocked(run, &state);
+  if (!r) return r;
+  if (state.reference_run != reference)
+    return Fail(Outcome::kConflict, "the run is now compared with another reference");
+  Statement seen(*db_, "SELECT 1 FROM change_stretches WHERE run_id = ? AND stretch = ?");
+  if (seen.Bind(1, run).Bind(2, o.range.index).Step()) return {Outcome::kDuplicate, ""};
+  std::string line;
+  {
+    Statement q(*db_, "SELECT line FROM runs WHERE id = ?");
+    if (!q.Bind(1, run).Step()) return DbError("cannot read the run", q.error());
+    line = q.Text(0);
+  }
+  const int64_t now = NowNs();
+  Statement add_stretch(*db_,
+                        "INSERT INTO change_stretches (run_id, stretch, reference_run, from_m, "
+                        "to_m, compared, rms_m, transform, seconds, done_ns) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!add_stretch.Bind(1, run)
+           .Bind(2, o.range.index)
+           .Bind(3, reference)
+           .Bind(4, o.range.from_m)
+           .Bind(5, o.range.to_m)
+           .Bind(6, o.compared ? 1 : 0)
+           .Bind(7, o.registration_rms_m)
+           .Bind(8, TransformText(o))
+           .Bind(9, o.seconds)
+           .Bind(10, now)
+           .Run())
+    return DbError("cannot store the stretch", add_stretch.error());
+  Statement add(*db_,
+                "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
+                "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
+                "updated_ns) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  for (const RunChange& c : o.changes) {
+    add.Reset();
+    if (!add.Bind(1, run)
+             .Bind(2, reference)
+             .Bind(3, o.range.index)
+             .Bind(4, line)
+             .Bind(5, ToString(c.kind))
+             .Bind(6, c.chainage_m)
+             .Bind(7, c.offset_m)
+             .Bind(8, c.utm_zone)
+             .Bind(9, c.centre_utm.x())
+             .Bind(10, c.centre_utm.y())
+             .Bind(11, c.centre_utm.z())
+             .Bind(12, PropertiesOf(c))
+             .Bind(13, c.intrudes_envelope ? 1 : 0)
+             .Bind(14, c.size_m.maxCoeff())
+             .Bind(15, now)
+             .Bind(16, now)
+             .Run())
+      return DbError("cannot store a change", add.error());
+    StoredChange s;
+    s.id = db_->LastInsertId();
+    s.run_id = run;
+    s.reference_run = reference;
+    s.line = line;
+    s.change = c;
+    s.created_ns = s.updated_ns = now;
+    stored->push_back(std::move(s));
+  }
+  r = CloseFixedLocked(run, o.range, *stored, closed);
+  if (!r) return r;
+  Statement touch(*db_,
+                  "UPDATE change_detection SET status = 'running', updated_ns = ? "
+                  "WHERE run_id = ? AND status = 'pending'");
+  std::string error;
+  if (!touch.Bind(1, now).Bind(2, run).Run() || !t.Commit(&error))
+    return DbError("cannot commit the stretch", touch.error() + error);
+  return {};
+}
+
+Result ChangeStore::CloseFixedLocked(int64_t run,
+                                     const StretchRange& range,
+                                     const std::vector<StoredChange>& seen,
+                                     std::vector<StoredChange>* closed) {
+  std::vector<StoredChange> fixed;
+  Statement q(*db_,
+              std::string("SELECT ") + kChangeColumns +
+                  " FROM changes WHERE status = 'fixed' AND run_id < ? AND chainage_m >= ? AND "
+                  "chainage_m < ? AND line = (SELECT line FROM runs WHERE id = ?)");
+  q.Bind(1, run).Bind(2, range.from_m).Bind(3, range.to_m).Bind(4, run);
+  while (q.Step()) fixed.push_back(ChangeOf(q));
+  if (!q.error().empty()) return DbError("cannot read fixed changes", q.error());
+  Statement close(*db_,
+                  "UPDATE changes SET status = 'closed', closed_by_run = ?, updated_ns = ? "
+                  "WHERE id = ?");
+  for (StoredChange& f : fixed) {
+    const bool again = std::any_of(seen.begin(), seen.end(), [&](const StoredChange& s) {
+      return (s.change.centre_utm - f.change.centre_utm).head<2>().norm() < 2.0;
+    });
+    if (again) continue;
+    f.status = "closed";
+    f.closed_by_run = run;
+    f.updated_ns = NowNs();
+    close.Reset();
+    if (!close.Bind(1, run).Bind(2, f.updated_ns).Bind(3, f.id).Run())
+      return DbError("cannot close a fixed change", close.error());
+    closed->push_back(std::move(f));
+  }
+  return {};
+}
+
+Result ChangeStore::SetStatus(int64_t run, const std::string& status, const std::string& error) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Statement q(*db_,
+              "UPDATE change_detection SET status = ?, error = ?, updated_ns = ? WHERE run_id = ?");
+  if (!q.Bind(1, status).Bind(2, error).Bind(3, NowNs()).Bind(4, run).Run())
+    return DbError("cannot set the detection's status", q.error());
+  return {};
+}
+
+Result ChangeStore::ListWhere(const std::string& where,
+                              const std::function<void(Statement&)>& bind,
+                              std::vector<StoredChange>* out) const {
+  out->clear();
+  Statement q(*db_, std::string("SELECT ") + kChangeColumns + " FROM changes WHERE " + where);
+  bind(q);
+  while (q.Step()) out->push_back(ChangeOf(q));
+  if (!q.error().empty()) return DbError("cannot list changes", q.error());
+  return {};
+}
+
+Result ChangeStore::List(int64_t run, const ChangeFilter& f, std::vector<StoredChange>* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::string where = "run_id = ? AND chainage_m >= ? AND chainage_m <= ? AND size_max_m >= ?";
+  if (f.kind) where += " AND kind = ?";
+  if (f.intrudes) where += " AND intrudes = ?";
+  where += " ORDER BY chainage_m, id";
+  // SQLite binds no infinities: the line's chainage is far inside these.
+  const double far = 1e12;
+  return ListWhere(
+      where,
+      [&](Statement& q) {
+        q.Bind(1, run)
+            .Bind(2, std::max(f.from_m, -far))
+            .Bind(3, std::min(f.to_m, far))
+            .Bind(4, f.min_size_m);
+        int next = 5;
+        if (f.kind) q.Bind(next++, ToString(*f.kind));
+        if (f.intrudes) q.Bind(next++, *f.intrudes ? 1 : 0);
+      },
+      out);
+}
+
+Result ChangeStore::Get(int64_t id, StoredChange* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<StoredChange> found;
+  const Result r = ListWhere(
+      "id = ?", [&](Statement& q) { q.Bind(1, id); }, &found);
+  if (!r) return r;
+  if (found.empty()) return Fail(Outcome::kNotFound, "no change " + std::to_string(id));
+  *out = std::move(found.front());
+  return {};
+}
+
+Result ChangeStore::Update(int64_t id,
+                           const std::string& status,
+                           const std::optional<std::string>& note,
+                           StoredChange* out) {
+  if (!IsChangeStatus(status, true))
+    return Fail(Outcome::kInvalid,
+                "status must be new, confirmed, dismissed or fixed (got '" + status + "')");
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    Statement q(*db_,
+                "UPDATE changes SET status = ?, note = IFNULL(?, note), closed_by_run = NULL, "
+                "updated_ns = ? WHERE id = ?");
+    q.Bind(1, status);
+    if (note)
+      q.Bind(2, *note);
+    else
+      q.BindNull(2);
+    if (!q.Bind(3, NowNs()).Bind(4, id).Run()) return DbError("cannot update", q.error());
+    if (db_->Changes() == 0) return Fail(Outcome::kNotFound, "no change " + std::to_string(id));
+  }
+  return Get(id, out);
+}
+
+Result ChangeStore::Frame(int64_t run, int stretch, StretchFrame* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  Statement q(*db_, "SELECT transform FROM change_stretches WHERE run_id = ? AND stretch = ?");
+  if (!q.Bind(1, run).Bind(2, stretch).Step())
+    return Fail(Outcome::kNotFound, "stretch " + std::to_string(stretch) + " not compared");
+  const json j = json::parse(q.Text(0), nullptr, false);
+  if (j.is_discarded()) return Fail(Outcome::kError, "a stretch's transform is unreadable");
+  out->origin = VecOf(j.at("origin"));
+  out->T_reference_later.setIdentity();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) out->T_reference_later.matrix()(r, c) = j.at("T").at(r * 4 + c);
+  return {};
+}
+
+}  // namespace raillomer::mapstore

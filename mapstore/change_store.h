@@ -1,0 +1,117 @@
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "mapstore/run_comparison.h"
+
+namespace raillomer::mapstore {
+
+class Database;
+class Statement;
+
+/// The statuses engineers give a change; `closed` is set by a later run that no longer sees a
+/// change marked `fixed`.
+bool IsChangeStatus(const std::string& status, bool settable_only);
+
+/// A change as stored: what detection found, and what engineers made of it.
+struct StoredChange {
+  int64_t id = 0;
+  int64_t run_id = 0, reference_run = 0;
+  std::string line;
+  RunChange change;
+  std::string status = "new", note;
+  int64_t closed_by_run = 0;  ///< the run that no longer saw it (status `closed`)
+  int64_t created_ns = 0, updated_ns = 0;
+};
+
+/// A run's comparison with its reference: requested, running (stretches stored as they are
+/// compared), done (the run finished and every stretch stored) or failed (`error` says why).
+struct DetectionState {
+  int64_t run_id = 0, reference_run = 0;
+  std::string status, error;
+  int stretches_done = 0, stretches_compared = 0;
+  double km = 0.0;                                                  ///< compared
+  double registration_rms_m = 0.0;                                  ///< over the compared stretches
+  double compared_to_m = -std::numeric_limits<double>::infinity();  ///< furthest stretch end
+  double seconds = 0.0;                                             ///< spent comparing
+  int64_t requested_ns = 0, updated_ns = 0;
+};
+
+/// Which changes of a run to list.
+struct ChangeFilter {
+  double from_m = -std::numeric_limits<double>::infinity();
+  double to_m = std::numeric_limits<double>::infinity();
+  std::optional<ChangeKind> kind;
+  std::optional<bool> intrudes;
+  double min_size_m = 0.0;  ///< the largest of along, across, height at least this
+};
+
+/// A compared stretch's registration, for drawing the later run where the comparison put it.
+struct StretchFrame {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::Isometry3d T_reference_later = Eigen::Isometry3d::Identity();
+};
+
+/// Change detection's records in the store's index (its own connection): each run's
+/// detection state, its compared stretches and the changes found. A stretch and its changes
+/// are stored in one transaction and a stretch stored once, so a detection interrupted
+/// anywhere resumes at the first stretch without a row: no change is lost or stored twice.
+class ChangeStore {
+ public:
+  /// Opens the index of an open store (its schema already migrated).
+  static std::unique_ptr<ChangeStore> Open(const std::string& index_path, std::string* error);
+  ~ChangeStore();
+  ChangeStore(const ChangeStore&) = delete;
+  ChangeStore& operator=(const ChangeStore&) = delete;
+
+  /// Asks for `run` to be compared with `reference`: a new detection, or (`restart`, or another
+  /// reference than the stored one) the run's stored stretches and changes dropped first.
+  Result Request(int64_t run, int64_t reference, bool restart, DetectionState* out);
+  Result Detection(int64_t run, DetectionState* out) const;  ///< kNotFound if never requested
+  Result Detections(std::vector<DetectionState>* out) const;
+  Result StoredStretches(int64_t run, std::set<int>* out) const;
+  /// Stores a compared (or skipped) stretch with its changes; `stored` gets them with their
+  /// ids. A stretch already stored is a kDuplicate (nothing stored); a detection requested
+  /// meanwhile against another reference a kConflict. Changes of earlier runs of the line
+  /// marked `fixed` in the stretch and not seen again within 2 m are closed (`closed` gets
+  /// them).
+  Result SaveStretch(int64_t run,
+                     int64_t reference,
+                     const StretchOutcome& outcome,
+                     std::vector<StoredChange>* stored,
+                     std::vector<StoredChange>* closed);
+  Result SetStatus(int64_t run, const std::string& status, const std::string& error);
+
+  Result List(int64_t run, const ChangeFilter& filter, std::vector<StoredChange>* out) const;
+  Result Get(int64_t id, StoredChange* out) const;
+  /// Sets a change's status (IsChangeStatus settable) and, if given, its note.
+  Result Update(int64_t id,
+                const std::string& status,
+                const std::optional<std::string>& note,
+                StoredChange* out);
+  Result Frame(int64_t run, int stretch, StretchFrame* out) const;
+
+ private:
+  ChangeStore();
+  Result DetectionLocked(int64_t run, DetectionState* out) const;
+  Result CloseFixedLocked(int64_t run,
+                          const StretchRange& range,
+                          const std::vector<StoredChange>& seen,
+                          std::vector<StoredChange>* closed);
+  Result ListWhere(const std::string& where,
+                   const std::function<void(Statement&)>& bind,
+                   std::vector<StoredChange>* out) const;
+
+  mutable std::mutex mu_;
+  std::unique_ptr<Database> db_;
+};
+
+}  // namespace raillomer::mapstore

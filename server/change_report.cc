@@ -1,0 +1,175 @@
+#include "server/change_report.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <map>
+
+namespace raillomer::server {
+namespace {
+
+std::string Escape(const std::string& text) {
+  std::string out;
+  for (char c : text) {
+    switch (c) {
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '&':
+        out += "&amp;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
+}
+
+std::string Base64(const std::string& bytes) {
+  static const char* kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((bytes.size() + 2) / 3 * 4);
+  for (size_t i = 0; i < bytes.size(); i += 3) {
+    uint32_t v = static_cast<uint8_t>(bytes[i]) << 16;
+    if (i + 1 < bytes.size()) v |= static_cast<uint8_t>(bytes[i + 1]) << 8;
+    if (i + 2 < bytes.size()) v |= static_cast<uint8_t>(bytes[i + 2]);
+    out += kAlphabet[(v >> 18) & 63];
+    out += kAlphabet[(v >> 12) & 63];
+    out += i + 1 < bytes.size() ? kAlphabet[(v >> 6) & 63] : '=';
+    out += i + 2 < bytes.size() ? kAlphabet[v & 63] : '=';
+  }
+  return out;
+}
+
+std::string Fixed(double v, int digits) {
+  if (!std::isfinite(v)) return "&ndash;";
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.*f", digits, v);
+  return text;
+}
+
+std::string Km(double chainage_m) { return "km " + Fixed(chainage_m / 1000.0, 3); }
+
+std::string When(int64_t ns) {
+  const std::time_t t = static_cast<std::time_t>(ns / 1'000'000'000);
+  char text[64];
+  std::strftime(text, sizeof(text), "%Y-%m-%d %H:%M UTC", std::gmtime(&t));
+  return text;
+}
+
+constexpr const char* kStyle = R"css(
+body { font-family: sans-serif; margin: 2em; color: #222; }
+h1 { font-size: 1.5em; margin-bottom: 0.2em; }
+table { border-collapse: collapse; margin: 0.8em 0; }
+td, th { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: left; }
+th { background: #eee; }
+.intrudes { color: #b00; font-weight: bold; }
+.change { page-break-inside: avoid; border-top: 2px solid #888; margin-top: 1.5em; }
+.change img { max-width: 100%; border: 1px solid #ccc; }
+@media print { a { color: inherit; text-decoration: none; } }
+)css";
+
+std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::StoredChange>& c) {
+  std::map<std::string, int> by_kind;
+  int intrusions = 0;
+  for (const mapstore::StoredChange& s : c) {
+    ++by_kind[mapstore::ToString(s.change.kind)];
+    intrusions += s.change.intrudes_envelope ? 1 : 0;
+  }
+  const mapstore::DetectionState& d = in.detection;
+  std::string html = "<table>\n";
+  const auto row = [&](const std::string& key, const std::string& value) {
+    html += "<tr><th>" + key + "</th><td>" + value + "</td></tr>\n";
+  };
+  row("Line", Escape(in.line.name));
+  row("Run",
+      std::to_string(in.run.id) + " (" + Escape(in.run.vehicle) + ", " + When(in.run.start_ns) +
+          ", " + Escape(in.run.status) + ")");
+  row("Compared with",
+      d.reference_run ? "run " + std::to_string(d.reference_run) : Escape(in.reason));
+  row("Detection", Escape(d.status) + (d.error.empty() ? "" : ": " + Escape(d.error)));
+  row("Covered",
+      Fixed(d.km, 2) + " km in " + std::to_string(d.stretches_compared) +
+          " stretches; registration residual " + Fixed(d.registration_rms_m * 100.0, 1) +
+          " cm RMS");
+  std::string kinds;
+  for (const char* k : {"added", "removed", "moved", "vegetation"})
+    kinds += std::string(kinds.empty() ? "" : ", ") + k + " " + std::to_string(by_kind[k]);
+  row("Changes", std::to_string(c.size()) + " (" + kinds + ")");
+  row("Intruding the gauge",
+      "<span class=\"" + std::string(intrusions ? "intrudes" : "") + "\">" +
+          std::to_string(intrusions) + "</span>");
+  return html + "</table>\n";
+}
+
+std::string Overview(const std::vector<mapstore::StoredChange>& c) {
+  std::string html =
+      "<table>\n<tr><th>#</th><th>Kind</th><th>Kilometre</th><th>Side</th><th>Offset m</th>"
+      "<th>Size m (along &times; across &times; height)</th><th>Margin m</th><th>Status</th>"
+      "</tr>\n";
+  for (const mapstore::StoredChange& s : c) {
+    const mapstore::RunChange& x = s.change;
+    html += std::string("<tr") + (x.intrudes_envelope ? " class=\"intrudes\"" : "") + ">" +
+            "<td><a href=\"#change-" + std::to_string(s.id) + "\">" + std::to_string(s.id) +
+            "</a></td><td>" + mapstore::ToString(x.kind) + "</td><td>" + Km(x.chainage_m) +
+            "</td><td>" + (x.offset_m >= 0.0 ? "left" : "right") + "</td><td>" +
+            Fixed(std::abs(x.offset_m), 2) + "</td><td>" + Fixed(x.size_m.x(), 1) + " &times; " +
+            Fixed(x.size_m.y(), 1) + " &times; " + Fixed(x.size_m.z(), 1) + "</td><td>" +
+            Fixed(x.margin_m, 2) + "</td><td>" + Escape(s.status) + "</td></tr>\n";
+  }
+  return html + "</table>\n";
+}
+
+std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s) {
+  const mapstore::RunChange& x = s.change;
+  std::string html = "<div class=\"change\" id=\"change-" + std::to_string(s.id) + "\">\n";
+  html += "<h2>#" + std::to_string(s.id) + " " + mapstore::ToString(x.kind) + ", " +
+          Km(x.chainage_m) + ", " + Fixed(std::abs(x.offset_m), 2) + " m " +
+          (x.offset_m >= 0.0 ? "left" : "right") + "</h2>\n<p>";
+  if (x.intrudes_envelope)
+    html += "<span class=\"intrudes\">Intrudes the structure gauge by " + Fixed(-x.margin_m, 2) +
+            " m.</span> ";
+  else
+    html += "Clear of the structure gauge by " + Fixed(x.margin_m, 2) + " m. ";
+  html += "Size " + Fixed(x.size_m.x(), 1) + " &times; " + Fixed(x.size_m.y(), 1) + " &times; " +
+          Fixed(x.size_m.z(), 1) + " m (along &times; across &times; height), " +
+          Fixed(x.height_above_rail_min_m, 1) + " to " + Fixed(x.height_above_rail_max_m, 1) +
+          " m above the rails. UTM " + Escape(x.utm_zone) + " " + Fixed(x.centre_utm.x(), 1) +
+          " E, " + Fixed(x.centre_utm.y(), 1) + " N. Confidence " + Fixed(x.confidence, 2) +
+          ", level of detection " + Fixed(x.lod_m, 2) + " m. Status: " + Escape(s.status) +
+          (s.note.empty() ? "" : " (" + Escape(s.note) + ")") + ". <a href=\"" +
+          Escape(in.viewer_url) + "?run=" + std::to_string(s.run_id) +
+          "&amp;change=" + std::to_string(s.id) + "\">Open in the viewer</a></p>\n";
+  const std::string png = in.snapshot ? in.snapshot(s) : "";
+  if (!png.empty())
+    html += "<img alt=\"snapshot of change " + std::to_string(s.id) +
+            "\" src=\"data:image/png;base64," + Base64(png) + "\">\n";
+  return html + "</div>\n";
+}
+
+}  // namespace
+
+std::string ChangeReportHtml(const ChangeReportInput& in) {
+  std::vector<mapstore::StoredChange> c = in.changes;
+  std::stable_sort(c.begin(), c.end(), [](const auto& a, const auto& b) {
+    if (a.change.intrudes_envelope != b.change.intrudes_envelope) return a.change.intrudes_envelope;
+    return a.change.chainage_m < b.change.chainage_m;
+  });
+  std::string html = "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n";
+  html += "<title>Changes of run " + std::to_string(in.run.id) + ", line " + Escape(in.line.name) +
+          "</title>\n<style>" + kStyle + "</style></head><body>\n";
+  html += "<h1>Changes of run " + std::to_string(in.run.id) + " on line " + Escape(in.line.name) +
+          "</h1>\n";
+  html += Summary(in, c) + Overview(c);
+  for (const mapstore::StoredChange& s : c) html += Section(in, s);
+  return html + "</body></html>\n";
+}
+
+}  // namespace raillomer::server

@@ -1,0 +1,174 @@
+// The change-detection routes: a run's changes (GeoJSON or CSV), recomputing them against a
+// chosen reference, an engineer's status and note, a change's snapshot and a run's report.
+#include <limits>
+
+#include "server/change_json.h"
+#include "server/change_report.h"
+#include "server/http_parse.h"
+#include "server/route_util.h"
+#include "server/routes.h"
+#include "server/snapshot.h"
+
+namespace raillomer::server {
+namespace {
+
+using nlohmann::json;
+
+/// The filters of GET .../changes; false with a 400 naming the bad one.
+bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter* f) {
+  double from_km = -1e9, to_km = 1e9;
+  if (!NumberParam(req, res, "from_km", &from_km) || !NumberParam(req, res, "to_km", &to_km) ||
+      !NumberParam(req, res, "min_size_m", &f->min_size_m))
+    return false;
+  f->from_m = 1000.0 * from_km;
+  f->to_m = 1000.0 * to_km;
+  if (req.HasParam("kind")) {
+    mapstore::ChangeKind kind;
+    if (!mapstore::ParseChangeKind(req.Param("kind"), &kind)) {
+      res.SetError(
+          400,
+          "invalid",
+          "kind must be added, removed, moved or vegetation (got '" + req.Param("kind") + "')");
+      return false;
+    }
+    f->kind = kind;
+  }
+  if (req.HasParam("intrudes_envelope")) {
+    const std::string v = req.Param("intrudes_envelope");
+    if (v != "true" && v != "false") {
+      res.SetError(400, "invalid", "intrudes_envelope must be true or false (got '" + v + "')");
+      return false;
+    }
+    f->intrudes = v == "true";
+  }
+  return true;
+}
+
+class ChangeApi {
+ public:
+  explicit ChangeApi(const ApiContext& c)
+      : c_(c), store_(*c.store), changes_(*c.changes), worker_(*c.change_worker) {}
+
+  void List(const HttpRequest& req, HttpResponse& res) {
+    int64_t run = 0;
+    mapstore::ChangeFilter filter;
+    if (!PathId(req, res, &run) || !FilterOf(req, res, &filter)) return;
+    const std::string format = req.HasParam("format") ? req.Param("format") : "geojson";
+    if (format != "geojson" && format != "csv")
+      return res.SetError(400, "invalid", "format must be geojson or csv (got '" + format + "')");
+    mapstore::DetectionState state;
+    std::string reason;
+    mapstore::Result r = worker_.State(run, &state, &reason);
+    std::vector<mapstore::StoredChange> found;
+    if (r) r = changes_.List(run, filter, &found);
+    if (!r) return SendResult(res, r);
+    if (format == "csv") {
+      res.SetContent(ChangesCsv(found), "text/csv; charset=utf-8");
+      res.SetHeader("Content-Disposition",
+                    "attachment; filename=\"changes-run-" + std::to_string(run) + ".csv\"");
+      return;
+    }
+    SendJson(res, ChangeCollection(found, DetectionJson(state, reason)), "application/geo+json");
+  }
+
+  void Recompute(const HttpRequest& req, HttpResponse& res) {
+    int64_t run = 0, reference = 0;
+    if (!PathId(req, res, &run) ||
+        !IntParam(req, res, "reference", 1, std::numeric_limits<int64_t>::max(), &reference))
+      return;
+    mapstore::DetectionState state;
+    const mapstore::Result r = worker_.Recompute(run, reference, &state);
+    if (!r) return SendResult(res, r);
+    res.status = 202;
+    SendJson(res, {{"run", run}, {"detection", DetectionJson(state, "")}});
+  }
+
+  void Get(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    if (!PathId(req, res, &id, "change")) return;
+    mapstore::StoredChange change;
+    const mapstore::Result r = changes_.Get(id, &change);
+    if (!r) return SendResult(res, r);
+    SendJson(res, ChangeFeature(change), "application/geo+json");
+  }
+
+  void Update(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    json body;
+    if (!PathId(req, res, &id, "change") || !ParseObject(req, res, &body)) return;
+    for (const auto& [key, value] : body.items())
+      if (key != "status" && key != "note")
+        return res.SetError(400, "invalid", "unknown member '" + key + "' (status, note)");
+    if (body.contains("status") && !body["status"].is_string())
+      return res.SetError(400, "invalid", "status must be a string");
+    if (body.contains("note") &&
+        (!body["note"].is_string() || body["note"].get_ref<const std::string&>().size() > 4000))
+      return res.SetError(400, "invalid", "note must be a string of at most 4000 bytes");
+    if (!body.contains("status") && !body.contains("note"))
+      return res.SetError(400, "invalid", "give a status, a note or both");
+    mapstore::StoredChange change;
+    mapstore::Result r = changes_.Get(id, &change);
+    if (!r) return SendResult(res, r);
+    std::optional<std::string> note;
+    if (body.contains("note")) note = body["note"].get<std::string>();
+    r = changes_.Update(id, body.value("status", change.status), note, &change);
+    if (!r) return SendResult(res, r);
+    SendJson(res, ChangeFeature(change), "application/geo+json");
+  }
+
+  void Snapshot(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    if (!PathId(req, res, &id, "change")) return;
+    mapstore::StoredChange change;
+    mapstore::Result r = changes_.Get(id, &change);
+    std::string png;
+    if (r) r = RenderSnapshot(store_, changes_, change, Clearance(), &png);
+    if (!r) return SendResult(res, r);
+    res.SetContent(std::move(png), "image/png");
+  }
+
+  void Report(const HttpRequest& req, HttpResponse& res) {
+    int64_t run = 0;
+    if (!PathId(req, res, &run)) return;
+    ChangeReportInput in;
+    mapstore::Result r = store_.GetRun(run, &in.run);
+    if (r) r = store_.GetLine(in.run.line, &in.line);
+    if (r) r = worker_.State(run, &in.detection, &in.reason);
+    if (r) r = changes_.List(run, mapstore::ChangeFilter(), &in.changes);
+    if (!r) return SendResult(res, r);
+    in.snapshot = [this](const mapstore::StoredChange& change) {
+      std::string png;
+      return RenderSnapshot(store_, changes_, change, Clearance(), &png) ? png : std::string();
+    };
+    res.SetContent(ChangeReportHtml(in), "text/html; charset=utf-8");
+  }
+
+ private:
+  const mapstore::ClearanceOptions& Clearance() const {
+    return c_.config->changes.comparison.clearance;
+  }
+
+  ApiContext c_;
+  mapstore::MapStore& store_;
+  mapstore::ChangeStore& changes_;
+  ChangeWorker& worker_;
+};
+
+}  // namespace
+
+std::vector<HttpRoute> ChangeRoutes(const ApiContext& context) {
+  auto api = std::make_shared<ChangeApi>(context);
+  auto route = [api](auto... args) { return MemberRoute(api, args...); };
+  const Access R = Access::kRead, W = Access::kWrite;
+  return {
+      route("GET", "/api/v1/runs/{run}/changes", "changes.list", R, &ChangeApi::List),
+      route("POST", "/api/v1/runs/{run}/changes", "changes.recompute", W, &ChangeApi::Recompute),
+      route("GET", "/api/v1/runs/{run}/changes/report", "changes.report", R, &ChangeApi::Report),
+      route("GET", "/api/v1/changes/{id}", "changes.get", R, &ChangeApi::Get),
+      route("PATCH", "/api/v1/changes/{id}", "changes.update", W, &ChangeApi::Update, 64 << 10),
+      route(
+          "GET", "/api/v1/changes/{id}/snapshot.png", "changes.snapshot", R, &ChangeApi::Snapshot),
+  };
+}
+
+}  // namespace raillomer::server

@@ -1,0 +1,167 @@
+#include "server/change_worker.h"
+
+#include <chrono>
+#include <cstdio>
+#include <map>
+#include <set>
+
+namespace raillomer::server {
+
+using mapstore::DetectionState;
+using mapstore::Outcome;
+using mapstore::Result;
+
+ChangeWorker::ChangeWorker(mapstore::MapStore* store,
+                           mapstore::ChangeStore* changes,
+                           ChangeWorkerOptions options,
+                           Announce announce)
+    : store_(store), changes_(changes), options_(std::move(options)), announce_(announce) {}
+
+ChangeWorker::~ChangeWorker() { Stop(); }
+
+void ChangeWorker::Start() {
+  if (options_.enabled && !thread_.joinable()) thread_ = std::thread([this] { Loop(); });
+}
+
+void ChangeWorker::Stop() {
+  stopping_ = true;
+  Notify();
+  if (thread_.joinable()) thread_.join();
+}
+
+void ChangeWorker::Notify() {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    woken_ = true;
+  }
+  wake_.notify_all();
+}
+
+void ChangeWorker::Loop() {
+  while (!stopping()) {
+    Pass();
+    std::unique_lock<std::mutex> lock(mu_);
+    wake_.wait_for(
+        lock, std::chrono::milliseconds(options_.poll_ms), [this] { return woken_ || stopping(); });
+    woken_ = false;
+  }
+}
+
+Result ChangeWorker::Recompute(int64_t run, int64_t reference, DetectionState* out) {
+  mapstore::RunInfo info;
+  Result r = store_->GetRun(run, &info);
+  if (!r) return r;
+  if (reference == 0) {
+    mapstore::LineInfo line;
+    r = store_->GetLine(info.line, &line);
+    if (!r) return r;
+    if (line.reference_run == 0 || line.reference_run == run)
+      return {Outcome::kConflict,
+              "line '" + info.line + "' has no other finished run to compare run " +
+                  std::to_string(run) + " with: name one with ?reference="};
+    reference = line.reference_run;
+  }
+  std::unique_ptr<mapstore::RunComparison> comparison;
+  r = mapstore::RunComparison::Prepare(*store_, reference, run, options_.comparison, &comparison);
+  if (!r) return r;
+  r = changes_->Request(run, reference, true, out);
+  Notify();
+  return r;
+}
+
+Result ChangeWorker::State(int64_t run, DetectionState* out, std::string* reason) const {
+  reason->clear();
+  Result r = changes_->Detection(run, out);
+  if (r || r.outcome != Outcome::kNotFound) return r;
+  mapstore::RunInfo info;
+  mapstore::LineInfo line;
+  r = store_->GetRun(run, &info);
+  if (r) r = store_->GetLine(info.line, &line);
+  if (!r) return r;
+  *out = DetectionState();
+  out->run_id = run;
+  out->status = "pending";
+  if (line.reference_run == run)
+    *reason = "run " + std::to_string(run) + " is line '" + line.name +
+              "''s reference: later runs are compared with it";
+  else if (line.reference_run == 0)
+    *reason = "line '" + line.name + "' has no finished run to compare with yet";
+  else if (!options_.enabled)
+    *reason = "this server does not detect changes (changes.enabled is false)";
+  else
+    out->reference_run = line.reference_run;
+  return {};
+}
+
+void ChangeWorker::Pass() {
+  std::vector<DetectionState> states;
+  if (!changes_->Detections(&states)) return;
+  std::map<int64_t, DetectionState> by_run;
+  for (const DetectionState& s : states) by_run[s.run_id] = s;
+  for (const mapstore::RunInfo& run : store_->ListRuns()) {
+    if (stopping()) return;
+    auto found = by_run.find(run.id);
+    if (found == by_run.end()) {
+      mapstore::LineInfo line;
+      if (!store_->GetLine(run.line, &line) || line.reference_run == 0 ||
+          line.reference_run == run.id)
+        continue;
+      DetectionState requested;
+      if (!changes_->Request(run.id, line.reference_run, false, &requested)) continue;
+      found = by_run.emplace(run.id, requested).first;
+    }
+    if (found->second.status == "done" || found->second.status == "failed") continue;
+    Advance(run, found->second);
+  }
+}
+
+void ChangeWorker::FlushOnce(bool* flushed) {
+  if (*flushed) return;
+  store_->Flush();
+  *flushed = true;
+}
+
+void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& state) {
+  std::unique_ptr<mapstore::RunComparison> comparison;
+  Result r = mapstore::RunComparison::Prepare(
+      *store_, state.reference_run, run.id, options_.comparison, &comparison);
+  if (!r) {
+    // A reference still live may finish; anything else will not mend itself.
+    if (r.outcome != Outcome::kConflict) changes_->SetStatus(run.id, "failed", r.message);
+    return;
+  }
+  std::set<int> stored;
+  if (!changes_->StoredStretches(run.id, &stored)) return;
+  const bool finished = run.status == "finished";
+  bool flushed = false;
+  for (const mapstore::StretchRange& range : comparison->stretches()) {
+    if (stopping()) return;
+    if (stored.count(range.index)) continue;
+    if (!finished && comparison->later_reach_m() < range.to_m + options_.past_m) break;
+    FlushOnce(&flushed);
+    mapstore::StretchOutcome outcome;
+    r = comparison->Compare(range, &outcome);
+    std::vector<mapstore::StoredChange> found, closed;
+    if (r) r = changes_->SaveStretch(run.id, state.reference_run, outcome, &found, &closed);
+    if (!r) {
+      std::fprintf(stderr,
+                   "raillomer-server: change detection of run %lld, stretch %d: %s\n",
+                   static_cast<long long>(run.id),
+                   range.index,
+                   r.message.c_str());
+      return;
+    }
+    if (r.outcome == Outcome::kDuplicate) continue;
+    stored.insert(range.index);
+    ++stretches_compared_;
+    DetectionState now;
+    if (changes_->Detection(run.id, &now)) announce_(found, closed, now);
+  }
+  if (finished && stored.size() >= comparison->stretches().size()) {
+    changes_->SetStatus(run.id, "done", "");
+    DetectionState now;
+    if (changes_->Detection(run.id, &now)) announce_({}, {}, now);
+  }
+}
+
+}  // namespace raillomer::server

@@ -1,0 +1,89 @@
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "mapstore/change_store.h"
+#include "mapstore/map_store.h"
+
+namespace raillomer::server {
+
+/// Settings of the server's own change detection.
+struct ChangeWorkerOptions {
+  bool enabled = true;
+  /// A stretch of a live run is compared once its poses are this far past the stretch's end
+  /// (the LiDARs look ahead: the stretch is then seen from both sides).
+  double past_m = 100.0;
+  int poll_ms = 500;  ///< how often the worker looks for work without being woken
+  mapstore::RunComparisonOptions comparison;
+};
+
+/// Compares every run of a line with the line's reference run (or the one an operator chose)
+/// on a background thread, stretch by stretch as the run's tiles arrive: a stretch of a live
+/// run once the train is past it, the rest when the run finishes. Each stretch's changes are
+/// stored at once (ChangeStore) and handed to `announce`; a restarted server resumes where the
+/// stored stretches end.
+class ChangeWorker {
+ public:
+  /// Called on the worker's thread with each stretch's new changes, changes of earlier runs
+  /// it closed, and the run's detection state after it.
+  using Announce = std::function<void(const std::vector<mapstore::StoredChange>& found,
+                                      const std::vector<mapstore::StoredChange>& closed,
+                                      const mapstore::DetectionState& state)>;
+
+  ChangeWorker(mapstore::MapStore* store,
+               mapstore::ChangeStore* changes,
+               ChangeWorkerOptions options,
+               Announce announce);
+  ~ChangeWorker();
+  ChangeWorker(const ChangeWorker&) = delete;
+  ChangeWorker& operator=(const ChangeWorker&) = delete;
+
+  void Start();
+  /// Finishes the stretch under way and stops.
+  void Stop();
+  /// Something arrived (poses, a finished run): look for work now.
+  void Notify();
+
+  /// Asks for `run` to be compared again from the start with `reference` (0: the line's
+  /// reference run). Checks first that the two can be compared: a run of another line or zone,
+  /// an unknown or live reference, runs that do not overlap get an error naming the reason and
+  /// change nothing.
+  mapstore::Result Recompute(int64_t run, int64_t reference, mapstore::DetectionState* out);
+
+  /// The run's detection state; for a run never requested, what it waits for (`pending`
+  /// against the line's reference once there is one, `reason` otherwise).
+  mapstore::Result State(int64_t run, mapstore::DetectionState* out, std::string* reason) const;
+
+  /// Stretches compared since start, and seconds spent comparing.
+  uint64_t stretches_compared() const { return stretches_compared_; }
+
+ private:
+  void Loop();
+  /// One look over every run: requests detection of new runs, advances each running one.
+  void Pass();
+  /// Compares the stretches of `state.run_id` that are ready; marks it done when the run
+  /// finished and every stretch is stored.
+  void Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state);
+  /// Writes the run's tiles once per pass before the first stretch compared.
+  void FlushOnce(bool* flushed);
+  bool stopping() const { return stopping_; }
+
+  mapstore::MapStore* store_;
+  mapstore::ChangeStore* changes_;
+  ChangeWorkerOptions options_;
+  Announce announce_;
+  std::mutex mu_;
+  std::condition_variable wake_;
+  bool woken_ = false;
+  std::atomic<bool> stopping_{false};
+  std::atomic<uint64_t> stretches_compared_{0};
+  std::thread thread_;
+};
+
+}  // namespace raillomer::server

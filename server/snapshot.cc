@@ -1,0 +1,248 @@
+#include "server/snapshot.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "server/canvas.h"
+
+namespace raillomer::server {
+namespace {
+
+using mapstore::Result;
+
+constexpr Rgb kWhite{255, 255, 255}, kInk{40, 40, 40}, kGrid{225, 225, 225};
+constexpr Rgb kBefore{60, 110, 210}, kAfter{240, 120, 20}, kChange{220, 20, 30},
+    kGauge{20, 150, 60};
+constexpr int kPanel = 420, kHeader = 52, kFooter = 24;
+
+/// The track frame at the change: along (increasing chainage), left, up; heights above the
+/// rail plane.
+struct TrackFrame {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();  ///< the centreline at the change
+  Eigen::Vector2d along = Eigen::Vector2d::UnitX(), left = Eigen::Vector2d::UnitY();
+  mapstore::TrackSection section;
+
+  /// along, lateral (left positive), height above the rail plane (cant-tilted section).
+  Eigen::Vector3d Of(const Eigen::Vector3d& p) const {
+    const Eigen::Vector2d d = (p - origin).head<2>();
+    const mapstore::SectionPoint q = ToSection(section, left.dot(d), p.z());
+    return {along.dot(d), q.lateral_m, q.height_m};
+  }
+};
+
+/// The track frame from the line's centreline around the change; the rail plane from the
+/// reference's rail heads (the highest points 0.6-0.85 m either side, below the body's path).
+Result FrameAt(const mapstore::MapStore& store,
+               const mapstore::StoredChange& s,
+               const std::vector<mapstore::ExportPoint>& reference,
+               TrackFrame* f) {
+  mapstore::TrackSegment segment;
+  const Result r =
+      store.Segment(s.line, s.change.chainage_m - 3.0, s.change.chainage_m + 3.0, &segment);
+  if (!r) return r;
+  if (segment.samples.size() < 2)
+    return {mapstore::Outcome::kNotFound, "no centreline around the change"};
+  const double at = s.change.chainage_m;
+  const mapstore::TrackSample* mid = &segment.samples.front();
+  for (const mapstore::TrackSample& t : segment.samples)
+    if (std::abs(t.point.chainage_m - at) < std::abs(mid->point.chainage_m - at)) mid = &t;
+  const Eigen::Vector2d d =
+      (segment.samples.back().point.p - segment.samples.front().point.p).head<2>();
+  f->along = d.normalized();
+  f->left = Eigen::Vector2d(-f->along.y(), f->along.x());
+  f->origin = mid->point.p +
+              (at - mid->point.chainage_m) * Eigen::Vector3d(f->along.x(), f->along.y(), 0.0);
+  std::vector<double> heads;
+  for (const mapstore::ExportPoint& p : reference) {
+    const Eigen::Vector2d q = (p.p - f->origin).head<2>();
+    const double lateral = std::abs(f->left.dot(q)), dz = p.p.z() - f->origin.z();
+    if (lateral >= 0.6 && lateral <= 0.85 && std::abs(f->along.dot(q)) < 6.0 && dz < -0.5)
+      heads.push_back(dz);
+  }
+  std::sort(heads.begin(), heads.end());
+  const double drop = heads.size() >= 10 ? heads[heads.size() * 9 / 10] : -2.0;
+  f->section = {f->origin.z() + drop, mid->point.cant_m, mid->curvature_per_m};
+  return {};
+}
+
+/// A panel's window onto metres: x and y ranges fitted into the panel at one scale.
+struct Window {
+  int left = 0, top = 0;
+  double x0 = 0, y0 = 0, scale = 1;  ///< metres at the panel's left, bottom; pixels per metre
+  bool flip_x = false;
+  int X(double x) const {
+    const double u = flip_x ? -x - x0 : x - x0;
+    return left + static_cast<int>(std::lround(u * scale));
+  }
+  int Y(double y) const { return top + kPanel - static_cast<int>(std::lround((y - y0) * scale)); }
+};
+
+Window Fit(int left, double x_min, double x_max, double y_min, double y_max, bool flip_x) {
+  Window w;
+  w.left = left;
+  w.top = kHeader;
+  w.flip_x = flip_x;
+  w.scale = std::min(kPanel / (x_max - x_min), kPanel / (y_max - y_min));
+  const double cx = flip_x ? -0.5 * (x_min + x_max) : 0.5 * (x_min + x_max);
+  w.x0 = cx - 0.5 * kPanel / w.scale;
+  w.y0 = 0.5 * (y_min + y_max) - 0.5 * kPanel / w.scale;
+  return w;
+}
+
+/// Grid lines every metre (every 5 m darker) over a panel.
+void Grid(Canvas& c, const Window& w) {
+  for (int m = -200; m <= 200; ++m) {
+    const Rgb colour = m % 5 == 0 ? Rgb{200, 200, 200} : kGrid;
+    const int x = w.X(m), y = w.Y(m);
+    if (x > w.left && x < w.left + kPanel) c.Line(x, w.top, x, w.top + kPanel, colour);
+    if (y > w.top && y < w.top + kPanel) c.Line(w.left, y, w.left + kPanel, y, colour);
+  }
+}
+
+void Points(Canvas& c,
+            const Window& w,
+            const std::vector<Eigen::Vector3d>& track_points,
+            int x_axis,
+            int y_axis,
+            const Eigen::AlignedBox3d& keep,
+            Rgb colour) {
+  for (const Eigen::Vector3d& p : track_points) {
+    if (!keep.contains(p)) continue;
+    const int x = w.X(p[x_axis]), y = w.Y(p[y_axis]);
+    if (x >= w.left && x < w.left + kPanel && y >= w.top && y < w.top + kPanel)
+      c.Dot(x, y, 0, colour);
+  }
+}
+
+std::string Format(const char* format, double a, double b = 0.0, double c = 0.0) {
+  char text[160];
+  std::snprintf(text, sizeof(text), format, a, b, c);
+  return text;
+}
+
+/// The run's points in a UTM box; the later run's moved where the comparison registered it.
+Result Load(const mapstore::MapStore& store,
+            int64_t run,
+            const Eigen::AlignedBox2d& box,
+            const mapstore::StretchFrame* frame,
+            std::vector<mapstore::ExportPoint>* out) {
+  mapstore::ExportRequest request;
+  request.run_id = run;
+  request.has_box = true;
+  request.box = box;
+  request.max_points = 5'000'000;
+  std::string zone;
+  const Result r = store.Export(request, out, &zone);
+  if (!r || !frame) return r;
+  for (mapstore::ExportPoint& p : *out)
+    p.p = frame->T_reference_later * (p.p - frame->origin) + frame->origin;
+  return {};
+}
+
+}  // namespace
+
+Result RenderSnapshot(const mapstore::MapStore& store,
+                      const mapstore::ChangeStore& changes,
+                      const mapstore::StoredChange& s,
+                      const mapstore::ClearanceOptions& clearance,
+                      std::string* png) {
+  const mapstore::RunChange& c = s.change;
+  mapstore::StretchFrame frame;
+  Result r = changes.Frame(s.run_id, c.stretch, &frame);
+  if (!r) return r;
+  const double half_along = std::max(6.0, 0.5 * c.size_m.x() + 4.0);
+  const double lateral_min = std::min(-3.5, c.offset_m - 0.5 * c.size_m.y() - 2.0);
+  const double lateral_max = std::max(3.5, c.offset_m + 0.5 * c.size_m.y() + 2.0);
+  const double reach = std::max(half_along, std::max(-lateral_min, lateral_max)) + 2.0;
+  const Eigen::AlignedBox2d box(c.centre_utm.head<2>().array() - reach,
+                                c.centre_utm.head<2>().array() + reach);
+  std::vector<mapstore::ExportPoint> before, after;
+  r = Load(store, s.reference_run, box, nullptr, &before);
+  if (r) r = Load(store, s.run_id, box, &frame, &after);
+  if (!r) return r;
+  TrackFrame track;
+  r = FrameAt(store, s, before, &track);
+  if (!r) return r;
+  const auto in_track = [&](const std::vector<mapstore::ExportPoint>& points) {
+    std::vector<Eigen::Vector3d> out;
+    out.reserve(points.size());
+    for (const mapstore::ExportPoint& p : points) out.push_back(track.Of(p.p));
+    return out;
+  };
+  const std::vector<Eigen::Vector3d> ref = in_track(before), later = in_track(after);
+  const Eigen::Vector3d centre = track.Of(c.centre_utm);
+  const double top = std::max(8.0, c.height_above_rail_max_m + 1.5);
+
+  Canvas canvas(2 * kPanel + 30, kHeader + kPanel + kFooter, kWhite);
+  // Plan: along to the right, left side up; everything below the gauge's top.
+  const Window plan =
+      Fit(10, centre.x() - half_along, centre.x() + half_along, lateral_min, lateral_max, false);
+  // Section: seen along increasing chainage, so the track's left is on the picture's left.
+  const Window section = Fit(kPanel + 20, lateral_min, lateral_max, -1.5, top, true);
+  Grid(canvas, plan);
+  Grid(canvas, section);
+  const double half_slab = 0.5 * c.size_m.x() + 0.3;
+  const Eigen::AlignedBox3d plan_keep(Eigen::Vector3d(-1e9, -1e9, -1.0),
+                                      Eigen::Vector3d(1e9, 1e9, 1e9));
+  const Eigen::AlignedBox3d slab(Eigen::Vector3d(centre.x() - half_slab, -1e9, -1e9),
+                                 Eigen::Vector3d(centre.x() + half_slab, 1e9, 1e9));
+  Points(canvas, plan, ref, 0, 1, plan_keep, kBefore);
+  Points(canvas, plan, later, 0, 1, plan_keep, kAfter);
+  Points(canvas, section, ref, 1, 2, slab, kBefore);
+  Points(canvas, section, later, 1, 2, slab, kAfter);
+  // The structure gauge: its outline in the section, its widest lateral reach in the plan.
+  const mapstore::StructureGauge gauge(clearance);
+  const std::vector<Eigen::Vector2d> outline = gauge.Outline(track.section);
+  double gauge_left = 0.0, gauge_right = 0.0;
+  for (size_t i = 0; i < outline.size(); ++i) {
+    const Eigen::Vector2d& a = outline[i];
+    const Eigen::Vector2d& b = outline[(i + 1) % outline.size()];
+    canvas.Line(section.X(a.x()), section.Y(a.y()), section.X(b.x()), section.Y(b.y()), kGauge);
+    gauge_left = std::max(gauge_left, a.x());
+    gauge_right = std::min(gauge_right, a.x());
+  }
+  for (double lateral : {gauge_left, gauge_right})
+    canvas.Line(plan.left, plan.Y(lateral), plan.left + kPanel, plan.Y(lateral), kGauge);
+  canvas.Line(plan.left, plan.Y(0.0), plan.left + kPanel, plan.Y(0.0), kInk, 4);
+  canvas.Line(section.X(0.0), section.Y(-1.5), section.X(0.0), section.Y(top), kInk, 4);
+  // The change: its extent along, across and up, around its centre.
+  const double ax = 0.5 * c.size_m.x(), ay = 0.5 * c.size_m.y();
+  canvas.Rect(plan.X(centre.x() - ax),
+              plan.Y(c.offset_m + ay),
+              plan.X(centre.x() + ax),
+              plan.Y(c.offset_m - ay),
+              kChange);
+  canvas.Rect(section.X(c.offset_m + ay),
+              section.Y(c.height_above_rail_max_m),
+              section.X(c.offset_m - ay),
+              section.Y(c.height_above_rail_min_m),
+              kChange);
+  for (const Window* w : {&plan, &section})
+    canvas.Rect(w->left, w->top, w->left + kPanel, w->top + kPanel, kInk);
+  // Words: what, where, and the legend.
+  const std::string title =
+      std::string(mapstore::ToString(c.kind)) + " #" + std::to_string(s.id) +
+      Format("  KM %.3f  %.1f M ", c.chainage_m / 1000.0, std::abs(c.offset_m)) +
+      (c.offset_m >= 0.0 ? "LEFT" : "RIGHT") + (c.intrudes_envelope ? "  INTRUDES THE GAUGE" : "") +
+      (std::isfinite(c.margin_m) ? Format("  MARGIN %.2f M", c.margin_m) : "");
+  canvas.Text(10, 8, title, c.intrudes_envelope ? kChange : kInk, 2);
+  canvas.Text(10, 32, "PLAN (ALONG ->, LEFT UP)", kInk);
+  canvas.Text(section.left, 32, "SECTION (LOOKING ALONG, HEIGHT ABOVE RAIL)", kInk);
+  const int y = kHeader + kPanel + 8;
+  canvas.Fill(10, y, 20, y + 7, kBefore);
+  canvas.Text(26, y, "BEFORE: RUN " + std::to_string(s.reference_run), kInk);
+  canvas.Fill(170, y, 180, y + 7, kAfter);
+  canvas.Text(186, y, "AFTER: RUN " + std::to_string(s.run_id), kInk);
+  canvas.Fill(330, y, 340, y + 7, kGauge);
+  canvas.Text(346, y, "GAUGE", kInk);
+  canvas.Text(
+      420,
+      y,
+      Format("GRID 1 M   SIZE %.1f X %.1f X %.1f M", c.size_m.x(), c.size_m.y(), c.size_m.z()),
+      kInk);
+  *png = canvas.Png();
+  return {};
+}
+
+}  // namespace raillomer::server

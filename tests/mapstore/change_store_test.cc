@@ -1,0 +1,168 @@
+// Change detection's records: a stretch and its changes stored once (a repeat is a duplicate,
+// a detection re-requested against another reference refuses the old one's stretches), filters,
+// an engineer's status and note, and a later run closing a change marked fixed that it no
+// longer sees.
+#include <gtest/gtest.h>
+
+#include "mapstore/change_store.h"
+#include "tests/support/process.h"
+
+namespace raillomer::mapstore {
+namespace {
+
+RunChange Change(ChangeKind kind, double chainage_m, const Eigen::Vector3d& centre, bool intrudes) {
+  RunChange c;
+  c.kind = kind;
+  c.chainage_m = chainage_m;
+  c.offset_m = -2.0;
+  c.centre_utm = centre;
+  c.utm_zone = "50N";
+  c.size_m = Eigen::Vector3d(1.2, 0.8, 1.6);
+  c.margin_m = intrudes ? -0.4 : 0.6;
+  c.intrudes_envelope = intrudes;
+  c.footprint_utm = {centre.head<2>(), centre.head<2>() + Eigen::Vector2d(1.0, 0.0)};
+  return c;
+}
+
+StretchOutcome Stretch(int index, std::vector<RunChange> changes) {
+  StretchOutcome o;
+  o.range = {index, 80.0 * index, 80.0 * (index + 1)};
+  o.compared = true;
+  o.registration_rms_m = 0.02;
+  o.origin = Eigen::Vector3d(500000.0, 4000000.0, 10.0);
+  o.T_reference_later.translation() = Eigen::Vector3d(0.1, -0.2, 0.0);
+  o.changes = std::move(changes);
+  return o;
+}
+
+class ChangeStoreTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    StoreOptions options;
+    options.flush_interval_ms = 0;
+    std::string error;
+    store_ = MapStore::Open(dir_.path().string(), options, &error);
+    ASSERT_TRUE(store_) << error;
+    for (int i = 0; i < 3; ++i) {
+      RunInfo run;
+      ASSERT_TRUE(store_->CreateRun({"Line", "RLM-1", 1'600'000'000'000'000'000 + i}, &run));
+    }
+    changes_ = ChangeStore::Open(store_->IndexPath(), &error);
+    ASSERT_TRUE(changes_) << error;
+  }
+
+  test::ScratchDir dir_{"raillomer_change_store_"};
+  std::unique_ptr<MapStore> store_;
+  std::unique_ptr<ChangeStore> changes_;
+  const Eigen::Vector3d at_{500010.0, 4000002.0, 11.0};
+};
+
+TEST_F(ChangeStoreTest, StoresAStretchOnceWithItsChanges) {
+  DetectionState state;
+  ASSERT_TRUE(changes_->Request(2, 1, false, &state));
+  EXPECT_EQ(state.status, "pending");
+  std::vector<StoredChange> stored, closed;
+  const StretchOutcome o = Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)});
+  ASSERT_TRUE(changes_->SaveStretch(2, 1, o, &stored, &closed));
+  ASSERT_EQ(stored.size(), 1u);
+  EXPECT_GT(stored[0].id, 0);
+  // Again (a restart that compared it before its row was read): nothing more.
+  const Result again = changes_->SaveStretch(2, 1, o, &stored, &closed);
+  EXPECT_EQ(again.outcome, Outcome::kDuplicate);
+  std::vector<StoredChange> listed;
+  ASSERT_TRUE(changes_->List(2, ChangeFilter(), &listed));
+  ASSERT_EQ(listed.size(), 1u);
+  const RunChange& c = listed[0].change;
+  EXPECT_EQ(c.kind, ChangeKind::kAdded);
+  EXPECT_TRUE(c.intrudes_envelope);
+  EXPECT_DOUBLE_EQ(c.margin_m, -0.4);
+  EXPECT_EQ(c.footprint_utm.size(), 2u);
+  EXPECT_EQ(listed[0].status, "new");
+  ASSERT_TRUE(changes_->Detection(2, &state));
+  EXPECT_EQ(state.status, "running");
+  EXPECT_EQ(state.stretches_done, 1);
+  EXPECT_NEAR(state.km, 0.08, 1e-9);
+  EXPECT_NEAR(state.registration_rms_m, 0.02, 1e-9);
+  StretchFrame frame;
+  ASSERT_TRUE(changes_->Frame(2, 0, &frame));
+  EXPECT_TRUE(frame.T_reference_later.isApprox(o.T_reference_later));
+  EXPECT_TRUE(frame.origin.isApprox(o.origin));
+}
+
+TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceDropsTheOldResults) {
+  ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed;
+  ASSERT_TRUE(changes_->SaveStretch(
+      3, 1, Stretch(0, {Change(ChangeKind::kRemoved, 5.0, at_, false)}), &stored, &closed));
+  ASSERT_TRUE(changes_->Request(3, 2, false, nullptr));
+  std::vector<StoredChange> listed;
+  ASSERT_TRUE(changes_->List(3, ChangeFilter(), &listed));
+  EXPECT_TRUE(listed.empty());
+  // A stretch compared against the old reference is refused.
+  EXPECT_EQ(changes_->SaveStretch(3, 1, Stretch(1, {}), &stored, &closed).outcome,
+            Outcome::kConflict);
+  std::set<int> done;
+  ASSERT_TRUE(changes_->StoredStretches(3, &done));
+  EXPECT_TRUE(done.empty());
+}
+
+TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionAndSize) {
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed;
+  RunChange small = Change(ChangeKind::kAdded, 150.0, at_, false);
+  small.size_m = Eigen::Vector3d(0.2, 0.2, 0.25);
+  ASSERT_TRUE(changes_->SaveStretch(2,
+                                    1,
+                                    Stretch(1,
+                                            {Change(ChangeKind::kAdded, 90.0, at_, true),
+                                             Change(ChangeKind::kRemoved, 120.0, at_, false),
+                                             small}),
+                                    &stored,
+                                    &closed));
+  const auto count = [&](ChangeFilter f) {
+    std::vector<StoredChange> listed;
+    EXPECT_TRUE(changes_->List(2, f, &listed));
+    return listed.size();
+  };
+  ChangeFilter f;
+  EXPECT_EQ(count(f), 3u);
+  f.from_m = 100.0;
+  EXPECT_EQ(count(f), 2u);
+  f.to_m = 130.0;
+  EXPECT_EQ(count(f), 1u);
+  f = ChangeFilter();
+  f.kind = ChangeKind::kRemoved;
+  EXPECT_EQ(count(f), 1u);
+  f = ChangeFilter();
+  f.intrudes = true;
+  EXPECT_EQ(count(f), 1u);
+  f = ChangeFilter();
+  f.min_size_m = 0.3;
+  EXPECT_EQ(count(f), 2u);
+}
+
+TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed;
+  ASSERT_TRUE(changes_->SaveStretch(
+      2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)}), &stored, &closed));
+  StoredChange updated;
+  EXPECT_EQ(changes_->Update(stored[0].id, "closed", std::nullopt, &updated).outcome,
+            Outcome::kInvalid);
+  ASSERT_TRUE(changes_->Update(stored[0].id, "fixed", std::string("tree cut"), &updated));
+  EXPECT_EQ(updated.status, "fixed");
+  EXPECT_EQ(updated.note, "tree cut");
+  // Run 3 sees the same stretch without it.
+  ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
+  ASSERT_TRUE(changes_->SaveStretch(3, 1, Stretch(0, {}), &stored, &closed));
+  ASSERT_EQ(closed.size(), 1u);
+  StoredChange now;
+  ASSERT_TRUE(changes_->Get(updated.id, &now));
+  EXPECT_EQ(now.status, "closed");
+  EXPECT_EQ(now.closed_by_run, 3);
+  EXPECT_EQ(now.note, "tree cut");
+  EXPECT_EQ(changes_->Update(123456, "new", std::nullopt, &now).outcome, Outcome::kNotFound);
+}
+
+}  // namespace
+}  // namespace raillomer::mapstore

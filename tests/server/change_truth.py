@@ -1,0 +1,131 @@
+"""The simulator's edits of a changed run (changes.json) against the changes a server reports:
+simulated runs streamed into a server by raillomer-estimator, the truth placed in the reference
+run's map, and recall, precision and position errors as the issue measures them."""
+import json
+import math
+import os
+import subprocess
+import time
+
+import harness
+
+# The simulator's edit kinds as the API names them.
+KIND = {"object_added": "added", "fallen_tree": "added", "object_removed": "removed",
+        "object_moved": "moved", "vegetation_growth": "vegetation"}
+# What counts: changes of 0.3 m or more within 15 m of the track.
+MIN_SIZE_M, MAX_OFFSET_M = 0.3, 15.0
+
+
+def stream_run(server, scenario, out, line, seed=None, extra=()):
+    """raillomer-estimator --sim `scenario` streamed into `server` as a run of `line`; the
+    run's output folder (trajectory.tum, truth.tum)."""
+    args = [os.path.join(harness.bin_dir(), "raillomer-estimator"), "--sim", scenario, "--quiet",
+            "--no-keyframes", "--out", out, "--server", "http://127.0.0.1:%d" % server.port,
+            "--token", server.token, "--line", line] + list(extra)
+    if seed is not None:
+        args += ["--seed", str(seed)]
+    subprocess.run(args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    return out
+
+
+def truth_changes(scenario, out):
+    """The edits of a changed scenario (raillomer-sim writes changes.json with the first
+    second of its run)."""
+    subprocess.run([os.path.join(harness.bin_dir(), "raillomer-sim"), "--scenario", scenario,
+                    "--out", out, "--duration", "1"], check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.PIPE)
+    with open(os.path.join(out, "changes.json")) as f:
+        return json.load(f)["changes"]
+
+
+def read_tum(path):
+    """[(t, x, y, z)] of a TUM file."""
+    rows = []
+    with open(path) as f:
+        for line in f:
+            if line.strip() and not line.startswith("#"):
+                v = [float(x) for x in line.split()[:4]]
+                rows.append(tuple(v))
+    return rows
+
+
+def map_offset(run_dir, at_utm, radius_m=40.0):
+    """Where the run's map puts a true UTM point, less the point: the mean of the estimated
+    poses' offsets from the truth at the same instants, over the poses within radius_m of it
+    (the map sits where the run's GNSS placed it)."""
+    truth = read_tum(os.path.join(run_dir, "truth.tum"))
+    estimate = read_tum(os.path.join(run_dir, "trajectory.tum"))
+    times = [t[0] for t in truth]
+    offsets = []
+    j = 0
+    for t, x, y, z in estimate:
+        while j + 1 < len(times) and abs(times[j + 1] - t) <= abs(times[j] - t):
+            j += 1
+        tt = truth[j]
+        if abs(tt[0] - t) > 0.02 or math.hypot(tt[1] - at_utm[0], tt[2] - at_utm[1]) > radius_m:
+            continue
+        offsets.append((x - tt[1], y - tt[2], z - tt[3]))
+    if not offsets:
+        raise RuntimeError("no pose of %s within %.0f m of %s" % (run_dir, radius_m, at_utm))
+    return [sum(o[k] for o in offsets) / len(offsets) for k in range(3)]
+
+
+def in_scope(truth):
+    return max(truth["extent_m"]) >= MIN_SIZE_M and abs(truth["lateral_m"]) <= MAX_OFFSET_M
+
+
+def expected_centre(truth, reference_dir):
+    """A true change's centre in the reference run's map."""
+    offset = map_offset(reference_dir, truth["centre_utm"])
+    return [truth["centre_utm"][k] + offset[k] for k in range(3)]
+
+
+def footprint_distance(truth, centre, at):
+    """Horizontal distance from a reported centre to the true change's footprint (its extent
+    about `at`, the expected centre); 0 inside."""
+    dx = max(0.0, abs(centre[0] - at[0]) - truth["extent_m"][0] / 2)
+    dy = max(0.0, abs(centre[1] - at[1]) - truth["extent_m"][1] / 2)
+    return math.hypot(dx, dy)
+
+
+def match(truths, reported, reference_dir, slack_m=1.0):
+    """Pairs each in-scope true change with the reported change of its kind whose centre lies
+    in its footprint (grown by slack_m), nearest first. Returns (rows, unmatched reports in
+    scope): a row per true change with the report (or None) and the centre error."""
+    rows, used = [], set()
+    for t in truths:
+        if not in_scope(t):
+            continue
+        at = expected_centre(t, reference_dir)
+        best, best_d = None, slack_m
+        for c in reported:
+            p = c["properties"]
+            if p["id"] in used or p["kind"] != KIND[t["kind"]]:
+                continue
+            d = footprint_distance(t, p["utm"], at)
+            if d <= best_d:
+                best, best_d = c, d
+        if best:
+            used.add(best["properties"]["id"])
+        error = math.hypot(best["properties"]["utm"][0] - at[0],
+                           best["properties"]["utm"][1] - at[1]) if best else None
+        rows.append({"truth": t, "expected_utm": at, "report": best, "centre_error_m": error})
+    extra = [c for c in reported if c["properties"]["id"] not in used
+             and abs(c["properties"]["offset_m"]) <= MAX_OFFSET_M
+             and max(c["properties"]["size_m"]) >= MIN_SIZE_M]
+    return rows, extra
+
+
+def wait_for_detection(server, run, timeout_s=300.0):
+    """The run's changes once its detection is done; (collection, seconds waited)."""
+    start = time.time()
+    while True:
+        status, body = server.json("GET", "/api/v1/runs/%d/changes" % run)
+        if status != 200:
+            raise RuntimeError("GET changes: %d %s" % (status, body))
+        if body["detection"]["status"] in ("done", "failed"):
+            return body, time.time() - start
+        if time.time() - start > timeout_s:
+            raise RuntimeError("detection of run %d not done after %.0f s: %s" %
+                               (run, timeout_s, body["detection"]))
+        time.sleep(0.2)

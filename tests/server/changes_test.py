@@ -1,0 +1,195 @@
+"""Change detection end to end on a real server on loopback: two simulated runs of one line (the
+demo corridor, then the same a week later with a box beside the track, a mast gone and a tree
+fallen across it) streamed by raillomer-estimator, the server's own detection read back with
+curl and compared with the simulator's changes.json; the CSV, the snapshot PNG (decoded with
+zlib and struct, not our code), the HTML report, status updates and bad requests."""
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import unittest
+import zlib
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import change_truth  # noqa: E402
+import harness  # noqa: E402
+
+CHANGED = """\
+base: demo
+name: demo_changed
+description: "the demo corridor a week later: a box beside the track, a mast gone, a tree fallen"
+seed: 5
+changes:
+  - {kind: object_added, at_m: 200, offset_m: -3.5, size_m: [1.2, 0.8, 1.6]}
+  - {kind: object_removed, target: mast, at_m: 120}
+  - {kind: fallen_tree, at_m: 240}
+"""
+
+
+def curl(*args):
+    """(HTTP status, body bytes) of a curl call."""
+    out = subprocess.run(["curl", "-s", "-w", "\n%{http_code}"] + list(args), check=True,
+                         stdout=subprocess.PIPE).stdout
+    body, _, status = out.rpartition(b"\n")
+    return int(status), body
+
+
+def png_size_and_pixels(data):
+    """(width, height, distinct colours) of an 8-bit RGB PNG, read with zlib and struct."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG signature"
+    pos, idat, width, height = 8, b"", 0, 0
+    while pos < len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        chunk = data[pos + 8:pos + 8 + length]
+        crc = struct.unpack(">I", data[pos + 8 + length:pos + 12 + length])[0]
+        assert zlib.crc32(kind + chunk) & 0xffffffff == crc, "bad CRC in %s" % kind
+        if kind == b"IHDR":
+            width, height, depth, colour = struct.unpack(">IIBB", chunk[:10])
+            assert (depth, colour) == (8, 2), "not 8-bit RGB"
+        elif kind == b"IDAT":
+            idat += chunk
+        pos += 12 + length
+    raw = zlib.decompress(idat)
+    stride = width * 3 + 1
+    assert len(raw) == height * stride
+    colours = {raw[y * stride + 1 + 3 * x:y * stride + 4 + 3 * x]
+               for y in range(0, height, 3) for x in range(0, width, 3)}
+    return width, height, len(colours)
+
+
+class ChangeDetection(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="raillomer_changes_py_")
+        cls.server = harness.Server(data=os.path.join(cls.dir, "data"))
+        changed = os.path.join(cls.dir, "demo_changed.yaml")
+        with open(changed, "w") as f:
+            f.write(CHANGED)
+        cls.reference_dir = change_truth.stream_run(
+            cls.server, "demo", os.path.join(cls.dir, "run1"), "Demo")
+        change_truth.stream_run(cls.server, changed, os.path.join(cls.dir, "run2"), "Demo",
+                                seed=5)
+        cls.truth = change_truth.truth_changes(changed, os.path.join(cls.dir, "sim"))
+        cls.found, cls.waited_s = change_truth.wait_for_detection(cls.server, 2)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.server.cleanup()
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def url(self, path):
+        return "http://127.0.0.1:%d%s" % (self.server.port, path)
+
+    def test_detection_is_done_against_the_first_run(self):
+        d = self.found["detection"]
+        self.assertEqual(d["status"], "done", d)
+        self.assertEqual(d["reference_run"], 1)
+        self.assertGreater(d["km_compared"], 0.2)
+        self.assertLess(d["registration_rms_m"], 0.05)
+        status, body = self.server.json("GET", "/api/v1/runs/1/changes")
+        self.assertEqual(status, 200)
+        self.assertIn("reference", body["detection"]["reason"])
+
+    def test_every_edit_is_found_and_nothing_else(self):
+        status, body = curl(self.url("/api/v1/runs/2/changes"))
+        self.assertEqual(status, 200)
+        reported = json.loads(body)["features"]
+        rows, extra = change_truth.match(self.truth, reported, self.reference_dir)
+        self.assertEqual(len(rows), 3, self.truth)
+        for row in rows:
+            t = row["truth"]
+            self.assertIsNotNone(row["report"], "missed: %s" % json.dumps(t))
+            p = row["report"]["properties"]
+            self.assertEqual(p["intrudes_envelope"], t["intrudes_clearance"], json.dumps(t))
+            self.assertEqual(p["side"], "left" if t["lateral_m"] >= 0 else "right")
+        self.assertEqual(extra, [], "reported, but no edit there")
+
+    def test_features_are_geojson_with_the_documented_properties(self):
+        for f in self.found["features"]:
+            self.assertEqual(f["type"], "Feature")
+            self.assertIn(f["geometry"]["type"], ("Polygon", "Point"))
+            lon, lat = f["geometry"]["coordinates"][0][0][:2]
+            self.assertTrue(-180 <= lon <= 180 and -90 <= lat <= 90)
+            p = f["properties"]
+            for key in ("id", "kind", "chainage_m", "offset_m", "side", "utm", "utm_zone",
+                        "size_m", "height_above_rail_m", "intrudes_envelope", "margin_m",
+                        "reference_run", "lod_m", "confidence", "status"):
+                self.assertIn(key, p)
+            self.assertEqual(p["status"], "new")
+            self.assertEqual(p["intrudes_envelope"], p["margin_m"] < 0 and p["kind"] != "removed")
+
+    def test_filters_and_csv(self):
+        everything = self.found["features"]
+        _, body = self.server.json("GET", "/api/v1/runs/2/changes?kind=removed")
+        self.assertEqual(len(body["features"]),
+                         sum(f["properties"]["kind"] == "removed" for f in everything))
+        _, body = self.server.json("GET", "/api/v1/runs/2/changes?intrudes_envelope=true")
+        self.assertTrue(all(f["properties"]["intrudes_envelope"] for f in body["features"]))
+        _, body = self.server.json("GET", "/api/v1/runs/2/changes?from_km=0&to_km=0.001")
+        self.assertEqual(body["features"], [])
+        status, csv = curl(self.url("/api/v1/runs/2/changes?format=csv"))
+        self.assertEqual(status, 200)
+        lines = csv.decode().strip().split("\n")
+        self.assertTrue(lines[0].startswith("id,run,reference_run,kind,chainage_m"))
+        self.assertEqual(len(lines), 1 + len(everything))
+        status, body = curl(self.url("/api/v1/runs/2/changes?kind=gone"))
+        self.assertEqual(status, 400)
+        self.assertIn(b"kind must be", body)
+
+    def test_snapshot_is_a_png_with_both_runs_drawn(self):
+        self.assertTrue(self.found["features"], "no change to draw")
+        change = self.found["features"][0]["properties"]["id"]
+        status, png = curl(self.url("/api/v1/changes/%d/snapshot.png" % change))
+        self.assertEqual(status, 200)
+        width, height, colours = png_size_and_pixels(png)
+        self.assertGreater(width, 400)
+        self.assertGreater(height, 300)
+        self.assertGreaterEqual(colours, 5)  # white, ink, before, after, gauge, change
+        out = subprocess.run(["file", "-"], input=png, stdout=subprocess.PIPE).stdout
+        self.assertIn(b"PNG image data", out)
+
+    def test_report_lists_every_change(self):
+        status, html = curl(self.url("/api/v1/runs/2/changes/report"))
+        self.assertEqual(status, 200)
+        html = html.decode()
+        self.assertIn("Changes of run 2 on line Demo", html)
+        for f in self.found["features"]:
+            self.assertIn('id="change-%d"' % f["properties"]["id"], html)
+        self.assertEqual(html.count("data:image/png;base64,"), len(self.found["features"]))
+
+    def test_status_and_note_are_kept(self):
+        change = self.found["features"][-1]["properties"]["id"]
+        status, body = self.server.write("PATCH", "/api/v1/changes/%d" % change,
+                                         {"status": "confirmed", "note": "seen on site"})
+        self.assertEqual(status, 200, body)
+        self.assertEqual(body["properties"]["status"], "confirmed")
+        _, body = self.server.json("GET", "/api/v1/changes/%d" % change)
+        self.assertEqual(body["properties"]["note"], "seen on site")
+        status, body = self.server.write("PATCH", "/api/v1/changes/%d" % change,
+                                         {"status": "closed"})
+        self.assertEqual(status, 400)
+        status, _ = self.server.json("PATCH", "/api/v1/changes/%d" % change, {"status": "new"})
+        self.assertEqual(status, 401)
+        status, _ = self.server.write("PATCH", "/api/v1/changes/999999", {"status": "new"})
+        self.assertEqual(status, 404)
+
+    def test_bad_recompute_requests_are_refused_and_change_nothing(self):
+        before = self.server.json("GET", "/api/v1/runs/2/changes")[1]
+        for query, code in (("reference=2", 400), ("reference=99", 404)):
+            status, body = self.server.write("POST", "/api/v1/runs/2/changes?" + query)
+            self.assertEqual(status, code, body)
+            self.assertIn("message", body["error"])
+        other = self.server.create_run(line="Another line")
+        status, body = self.server.write("POST", "/api/v1/runs/%d/changes?reference=1" % other)
+        self.assertEqual(status, 400, body)
+        self.assertIn("line", body["error"]["message"])
+        after = self.server.json("GET", "/api/v1/runs/2/changes")[1]
+        self.assertEqual([f["id"] for f in before["features"]],
+                         [f["id"] for f in after["features"]])
+
+
+if __name__ == "__main__":
+    unittest.main()
