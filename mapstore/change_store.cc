@@ -159,7 +159,9 @@ Result ChangeStore::DetectionLocked(int64_t run, DetectionState* out) const {
               "(SELECT IFNULL(AVG(rms_m * rms_m), 0) FROM change_stretches s "
               " WHERE s.run_id = d.run_id AND compared), "
               "(SELECT MAX(to_m) FROM change_stretches s WHERE s.run_id = d.run_id), "
-              "(SELECT IFNULL(SUM(seconds), 0) FROM change_stretches s WHERE s.run_id = d.run_id) "
+              "(SELECT IFNULL(SUM(seconds), 0) FROM change_stretches s WHERE s.run_id = d.run_id), "
+              "(SELECT AVG(rail_rms_m * rail_rms_m) FROM change_stretches s "
+              " WHERE s.run_id = d.run_id AND compared AND rail_rms_m IS NOT NULL) "
               "FROM change_detection d WHERE d.run_id = ?");
   q.Bind(1, run);
   if (!q.Step()) {
@@ -178,6 +180,8 @@ Result ChangeStore::DetectionLocked(int64_t run, DetectionState* out) const {
   out->registration_rms_m = std::sqrt(q.Double(8));
   out->compared_to_m = q.IsNull(9) ? -std::numeric_limits<double>::infinity() : q.Double(9);
   out->seconds = q.Double(10);
+  out->rail_rms_m =
+      q.IsNull(11) ? std::numeric_limits<double>::quiet_NaN() : std::sqrt(q.Double(11));
   return {};
 }
 
@@ -239,19 +243,20 @@ Result ChangeStore::SaveStretch(int64_t run,
   const int64_t now = NowNs();
   Statement add_stretch(*db_,
                         "INSERT INTO change_stretches (run_id, stretch, reference_run, from_m, "
-                        "to_m, compared, rms_m, transform, seconds, done_ns) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  if (!add_stretch.Bind(1, run)
-           .Bind(2, o.range.index)
-           .Bind(3, reference)
-           .Bind(4, o.range.from_m)
-           .Bind(5, o.range.to_m)
-           .Bind(6, o.compared ? 1 : 0)
-           .Bind(7, o.registration_rms_m)
-           .Bind(8, TransformText(o))
-           .Bind(9, o.seconds)
-           .Bind(10, now)
-           .Run())
+                        "to_m, compared, rms_m, rail_rms_m, transform, seconds, done_ns) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  add_stretch.Bind(1, run)
+      .Bind(2, o.range.index)
+      .Bind(3, reference)
+      .Bind(4, o.range.from_m)
+      .Bind(5, o.range.to_m)
+      .Bind(6, o.compared ? 1 : 0)
+      .Bind(7, o.registration_rms_m);
+  if (std::isnan(o.rail_rms_m))
+    add_stretch.BindNull(8);
+  else
+    add_stretch.Bind(8, o.rail_rms_m);
+  if (!add_stretch.Bind(9, TransformText(o)).Bind(10, o.seconds).Bind(11, now).Run())
     return DbError("cannot store the stretch", add_stretch.error());
   Statement add(*db_,
                 "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "

@@ -38,8 +38,10 @@ struct DetectionState {
   int64_t run_id = 0, reference_run = 0;
   std::string status, error;
   int stretches_done = 0, stretches_compared = 0;
-  double km = 0.0;                                                  ///< compared
-  double registration_rms_m = 0.0;                                  ///< over the compared stretches
+  double km = 0.0;                  ///< compared
+  double registration_rms_m = 0.0;  ///< over the compared stretches
+  /// The rail heads' height differences over the compared stretches (NaN: rails not seen).
+  double rail_rms_m = std::numeric_limits<double>::quiet_NaN();
   double compared_to_m = -std::numeric_limits<double>::infinity();  ///< furthest stretch end
   double seconds = 0.0;                                             ///< spent comparing
   int64_t requested_ns = 0, updated_ns = 0;

@@ -91,6 +91,9 @@ struct StretchOutcome {
   bool compared = false;
   std::string skipped;  ///< why it was not compared
   double registration_rms_m = 0.0;
+  /// The registered runs' rail heads' height differences, RMS (NaN where the rails were not
+  /// seen well enough in both).
+  double rail_rms_m = std::numeric_limits<double>::quiet_NaN();
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
   Eigen::Isometry3d T_reference_later = Eigen::Isometry3d::Identity();
   StretchSummary summary;
@@ -103,6 +106,7 @@ struct RunComparisonSummary {
   size_t stretches = 0, stretches_compared = 0;
   double km = 0.0;
   double registration_rms_m = 0.0;  ///< the inliers' RMS over the compared stretches
+  double rail_rms_m = std::numeric_limits<double>::quiet_NaN();  ///< on the rails (NaN: unseen)
   size_t objects = 0, not_observed = 0;
 };
 

@@ -138,6 +138,7 @@ CREATE TABLE change_stretches (
   from_m REAL NOT NULL, to_m REAL NOT NULL,
   compared INTEGER NOT NULL,
   rms_m REAL NOT NULL,
+  rail_rms_m REAL,
   transform TEXT NOT NULL,
   seconds REAL NOT NULL,
   done_ns INTEGER NOT NULL,

@@ -77,6 +77,7 @@ json DetectionJson(const mapstore::DetectionState& d, const std::string& reason)
   json j = {{"status", d.status},
             {"reference_run", Run(d.reference_run)},
             {"registration_rms_m", d.stretches_compared > 0 ? json(d.registration_rms_m) : json()},
+            {"rail_residual_m", Finite(d.rail_rms_m)},
             {"stretches_done", d.stretches_done},
             {"stretches_compared", d.stretches_compared},
             {"km_compared", d.km},

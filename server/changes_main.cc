@@ -122,13 +122,14 @@ int main(int argc, char** argv) {
   }
   std::printf(
       "run %lld against run %lld (line '%s'): %.2f km in %zu stretches, registration "
-      "RMS %.3f m; %zu objects differed, %zu not observed by the other run\n",
+      "RMS %.3f m (rails %.3f m); %zu objects differed, %zu not observed by the other run\n",
       static_cast<long long>(run),
       static_cast<long long>(reference),
       info.line.c_str(),
       summary.km,
       summary.stretches_compared,
       summary.registration_rms_m,
+      summary.rail_rms_m,
       summary.objects,
       summary.not_observed);
   std::printf("%-8s %10s %7s %6s %18s %9s %9s %5s\n",
@@ -157,6 +158,9 @@ int main(int argc, char** argv) {
                           {"reference_run", reference},
                           {"km", summary.km},
                           {"registration_rms_m", summary.registration_rms_m},
+                          {"rail_residual_m",
+                           std::isnan(summary.rail_rms_m) ? nlohmann::json(nullptr)
+                                                          : nlohmann::json(summary.rail_rms_m)},
                           {"changes", nlohmann::json::array()}};
     for (const RunChange& c : changes) out["changes"].push_back(ChangeJson(c));
     std::ofstream(json_path) << out.dump(1) << "\n";

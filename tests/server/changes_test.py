@@ -6,10 +6,12 @@ zlib and struct, not our code), the HTML report, status updates and bad requests
 import json
 import os
 import shutil
+import signal
 import struct
 import subprocess
 import sys
 import tempfile
+import time
 import unittest
 import zlib
 
@@ -17,16 +19,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import change_truth  # noqa: E402
 import harness  # noqa: E402
 
-CHANGED = """\
-base: demo
-name: demo_changed
-description: "the demo corridor a week later: a box beside the track, a mast gone, a tree fallen"
-seed: 5
-changes:
-  - {kind: object_added, at_m: 200, offset_m: -3.5, size_m: [1.2, 0.8, 1.6]}
-  - {kind: object_removed, target: mast, at_m: 120}
-  - {kind: fallen_tree, at_m: 240}
-"""
+CHANGED = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools",
+                       "change_scenarios", "demo_changed_a.yaml")
 
 
 def curl(*args):
@@ -60,25 +54,30 @@ def png_size_and_pixels(data):
     return width, height, len(colours)
 
 
+FIX = {}
+
+
+def setUpModule():
+    FIX["dir"] = tempfile.mkdtemp(prefix="raillomer_changes_py_")
+    FIX["server"] = harness.Server(data=os.path.join(FIX["dir"], "data"))
+    FIX["reference_dir"] = change_truth.stream_run(
+        FIX["server"], "demo", os.path.join(FIX["dir"], "run1"), "Demo")
+    change_truth.stream_run(FIX["server"], CHANGED, os.path.join(FIX["dir"], "run2"), "Demo",
+                            seed=5)
+    FIX["truth"] = change_truth.truth_changes(CHANGED, os.path.join(FIX["dir"], "sim"))
+    FIX["found"], _ = change_truth.wait_for_detection(FIX["server"], 2)
+
+
+def tearDownModule():
+    FIX["server"].cleanup()
+    shutil.rmtree(FIX["dir"], ignore_errors=True)
+
+
 class ChangeDetection(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.dir = tempfile.mkdtemp(prefix="raillomer_changes_py_")
-        cls.server = harness.Server(data=os.path.join(cls.dir, "data"))
-        changed = os.path.join(cls.dir, "demo_changed.yaml")
-        with open(changed, "w") as f:
-            f.write(CHANGED)
-        cls.reference_dir = change_truth.stream_run(
-            cls.server, "demo", os.path.join(cls.dir, "run1"), "Demo")
-        change_truth.stream_run(cls.server, changed, os.path.join(cls.dir, "run2"), "Demo",
-                                seed=5)
-        cls.truth = change_truth.truth_changes(changed, os.path.join(cls.dir, "sim"))
-        cls.found, cls.waited_s = change_truth.wait_for_detection(cls.server, 2)
-
-    @classmethod
-    def tearDownClass(cls):
-        cls.server.cleanup()
-        shutil.rmtree(cls.dir, ignore_errors=True)
+        cls.server, cls.found = FIX["server"], FIX["found"]
+        cls.truth, cls.reference_dir = FIX["truth"], FIX["reference_dir"]
 
     def url(self, path):
         return "http://127.0.0.1:%d%s" % (self.server.port, path)
@@ -189,6 +188,45 @@ class ChangeDetection(unittest.TestCase):
         after = self.server.json("GET", "/api/v1/runs/2/changes")[1]
         self.assertEqual([f["id"] for f in before["features"]],
                          [f["id"] for f in after["features"]])
+
+
+def signature(collection):
+    """The changes as (kind, chainage, offset) to the decimetre, sorted."""
+    return sorted((f["properties"]["kind"], round(f["properties"]["chainage_m"], 1),
+                   round(f["properties"]["offset_m"], 1)) for f in collection["features"])
+
+
+class KilledDuringDetection(unittest.TestCase):
+    """Runs after ChangeDetection (its results change here): a recompute interrupted by kill -9
+    resumes on restart; the changes come out as an uninterrupted comparison's, none twice."""
+
+    def test_a_killed_server_resumes_detection_and_loses_nothing(self):
+        server = FIX["server"]
+        status, body = server.write("POST", "/api/v1/runs/2/changes")
+        self.assertEqual(status, 202, body)
+        total = FIX["found"]["detection"]["stretches_done"]
+        self.assertGreaterEqual(total, 3)
+        deadline = time.time() + 120
+        while time.time() < deadline:
+            d = server.json("GET", "/api/v1/runs/2/changes")[1]["detection"]
+            if d["stretches_done"] >= 1:
+                break
+            time.sleep(0.05)
+        server.stop(signal.SIGKILL)
+        self.assertEqual(d["status"], "running")
+        self.assertLess(d["stretches_done"], total, "detection ended before the kill")
+        FIX["server"] = server = harness.Server(data=server.data)
+        found, _ = change_truth.wait_for_detection(server, 2)
+        self.assertEqual(found["detection"]["status"], "done")
+        self.assertEqual(found["detection"]["stretches_done"], total)
+        ids = [f["id"] for f in found["features"]]
+        self.assertEqual(len(ids), len(set(ids)))
+        self.assertEqual(signature(found), signature(FIX["found"]))
+        rows = subprocess.run(
+            ["sqlite3", os.path.join(server.data, "index.sqlite"),
+             "SELECT count(*), count(DISTINCT stretch) FROM change_stretches WHERE run_id = 2"],
+            check=True, stdout=subprocess.PIPE).stdout.decode().strip()
+        self.assertEqual(rows, "%d|%d" % (total, total))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,236 @@
+#!/usr/bin/env python3
+"""Change detection measured against the simulator's truth, as issue 48 states its targets.
+
+For each line: a reference run (the scenario's own seed) streamed by raillomer-estimator into a
+fresh raillomer-server, then later runs of the same line streamed one after another: changed
+runs (the suite's rich_low_station_a_changed and the scenarios in change_scenarios/, written for
+other objects, sizes, sides and speeds) and repeat runs of the unchanged line with another seed
+(false alarms). The server's own detection compares each with the reference while it streams.
+
+Measured: recall and precision for changes of 0.3 m or more within 15 m of the track, each
+reported centre against where the change lies in the reference run's map, intrudes_envelope
+against the truth, false alarms on unchanged repeats, how long after a run finishes its report
+is final, how long after the train is 100 m past a stretch its changes are announced on the
+live hub, the comparison's throughput (km per minute of the worker's time) and the registration
+residual on the rails.
+
+  change_accuracy.py --build build [--lines demo,rich_low_station_a] [--out result.json] [--check]
+"""
+import argparse
+import asyncio
+import json
+import math
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "server"))
+import change_truth  # noqa: E402
+import harness  # noqa: E402
+
+SCENARIOS = os.path.join(HERE, "change_scenarios")
+# Each line: its changed runs (scenario, seed) and the seed of its unchanged repeat.
+CHANGED = {
+    "demo": [(os.path.join(SCENARIOS, "demo_changed_a.yaml"), 5),
+             (os.path.join(SCENARIOS, "demo_changed_a.yaml"), 6),
+             (os.path.join(SCENARIOS, "demo_changed_b.yaml"), 7)],
+    "rich_low_station_a": [("rich_low_station_a_changed", 2)],
+    "rich_high_town_a": [(os.path.join(SCENARIOS, "town_changed.yaml"), 11)],
+}
+# The suite's lines but the 20 km one, each repeated unchanged.
+LINES = ["demo", "rich_low_station_a", "rich_high_town_a", "rich_low_yard_b",
+         "poor_low_embankment_b", "poor_low_open_a", "imu_loss", "reverse_running",
+         "lidar_blackout", "winter_wheel_slip", "poor_high_catenary_b", "poor_high_open_a",
+         "rich_high_mixed_b", "tunnel_gnss_outage"]
+REPEAT_SEED = 101
+
+
+class Live:
+    """The live hub's pose and change messages of every run, with the time each arrived."""
+
+    def __init__(self, port):
+        self.messages = []
+        self.ready = threading.Event()
+        self.stop = False
+        self.thread = threading.Thread(target=lambda: asyncio.run(self._run(port)), daemon=True)
+        self.thread.start()
+        self.ready.wait(10)
+
+    async def _run(self, port):
+        import websockets
+        async with websockets.connect("ws://127.0.0.1:%d/live" % port, max_queue=None) as ws:
+            await ws.send(json.dumps({"subscribe": "all"}))
+            await ws.recv()
+            self.ready.set()
+            while not self.stop:
+                try:
+                    text = await asyncio.wait_for(ws.recv(), 0.5)
+                except asyncio.TimeoutError:
+                    continue
+                m = json.loads(text)
+                if m.get("type") in ("pose", "change"):
+                    self.messages.append((time.time(), m))
+
+
+def pose_chainage(server, run):
+    """Each pose's chainage on the line by sequence (the server projects them; the poses
+    before the run was georeferenced have none)."""
+    _, body = server.json("GET", "/api/v1/runs/%d/trajectory" % run)
+    p = body["features"][0]["properties"]
+    return [None] * (p["poses"] - len(p["chainage_m"])) + p["chainage_m"]
+
+
+def stretch_latencies(live, run, chainage, past_m=100.0):
+    """Per stretch announced for `run` while it streamed: seconds from the live pose 100 m
+    past the stretch's end to the change message that announced it."""
+    poses = [(t, m["sequence"]) for t, m in live.messages
+             if m["type"] == "pose" and m["run"] == run]
+    done = [(t, m["detection"]["compared_to_m"]) for t, m in live.messages
+            if m["type"] == "change" and m["run"] == run and m["detection"]["compared_to_m"]]
+    at = [(t, chainage[s]) for t, s in poses if s < len(chainage) and chainage[s] is not None]
+    out, reached = [], -1e9
+    for t_done, to_m in done:
+        if to_m <= reached:
+            continue
+        reached = to_m
+        ready = next((t for t, c in at if c >= to_m + past_m), None)
+        if ready is not None and ready <= t_done:
+            out.append(t_done - ready)
+    return out
+
+
+def run_case(server, live, line, scenario, seed, run_id, work, kind):
+    out = os.path.join(work, "run%d" % run_id)
+    t0 = time.time()
+    change_truth.stream_run(server, scenario, out, line, seed=seed)
+    streamed = time.time() - t0
+    found, lag = change_truth.wait_for_detection(server, run_id, timeout_s=1800)
+    d = found["detection"]
+    row = {"line": line, "scenario": os.path.basename(scenario), "seed": seed, "run": run_id,
+           "kind": kind, "stream_s": streamed, "final_after_s": lag, "detection": d,
+           "reported": len(found["features"])}
+    in_scope = [f for f in found["features"]
+                if abs(f["properties"]["offset_m"]) <= change_truth.MAX_OFFSET_M
+                and max(f["properties"]["size_m"]) >= change_truth.MIN_SIZE_M]
+    if kind == "changed":
+        truth = change_truth.truth_changes(scenario, os.path.join(work, "sim%d" % run_id))
+        rows, extra = change_truth.match(truth, found["features"], os.path.join(work, "run1"))
+        row["truth"] = [{"kind": r["truth"]["kind"], "chainage_m": r["truth"]["chainage_m"],
+                         "lateral_m": r["truth"]["lateral_m"],
+                         "intrudes": r["truth"]["intrudes_clearance"],
+                         "found": r["report"]["properties"]["kind"] if r["report"] else None,
+                         "reported_intrudes": (r["report"]["properties"]["intrudes_envelope"]
+                                               if r["report"] else None),
+                         "centre_error_m": r["centre_error_m"]} for r in rows]
+        row["false"] = [{"kind": f["properties"]["kind"], "chainage_m": f["properties"]["chainage_m"],
+                         "offset_m": f["properties"]["offset_m"], "size_m": f["properties"]["size_m"]}
+                        for f in extra]
+    else:
+        row["false"] = [{"kind": f["properties"]["kind"], "chainage_m": f["properties"]["chainage_m"],
+                         "offset_m": f["properties"]["offset_m"], "size_m": f["properties"]["size_m"]}
+                        for f in in_scope]
+    row["stretch_latency_s"] = stretch_latencies(live, run_id, pose_chainage(server, run_id))
+    return row
+
+
+def run_line(line, work_root, include_repeat):
+    work = tempfile.mkdtemp(prefix=line + "_", dir=work_root)
+    server = harness.Server(data=os.path.join(work, "data"))
+    live = Live(server.ws_port)
+    rows = []
+    try:
+        change_truth.stream_run(server, line, os.path.join(work, "run1"), line)
+        run_id = 1
+        cases = [(s, seed, "changed") for s, seed in CHANGED.get(line, [])]
+        if include_repeat:
+            cases.append((line, REPEAT_SEED, "repeat"))
+        for scenario, seed, kind in cases:
+            run_id += 1
+            row = run_case(server, live, line, scenario, seed, run_id, work, kind)
+            print(summary_line(row), flush=True)
+            rows.append(row)
+    finally:
+        live.stop = True
+        server.stop()
+    return rows
+
+
+def summary_line(row):
+    d = row["detection"]
+    text = "%-22s %-28s seed %3d  %.2f km  rms %.3f rails %s  final %.1f s after  %d reported" % (
+        row["line"], row["scenario"], row["seed"], d["km_compared"], d["registration_rms_m"] or 0,
+        "%.3f" % d["rail_residual_m"] if d["rail_residual_m"] is not None else "-",
+        row["final_after_s"], row["reported"])
+    if row["kind"] == "changed":
+        found = sum(1 for t in row["truth"] if t["found"])
+        text += "  found %d/%d, false %d" % (found, len(row["truth"]), len(row["false"]))
+    else:
+        text += "  false alarms %d" % len(row["false"])
+    return text
+
+
+def totals(rows):
+    truth = [t for r in rows if r["kind"] == "changed" for t in r["truth"]]
+    found = [t for t in truth if t["found"]]
+    false_changed = sum(len(r["false"]) for r in rows if r["kind"] == "changed")
+    errors = [t["centre_error_m"] for t in found]
+    latencies = [x for r in rows for x in r["stretch_latency_s"]]
+    km = sum(r["detection"]["km_compared"] for r in rows)
+    seconds = sum(r["detection"]["seconds"] for r in rows)
+    rails = [r["detection"]["rail_residual_m"] for r in rows
+             if r["detection"]["rail_residual_m"] is not None]
+    return {
+        "recall": len(found) / len(truth) if truth else None,
+        "precision": len(found) / (len(found) + false_changed) if found or false_changed else None,
+        "changes": len(truth), "found": len(found), "false_in_changed_runs": false_changed,
+        "centre_error_max_m": max(errors) if errors else None,
+        "centre_error_median_m": statistics.median(errors) if errors else None,
+        "centres_within_0.3_m": sum(e <= 0.3 for e in errors),
+        "intrusion_right": sum(t["reported_intrudes"] == t["intrudes"] for t in found),
+        "false_alarms_repeats": sum(len(r["false"]) for r in rows if r["kind"] == "repeat"),
+        "repeat_lines": sum(r["kind"] == "repeat" for r in rows),
+        "final_after_max_s": max(r["final_after_s"] for r in rows),
+        "stretch_latency_max_s": max(latencies) if latencies else None,
+        "stretch_latency_p50_s": statistics.median(latencies) if latencies else None,
+        "km_per_min": km / (seconds / 60.0) if seconds else None,
+        "rail_residual_max_m": max(rails) if rails else None,
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--build", default=os.path.join(harness.ROOT, "build"))
+    ap.add_argument("--lines", default=",".join(LINES), help="comma-separated suite scenarios")
+    ap.add_argument("--no-repeats", action="store_true", help="changed runs only")
+    ap.add_argument("--out", help="write every row and the totals as JSON here")
+    ap.add_argument("--check", action="store_true", help="exit 1 unless the targets hold")
+    args = ap.parse_args()
+    os.environ["RAILLOMER_BIN"] = os.path.join(args.build, "bin")
+    work_root = tempfile.mkdtemp(prefix="raillomer_change_accuracy_")
+    rows = []
+    for line in args.lines.split(","):
+        rows += run_line(line, work_root, not args.no_repeats)
+    t = totals(rows)
+    print(json.dumps(t, indent=1))
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump({"rows": rows, "totals": t}, f, indent=1)
+    if args.check:
+        ok = ((t["recall"] is None or t["recall"] >= 0.95) and
+              (t["precision"] is None or t["precision"] >= 0.95) and
+              (t["centre_error_max_m"] is None or t["centre_error_max_m"] <= 0.3) and
+              t["intrusion_right"] == t["found"] and t["false_alarms_repeats"] == 0 and
+              t["final_after_max_s"] <= 30.0 and
+              (t["stretch_latency_max_s"] is None or t["stretch_latency_max_s"] <= 10.0) and
+              (t["rail_residual_max_m"] is None or t["rail_residual_max_m"] <= 0.03))
+        print("targets %s" % ("met" if ok else "NOT met"))
+        return 0 if ok else 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
