@@ -30,6 +30,10 @@ std::vector<GridCell> OffsetsWithin(double radius_m, double voxel_m) {
     for (int64_t y = -r; y <= r; ++y)
       for (int64_t z = -r; z <= r; ++z)
         if (static_cast<double>(x * x + y * y + z * z) <= limit) offsets.push_back({x, y, z});
+  // Nearest first: an unchanged voxel mostly has its counterpart in its own cell or next to it.
+  std::sort(offsets.begin(), offsets.end(), [](const GridCell& a, const GridCell& b) {
+    return a.x * a.x + a.y * a.y + a.z * a.z < b.x * b.x + b.y * b.y + b.z * b.z;
+  });
   return offsets;
 }
 
@@ -73,15 +77,21 @@ std::vector<std::vector<GridCell>> Clusters(const std::vector<GridCell>& cells,
 class Occupancy {
  public:
   Occupancy(const RunStretch& run, double occupancy_m) : run_(run), tree_(occupancy_m) {
-    const float step = static_cast<float>(occupancy_m);
-    for (const Eigen::Vector3d& p : run.points)
+    // Each point's cell and its 26 neighbours, each cell set once.
+    std::unordered_set<GridCell, GridCellHash> cells;
+    for (const Eigen::Vector3d& p : run.points) {
+      octomap::OcTreeKey key;
+      if (!tree_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) continue;
       for (int dx = -1; dx <= 1; ++dx)
         for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz)
-            tree_.updateNode(
-                octomap::point3d(p.x() + dx * step, p.y() + dy * step, p.z() + dz * step),
-                true,
-                true);
+          for (int dz = -1; dz <= 1; ++dz) cells.insert({key[0] + dx, key[1] + dy, key[2] + dz});
+    }
+    for (const GridCell& c : cells)
+      tree_.updateNode(octomap::OcTreeKey(static_cast<octomap::key_type>(c.x),
+                                          static_cast<octomap::key_type>(c.y),
+                                          static_cast<octomap::key_type>(c.z)),
+                       true,
+                       true);
     tree_.updateInnerOccupancy();
   }
 
@@ -107,8 +117,14 @@ class Occupancy {
       if (!hit) continue;  // no return: a Livox reports nothing, so nothing is known
       const double at = (Eigen::Vector3d(end.x(), end.y(), end.z()) - origin).norm();
       if (at < range - 2.5 * o.occupancy_m) continue;  // occluded before it
+      if (at > range + o.beyond_m) {
+        *reached = true;
+        return true;
+      }
+      // A ray grazing down past `v` into the ground just behind it tells nothing of `v`
+      // (an object standing low): only a hit level with it or above says it is there.
+      if (end.z() < v.z() - 2.0 * o.occupancy_m) continue;
       *reached = true;
-      if (at > range + o.beyond_m) return true;
     }
     return false;
   }
@@ -168,8 +184,9 @@ bool ChangeOptions::IsValid(std::string* error) const {
            false;
   if (!(min_range_m >= 0.0 && max_range_m > min_range_m))
     return *error = "max_range_m must be above min_range_m", false;
-  if (!(seen_empty_share > 0.0 && seen_empty_share <= 1.0))
-    return *error = "seen_empty_share must be in (0, 1]", false;
+  if (!(seen_empty_share > 0.0 && seen_empty_share <= 1.0 && thin_seen_empty_share > 0.0 &&
+        thin_seen_empty_share <= 1.0))
+    return *error = "seen_empty_share and thin_seen_empty_share must be in (0, 1]", false;
   if (voxels_sampled < 1 || sensors_sampled < 1)
     return *error = "voxels_sampled and sensors_sampled must be at least 1", false;
   return true;
@@ -199,7 +216,10 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
       StretchChange change;
       if (!Confirm(cluster, kind, other, o, &change)) continue;
       ++s.objects;
-      if (change.seen_empty >= o.min_seen_voxels && change.seen_empty_share >= o.seen_empty_share) {
+      const Eigen::Vector3d size = change.box.sizes();
+      const int thin = (size.array() <= o.thin_m + 1e-9).count();
+      const double share = thin >= 2 ? o.thin_seen_empty_share : o.seen_empty_share;
+      if (change.seen_empty >= o.min_seen_voxels && change.seen_empty_share >= share) {
         changes.push_back(std::move(change));
       } else {
         ++s.not_observed;

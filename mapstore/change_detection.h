@@ -44,6 +44,10 @@ struct ChangeOptions {
   /// evidence either way: an object with too few reached is not observed.
   double seen_empty_share = 0.5;
   size_t min_seen_voxels = 2;
+  /// A thin object (two of its sides at most thin_m: a post, a dropper, a wire), which a
+  /// LiDAR hits only now and then, needs this share seen empty.
+  double thin_m = 0.25;
+  double thin_seen_empty_share = 0.8;
   bool IsValid(std::string* error) const;
 };
 

@@ -409,6 +409,14 @@ Result ChangeStore::Update(int64_t id,
   return Get(id, out);
 }
 
+Result ChangeStore::MappedUntil(int64_t run, int64_t* stamp_ns) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  Statement q(*db_, "SELECT IFNULL(MAX(last_stamp_ns), 0) FROM submaps WHERE run_id = ?");
+  if (!q.Bind(1, run).Step()) return DbError("cannot read the run's submaps", q.error());
+  *stamp_ns = q.Int(0);
+  return {};
+}
+
 Result ChangeStore::Frame(int64_t run, int stretch, StretchFrame* out) const {
   std::lock_guard<std::mutex> lock(mu_);
   Statement q(*db_, "SELECT transform FROM change_stretches WHERE run_id = ? AND stretch = ?");

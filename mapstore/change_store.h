@@ -100,6 +100,8 @@ class ChangeStore {
                 const std::optional<std::string>& note,
                 StoredChange* out);
   Result Frame(int64_t run, int stretch, StretchFrame* out) const;
+  /// The last stamp of the run's stored submaps (what its map holds up to); 0 with none.
+  Result MappedUntil(int64_t run, int64_t* stamp_ns) const;
 
  private:
   ChangeStore();

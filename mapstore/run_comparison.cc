@@ -374,12 +374,14 @@ void PairMoved(const RunComparisonOptions& o, std::vector<RunChange>* placed) {
   placed->resize(k);
 }
 
-/// The chainage range of poses on the line (NaN where off it); false if none lies on it.
+/// The chainage range of poses on the line; false if none lies on it. `chainage_m` (if given)
+/// gets each pose's (NaN where off the line).
 bool ChainageRange(const MapStore& store,
                    int64_t run,
                    const std::vector<api::StreamPose>& poses,
                    double* first_m,
-                   double* last_m) {
+                   double* last_m,
+                   std::vector<double>* chainage_m = nullptr) {
   std::vector<double> chainage;
   if (poses.empty() || !store.ChainageOfPoses(run, poses, &chainage)) return false;
   *first_m = std::numeric_limits<double>::infinity();
@@ -389,6 +391,7 @@ bool ChainageRange(const MapStore& store,
     *first_m = std::min(*first_m, c);
     *last_m = std::max(*last_m, c);
   }
+  if (chainage_m) *chainage_m = std::move(chainage);
   return *first_m <= *last_m;
 }
 
@@ -469,7 +472,7 @@ Result RunComparison::Prepare(const MapStore& store,
                 "the reference run " + std::to_string(reference_run) +
                     " has no pose on the line's centreline");
   c->later_reach_m_ = -std::numeric_limits<double>::infinity();
-  if (ChainageRange(store, later_run, c->later_poses_, &first, &last)) {
+  if (ChainageRange(store, later_run, c->later_poses_, &first, &last, &c->later_chainage_m_)) {
     if (last < ref_first || first > ref_last)
       return Fail(Outcome::kInvalid,
                   "runs " + std::to_string(later_run) + " and " + std::to_string(reference_run) +
@@ -489,6 +492,14 @@ Result RunComparison::Prepare(const MapStore& store,
   }
   *out = std::move(c);
   return {};
+}
+
+double RunComparison::ReachUntil(int64_t stamp_ns) const {
+  double reach = -std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < later_chainage_m_.size(); ++i)
+    if (later_poses_[i].stamp_ns <= stamp_ns && !std::isnan(later_chainage_m_[i]))
+      reach = std::max(reach, later_chainage_m_[i]);
+  return reach;
 }
 
 Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) const {

@@ -129,6 +129,9 @@ class RunComparison {
   const std::vector<StretchRange>& stretches() const { return stretches_; }
   /// How far along the line (chainage) the later run's poses reach; -infinity with none.
   double later_reach_m() const { return later_reach_m_; }
+  /// How far along the line its poses up to `stamp_ns` reach (the last submap's end: what
+  /// the map holds); -infinity with none.
+  double ReachUntil(int64_t stamp_ns) const;
   const LineInfo& line() const { return line_; }
   const RunInfo& reference() const { return reference_; }
   const RunInfo& later() const { return later_; }
@@ -144,6 +147,7 @@ class RunComparison {
   RunInfo reference_, later_;
   LineInfo line_;
   std::vector<api::StreamPose> reference_poses_, later_poses_;
+  std::vector<double> later_chainage_m_;  ///< each later pose's, NaN off the line
   std::vector<StretchRange> stretches_;
   double later_reach_m_ = 0.0;
 };

@@ -33,25 +33,32 @@ class Grid {
         }
   }
 
-  /// The nearest point within `radius`; false if there is none.
+  /// The nearest point within `radius`; false if there is none. Shells of cells around
+  /// `p`'s, nearest first, until the next shell lies beyond the best found or the radius.
   bool Nearest(const Eigen::Vector3d& p, double radius, size_t* index) const {
     const GridCell c = CellOf(p, side_);
     double best = radius * radius;
     bool found = false;
-    for (int64_t dx = -1; dx <= 1; ++dx)
-      for (int64_t dy = -1; dy <= 1; ++dy)
-        for (int64_t dz = -1; dz <= 1; ++dz) {
-          const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
-          if (it == cells_.end()) continue;
-          for (size_t i : it->second) {
-            const double d = (points_[i] - p).squaredNorm();
-            if (d <= best) {
-              best = d;
-              *index = i;
-              found = true;
+    const int64_t shells = static_cast<int64_t>(std::ceil(radius / side_));
+    for (int64_t k = 0; k <= shells; ++k) {
+      // Every point of shell k + 1 and beyond lies at least k sides away.
+      for (int64_t dx = -k; dx <= k; ++dx)
+        for (int64_t dy = -k; dy <= k; ++dy)
+          for (int64_t dz = -k; dz <= k; ++dz) {
+            if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != k) continue;
+            const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
+            if (it == cells_.end()) continue;
+            for (size_t i : it->second) {
+              const double d = (points_[i] - p).squaredNorm();
+              if (d <= best) {
+                best = d;
+                *index = i;
+                found = true;
+              }
             }
           }
-        }
+      if (found && best <= static_cast<double>(k * k) * side_ * side_) break;
+    }
     return found;
   }
 
@@ -61,27 +68,48 @@ class Grid {
   std::unordered_map<GridCell, std::vector<size_t>, GridCellHash> cells_;
 };
 
-/// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere).
-std::vector<Eigen::Vector3d> Normals(const std::vector<Eigen::Vector3d>& points,
-                                     const RegistrationOptions& o) {
-  const Grid grid(points, o.normal_radius_m);
-  std::vector<Eigen::Vector3d> normals(points.size(), Eigen::Vector3d::Zero());
-  std::vector<size_t> near;
-  for (size_t i = 0; i < points.size(); ++i) {
-    grid.Near(points[i], o.normal_radius_m, &near);
-    if (near.size() < 5) continue;
+/// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere),
+/// worked out when first asked for: a stage pairs a small part of the fixed cloud.
+class Normals {
+ public:
+  Normals(const std::vector<Eigen::Vector3d>& points, const RegistrationOptions& o)
+      : points_(points),
+        o_(o),
+        grid_(points, o.normal_radius_m),
+        normals_(points.size()),
+        known_(points.size(), false) {}
+
+  const Eigen::Vector3d& operator[](size_t i) {
+    if (!known_[i]) {
+      normals_[i] = Compute(points_[i]);
+      known_[i] = true;
+    }
+    return normals_[i];
+  }
+
+ private:
+  Eigen::Vector3d Compute(const Eigen::Vector3d& p) {
+    grid_.Near(p, o_.normal_radius_m, &near_);
+    if (near_.size() < 5) return Eigen::Vector3d::Zero();
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (size_t k : near) mean += points[k];
-    mean /= static_cast<double>(near.size());
+    for (size_t k : near_) mean += points_[k];
+    mean /= static_cast<double>(near_.size());
     Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-    for (size_t k : near) cov += (points[k] - mean) * (points[k] - mean).transpose();
+    for (size_t k : near_) cov += (points_[k] - mean) * (points_[k] - mean).transpose();
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
     const Eigen::Vector3d values = eig.eigenvalues();  // ascending
-    if (values.sum() > 0.0 && values(0) <= o.planarity * values.sum())
-      normals[i] = eig.eigenvectors().col(0);
+    if (values.sum() > 0.0 && values(0) <= o_.planarity * values.sum())
+      return eig.eigenvectors().col(0);
+    return Eigen::Vector3d::Zero();
   }
-  return normals;
-}
+
+  const std::vector<Eigen::Vector3d>& points_;
+  RegistrationOptions o_;
+  Grid grid_;
+  std::vector<Eigen::Vector3d> normals_;
+  std::vector<bool> known_;
+  std::vector<size_t> near_;
+};
 
 /// A correspondence: the moved point, its partner and the partner's normal (zero: point to
 /// point).
@@ -103,6 +131,7 @@ bool RegistrationOptions::IsValid(std::string* error) const {
   if (!(planarity > 0.0 && planarity < 1.0 / 3.0))
     return *error = "planarity must be in (0, 1/3)", false;
   if (max_iterations < 1) return *error = "max_iterations must be at least 1", false;
+  if (max_moving_points < 100) return *error = "max_moving_points must be at least 100", false;
   if (!(kernel_floor_m > 0.0)) return *error = "kernel_floor_m must be positive", false;
   return true;
 }
@@ -131,8 +160,8 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
                    RegistrationResult* result) {
   RegistrationOptions stage = o;
   stage.normal_radius_m = std::max(o.normal_radius_m, 2.5 * o.voxel_m);
-  const std::vector<Eigen::Vector3d> normals = Normals(fixed, stage);
-  const Grid grid(fixed, correspondence_m);
+  Normals normals(fixed, stage);
+  const Grid grid(fixed, std::max(2.0 * o.voxel_m, correspondence_m / 4.0));
   std::vector<Pair> pairs;
   std::vector<double> residuals;
   result->converged = false;
@@ -204,6 +233,17 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
   }
 }
 
+/// At most `n` of the points, every k-th (the centroids come in hash order: spread over the
+/// cloud).
+std::vector<Eigen::Vector3d> EvenSample(std::vector<Eigen::Vector3d> points, size_t n) {
+  if (points.size() <= n) return points;
+  const double step = static_cast<double>(points.size()) / static_cast<double>(n);
+  std::vector<Eigen::Vector3d> out;
+  out.reserve(n);
+  for (size_t i = 0; i < n; ++i) out.push_back(points[static_cast<size_t>(i * step)]);
+  return out;
+}
+
 }  // namespace
 
 RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_points,
@@ -217,7 +257,8 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_poin
     RegistrationOptions stage = o;
     stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
     const std::vector<Eigen::Vector3d> fixed = VoxelCentroids(fixed_points, stage.voxel_m);
-    const std::vector<Eigen::Vector3d> moving = VoxelCentroids(moving_points, stage.voxel_m);
+    const std::vector<Eigen::Vector3d> moving =
+        EvenSample(VoxelCentroids(moving_points, stage.voxel_m), o.max_moving_points);
     if (fixed.size() < 10 || moving.size() < 10) return result;
     RegisterStage(fixed, moving, distance, stage, &result);
     if (distance <= o.max_correspondence_m) break;

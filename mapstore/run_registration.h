@@ -22,6 +22,9 @@ struct RegistrationOptions {
   /// other points pair point to point.
   double planarity = 0.05;
   int max_iterations = 30;  ///< per stage
+  /// Each stage pairs at most this many of the moving cloud's voxel centroids (an even
+  /// sample): a stretch's structure is told by far fewer than its hundreds of thousands.
+  size_t max_moving_points = 60000;
   /// The robust kernel's (Geman-McClure) scale: 1.5 times the median residual, never below
   /// half the stage's correspondence distance nor this, so that what changed between the runs
   /// does not pull.

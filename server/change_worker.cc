@@ -1,7 +1,13 @@
 #include "server/change_worker.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 #include <chrono>
+
+#include <algorithm>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <set>
 
@@ -38,6 +44,7 @@ void ChangeWorker::Notify() {
 }
 
 void ChangeWorker::Loop() {
+  LowerPriority();
   while (!stopping()) {
     Pass();
     std::unique_lock<std::mutex> lock(mu_);
@@ -115,10 +122,30 @@ void ChangeWorker::Pass() {
   }
 }
 
-void ChangeWorker::FlushOnce(bool* flushed) {
-  if (*flushed) return;
-  store_->Flush();
-  *flushed = true;
+void ChangeWorker::LowerPriority() {
+  // Ingest and the API come first: comparing waits for the CPU they leave.
+  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
+}
+
+bool ChangeWorker::Store(int64_t run,
+                         int64_t reference,
+                         Result r,
+                         const mapstore::StretchOutcome& outcome) {
+  std::vector<mapstore::StoredChange> found, closed;
+  if (r) r = changes_->SaveStretch(run, reference, outcome, &found, &closed);
+  if (!r) {
+    std::fprintf(stderr,
+                 "raillomer-server: change detection of run %lld, stretch %d: %s\n",
+                 static_cast<long long>(run),
+                 outcome.range.index,
+                 r.message.c_str());
+    return false;
+  }
+  if (r.outcome == Outcome::kDuplicate) return true;
+  ++stretches_compared_;
+  DetectionState now;
+  if (changes_->Detection(run, &now)) announce_(found, closed, now);
+  return true;
 }
 
 void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& state) {
@@ -133,29 +160,38 @@ void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& s
   std::set<int> stored;
   if (!changes_->StoredStretches(run.id, &stored)) return;
   const bool finished = run.status == "finished";
-  bool flushed = false;
+  // A live run's stretch waits for the train to be past it and for its map (the stored
+  // submaps, which trail the poses) to hold all its LiDARs saw of it.
+  int64_t mapped_ns = 0;
+  if (!finished && !changes_->MappedUntil(run.id, &mapped_ns)) return;
+  const double infinity = std::numeric_limits<double>::infinity();
+  const double train = finished ? infinity : comparison->later_reach_m();
+  const double mapped = finished ? infinity : comparison->ReachUntil(mapped_ns);
+  std::vector<mapstore::StretchRange> ready;
   for (const mapstore::StretchRange& range : comparison->stretches()) {
-    if (stopping()) return;
     if (stored.count(range.index)) continue;
-    if (!finished && comparison->later_reach_m() < range.to_m + options_.past_m) break;
-    FlushOnce(&flushed);
-    mapstore::StretchOutcome outcome;
-    r = comparison->Compare(range, &outcome);
-    std::vector<mapstore::StoredChange> found, closed;
-    if (r) r = changes_->SaveStretch(run.id, state.reference_run, outcome, &found, &closed);
-    if (!r) {
-      std::fprintf(stderr,
-                   "raillomer-server: change detection of run %lld, stretch %d: %s\n",
-                   static_cast<long long>(run.id),
-                   range.index,
-                   r.message.c_str());
-      return;
+    if (train < range.to_m + options_.past_m || mapped < range.to_m + options_.mapped_past_m) break;
+    ready.push_back(range);
+  }
+  if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
+  const size_t threads = static_cast<size_t>(std::max(1, options_.threads));
+  for (size_t first = 0; first < ready.size() && !stopping(); first += threads) {
+    // A few stretches side by side, then stored and announced in order.
+    const size_t n = std::min(threads, ready.size() - first);
+    std::vector<mapstore::StretchOutcome> outcomes(n);
+    std::vector<Result> results(n);
+    std::vector<std::thread> workers;
+    for (size_t i = 1; i < n; ++i)
+      workers.emplace_back([&, i] {
+        LowerPriority();
+        results[i] = comparison->Compare(ready[first + i], &outcomes[i]);
+      });
+    results[0] = comparison->Compare(ready[first], &outcomes[0]);
+    for (std::thread& t : workers) t.join();
+    for (size_t i = 0; i < n; ++i) {
+      if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return;
+      stored.insert(ready[first + i].index);
     }
-    if (r.outcome == Outcome::kDuplicate) continue;
-    stored.insert(range.index);
-    ++stretches_compared_;
-    DetectionState now;
-    if (changes_->Detection(run.id, &now)) announce_(found, closed, now);
   }
   if (finished && stored.size() >= comparison->stretches().size()) {
     changes_->SetStatus(run.id, "done", "");

@@ -16,10 +16,13 @@ namespace raillomer::server {
 /// Settings of the server's own change detection.
 struct ChangeWorkerOptions {
   bool enabled = true;
-  /// A stretch of a live run is compared once its poses are this far past the stretch's end
-  /// (the LiDARs look ahead: the stretch is then seen from both sides).
+  /// A stretch of a live run is compared once the train is this far past the stretch's end
+  /// and the run's map (its stored submaps) reaches mapped_past_m past it: everything its
+  /// LiDARs (which look ahead) saw of the stretch and its overlap is in.
   double past_m = 100.0;
+  double mapped_past_m = 30.0;
   int poll_ms = 500;  ///< how often the worker looks for work without being woken
+  int threads = 2;    ///< stretches compared side by side
   mapstore::RunComparisonOptions comparison;
 };
 
@@ -70,8 +73,13 @@ class ChangeWorker {
   /// Compares the stretches of `state.run_id` that are ready; marks it done when the run
   /// finished and every stretch is stored.
   void Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state);
-  /// Writes the run's tiles once per pass before the first stretch compared.
-  void FlushOnce(bool* flushed);
+  /// Stores a compared stretch and announces its changes; false (logged) on an error.
+  bool Store(int64_t run,
+             int64_t reference,
+             mapstore::Result r,
+             const mapstore::StretchOutcome& outcome);
+  /// The calling thread yields to ingest and the API (nice 5).
+  static void LowerPriority();
   bool stopping() const { return stopping_; }
 
   mapstore::MapStore* store_;

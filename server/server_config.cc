@@ -39,8 +39,11 @@ bool ServerConfig::IsValid(std::string* error) const {
     return *error = "ingest_token must be at least 16 characters", false;
   if (!read_token.empty() && read_token.size() < 16)
     return *error = "read_token must be at least 16 characters", false;
-  if (changes.past_m < 0.0) return *error = "changes.past_m must be at least 0", false;
+  if (changes.past_m < 0.0 || changes.mapped_past_m < 0.0)
+    return *error = "changes.past_m and changes.mapped_past_m must be at least 0", false;
   if (changes.poll_ms < 10) return *error = "changes.poll_ms must be at least 10", false;
+  if (changes.threads < 1 || changes.threads > 64)
+    return *error = "changes.threads must be in [1, 64]", false;
   return store.IsValid(error) && changes.comparison.IsValid(error);
 }
 
@@ -51,7 +54,9 @@ void ReadChanges(api::MapReader& c, ChangeWorkerOptions* o) {
   mapstore::RunComparisonOptions& k = o->comparison;
   c.Read("enabled", &o->enabled);
   c.Read("past_m", &o->past_m);
+  c.Read("mapped_past_m", &o->mapped_past_m);
   c.Read("poll_ms", &o->poll_ms);
+  c.Read("threads", &o->threads);
   c.Read("stretch_m", &k.stretch_m);
   c.Read("corridor_m", &k.corridor_m);
   c.Read("level_of_detection_m", &k.change.level_of_detection_m);
@@ -180,7 +185,9 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"store.flush_dirty_points", s(o.flush_dirty_points)},
       {"changes.enabled", c.changes.enabled ? "true" : "false"},
       {"changes.past_m", s(c.changes.past_m)},
+      {"changes.mapped_past_m", s(c.changes.mapped_past_m)},
       {"changes.poll_ms", s(c.changes.poll_ms)},
+      {"changes.threads", s(c.changes.threads)},
       {"changes.stretch_m", s(k.stretch_m)},
       {"changes.corridor_m", s(k.corridor_m)},
       {"changes.level_of_detection_m", s(k.change.level_of_detection_m)},

@@ -71,6 +71,8 @@ class Live:
                     text = await asyncio.wait_for(ws.recv(), 0.5)
                 except asyncio.TimeoutError:
                     continue
+                except websockets.ConnectionClosed:  # the server stopped
+                    return
                 m = json.loads(text)
                 if m.get("type") in ("pose", "change"):
                     self.messages.append((time.time(), m))
