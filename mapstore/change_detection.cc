@@ -214,7 +214,11 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
     const Occupancy other(other_run, o.occupancy_m);
     for (const std::vector<GridCell>& cluster : Clusters(cells, joined)) {
       StretchChange change;
-      if (!Confirm(cluster, kind, other, o, &change)) continue;
+      if (!Confirm(cluster, kind, other, o, &change)) {
+        if (o.keep_rejected && cluster.size() >= o.min_object_voxels)
+          s.rejected.emplace_back(std::move(change), "too small");
+        continue;
+      }
       ++s.objects;
       const Eigen::Vector3d size = change.box.sizes();
       const int thin = (size.array() <= o.thin_m + 1e-9).count();
@@ -223,6 +227,7 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
         changes.push_back(std::move(change));
       } else {
         ++s.not_observed;
+        if (o.keep_rejected) s.rejected.emplace_back(std::move(change), "not seen empty");
       }
     }
   };

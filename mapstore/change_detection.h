@@ -2,6 +2,7 @@
 
 #include <cstddef>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -48,6 +49,9 @@ struct ChangeOptions {
   /// LiDAR hits only now and then, needs this share seen empty.
   double thin_m = 0.25;
   double thin_seen_empty_share = 0.8;
+  /// Keep the objects that were not changes (too small, not observed) in the summary, for
+  /// explaining why something was not reported.
+  bool keep_rejected = false;
   bool IsValid(std::string* error) const;
 };
 
@@ -68,6 +72,9 @@ struct StretchSummary {
   size_t candidates_added = 0, candidates_removed = 0;  ///< voxels
   size_t objects = 0;                                   ///< clusters of the minimum size
   size_t not_observed = 0;  ///< of them, the other run did not see the place
+  /// With ChangeOptions::keep_rejected: the clusters that were not changes, each with its
+  /// evidence, and why (`too small` or `not seen empty`).
+  std::vector<std::pair<StretchChange, std::string>> rejected;
 };
 
 /// Compares a stretch of a later run with the reference: voxels one has and the other has not

@@ -85,6 +85,13 @@ class Stretch {
     return std::abs(offset) <= corridor_m && std::abs(along) <= std::max(beyond_m, 1.0);
   }
 
+  /// The middle sample's position (UTM).
+  Eigen::Vector3d Mid() const { return samples_[samples_.size() / 2].point.p; }
+  /// The horizontal unit direction of increasing chainage at a sample of this stretch.
+  Eigen::Vector2d TangentAt(const TrackSample& s) const {
+    return Tangent(static_cast<size_t>(&s - samples_.data()));
+  }
+
   /// The UTM point `along_m` of chainage past sample `s` and `offset_m` to its left.
   Eigen::Vector2d ToUtm(const TrackSample& s, double along_m, double offset_m) const {
     const size_t i = static_cast<size_t>(&s - samples_.data());
@@ -142,6 +149,36 @@ std::vector<Eigen::Isometry3d> SensorsIn(const std::vector<api::StreamPose>& pos
     sensors.push_back(T);
   }
   return sensors;
+}
+
+/// Where a later run's path lies off the reference's in a stretch, as the shift that brings it
+/// back: both trains rode the same track, so the median of its poses' offsets across and
+/// above the centreline (the reference's path) is the difference of the runs' GNSS placements
+/// there, bar the part along the track, which the registration finds.
+Eigen::Isometry3d PathOffset(const Stretch& stretch, const std::vector<Eigen::Isometry3d>& poses) {
+  std::vector<double> across, up;
+  for (const Eigen::Isometry3d& pose : poses) {
+    const Eigen::Vector3d p = pose.translation() + stretch.origin();
+    double offset = 0.0, along = 0.0;
+    const TrackSample& s = stretch.Nearest(p, &offset, &along);
+    if (std::abs(along) > 1.0 || std::abs(offset) > 10.0) continue;  // beyond the stretch
+    across.push_back(offset);
+    up.push_back(p.z() - s.point.p.z());
+  }
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  if (across.size() < 5) return T;
+  const auto median = [](std::vector<double>* v) {
+    std::nth_element(v->begin(), v->begin() + v->size() / 2, v->end());
+    return (*v)[v->size() / 2];
+  };
+  const double lateral = median(&across), vertical = median(&up);
+  const Eigen::Vector3d mid = stretch.Mid();
+  double offset = 0.0, along = 0.0;
+  const TrackSample& s = stretch.Nearest(mid, &offset, &along);
+  const Eigen::Vector2d t = stretch.TangentAt(s);
+  T.translation() =
+      -(lateral * Eigen::Vector3d(-t.y(), t.x(), 0.0) + vertical * Eigen::Vector3d::UnitZ());
+  return T;
 }
 
 /// The rail plane's height below the centreline (the body's path): the rail heads are the
@@ -534,9 +571,19 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
     out->skipped = "fewer than 1000 points of a run there";
     return {};
   }
-  // The later run onto the reference: its points and its sensors.
-  const RegistrationResult fit = RegisterClouds(
-      parts.reference.points, parts.later.points, Eigen::Isometry3d::Identity(), o.registration);
+  // The later run onto the reference: its points and its sensors, from where its path lies
+  // off the reference's.
+  const RegistrationResult fit = RegisterClouds(parts.reference.points,
+                                                parts.later.points,
+                                                PathOffset(stretch, parts.later.sensors),
+                                                o.registration);
+  if (!(fit.rms_m <= o.max_registration_rms_m)) {
+    // Compared misregistered, everything would differ: better none than a field of false
+    // changes.
+    out->skipped = "the runs did not register (RMS " + std::to_string(fit.rms_m) + " m)";
+    out->registration_rms_m = fit.rms_m;
+    return {};
+  }
   // Registered, the later run's points are cut a metre beyond the reference's: what the
   // reference has near its cut is compared with all the later run has there.
   std::vector<Eigen::Vector3d> registered;

@@ -27,6 +27,9 @@ struct RunComparisonOptions {
   double from_m = -std::numeric_limits<double>::infinity();
   double to_m = std::numeric_limits<double>::infinity();
   RegistrationOptions registration;
+  /// A stretch whose registration leaves a larger RMS is not compared (reported as skipped):
+  /// misregistered, everything would differ.
+  double max_registration_rms_m = 0.04;
   ChangeOptions change;
   ClearanceOptions clearance;
   /// An added and a removed object pair as one moved object when they lie this close and

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
@@ -11,12 +12,31 @@
 namespace raillomer::mapstore {
 namespace {
 
-/// The fixed cloud on a grid of cells as large as the search radius: a point's neighbours
-/// within the radius lie in its cell and the 26 around it.
+/// The fixed cloud on a dense grid (compressed rows: each cell's points contiguous), so a
+/// cell is found by arithmetic rather than hashing: the registration asks millions of times.
 class Grid {
  public:
   Grid(const std::vector<Eigen::Vector3d>& points, double side) : points_(points), side_(side) {
-    for (size_t i = 0; i < points.size(); ++i) cells_[CellOf(points[i], side)].push_back(i);
+    if (points.empty()) return;
+    std::vector<GridCell> cells(points.size());
+    min_ = max_ = CellOf(points[0], side);
+    for (size_t i = 0; i < points.size(); ++i) {
+      cells[i] = CellOf(points[i], side);
+      min_ = {
+          std::min(min_.x, cells[i].x), std::min(min_.y, cells[i].y), std::min(min_.z, cells[i].z)};
+      max_ = {
+          std::max(max_.x, cells[i].x), std::max(max_.y, cells[i].y), std::max(max_.z, cells[i].z)};
+    }
+    nx_ = max_.x - min_.x + 1;
+    ny_ = max_.y - min_.y + 1;
+    const int64_t nz = max_.z - min_.z + 1;
+    start_.assign(static_cast<size_t>(nx_ * ny_ * nz + 1), 0);
+    for (const GridCell& c : cells) ++start_[Index(c) + 1];
+    for (size_t k = 1; k < start_.size(); ++k) start_[k] += start_[k - 1];
+    order_.resize(points.size());
+    std::vector<uint32_t> next(start_.begin(), start_.end() - 1);
+    for (size_t i = 0; i < points.size(); ++i)
+      order_[next[Index(cells[i])]++] = static_cast<uint32_t>(i);
   }
 
   /// The indices of the points within `radius` (at most the grid's side) of `p`.
@@ -25,12 +45,10 @@ class Grid {
     const GridCell c = CellOf(p, side_);
     for (int64_t dx = -1; dx <= 1; ++dx)
       for (int64_t dy = -1; dy <= 1; ++dy)
-        for (int64_t dz = -1; dz <= 1; ++dz) {
-          const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
-          if (it == cells_.end()) continue;
-          for (size_t i : it->second)
+        for (int64_t dz = -1; dz <= 1; ++dz)
+          ForCell({c.x + dx, c.y + dy, c.z + dz}, [&](size_t i) {
             if ((points_[i] - p).squaredNorm() <= radius * radius) out->push_back(i);
-        }
+          });
   }
 
   /// The nearest point within `radius`; false if there is none. Shells of cells around
@@ -46,16 +64,14 @@ class Grid {
         for (int64_t dy = -k; dy <= k; ++dy)
           for (int64_t dz = -k; dz <= k; ++dz) {
             if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != k) continue;
-            const auto it = cells_.find({c.x + dx, c.y + dy, c.z + dz});
-            if (it == cells_.end()) continue;
-            for (size_t i : it->second) {
+            ForCell({c.x + dx, c.y + dy, c.z + dz}, [&](size_t i) {
               const double d = (points_[i] - p).squaredNorm();
               if (d <= best) {
                 best = d;
                 *index = i;
                 found = true;
               }
-            }
+            });
           }
       if (found && best <= static_cast<double>(k * k) * side_ * side_) break;
     }
@@ -63,9 +79,25 @@ class Grid {
   }
 
  private:
+  size_t Index(const GridCell& c) const {
+    return static_cast<size_t>((c.x - min_.x) + nx_ * ((c.y - min_.y) + ny_ * (c.z - min_.z)));
+  }
+
+  template <typename Fn>
+  void ForCell(const GridCell& c, Fn fn) const {
+    if (start_.empty() || c.x < min_.x || c.y < min_.y || c.z < min_.z || c.x > max_.x ||
+        c.y > max_.y || c.z > max_.z)
+      return;
+    const size_t k = Index(c);
+    for (uint32_t j = start_[k]; j < start_[k + 1]; ++j) fn(order_[j]);
+  }
+
   const std::vector<Eigen::Vector3d>& points_;
   double side_;
-  std::unordered_map<GridCell, std::vector<size_t>, GridCellHash> cells_;
+  GridCell min_, max_;
+  int64_t nx_ = 0, ny_ = 0;
+  std::vector<uint32_t> start_;  ///< each cell's first entry in order_, and one past the last
+  std::vector<uint32_t> order_;  ///< point indices, cell by cell
 };
 
 /// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere),

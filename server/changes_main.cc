@@ -31,12 +31,56 @@ nlohmann::json ChangeJson(const RunChange& c) {
           {"voxels", c.voxels}};
 }
 
+/// Where to explain what the comparison made of the objects near a point (UTM).
+struct Explain {
+  bool on = false;
+  Eigen::Vector2d at = Eigen::Vector2d::Zero();
+  double radius_m = 5.0;
+};
+
+/// The stretch's objects near the point: the changes and the clusters that were not, with
+/// their evidence.
+void PrintExplained(const StretchOutcome& outcome, const Explain& explain) {
+  const auto print = [&](const StretchChange& c, const std::string& verdict) {
+    const Eigen::Vector3d p = c.centre + outcome.origin;
+    if ((p.head<2>() - explain.at).norm() > explain.radius_m) return;
+    const Eigen::Vector3d size = c.box.sizes();
+    std::fprintf(stderr,
+                 "\n  %s %s at %.2f %.2f %.2f, %.2f x %.2f x %.2f m, %zu voxels: %zu of the "
+                 "sampled voxels reached, %zu seen empty (%.0f %%)",
+                 verdict.c_str(),
+                 c.kind == StretchChange::Kind::kAdded ? "added" : "removed",
+                 p.x(),
+                 p.y(),
+                 p.z(),
+                 size.x(),
+                 size.y(),
+                 size.z(),
+                 c.voxels.size(),
+                 c.samples,
+                 c.seen_empty,
+                 100.0 * c.seen_empty_share);
+  };
+  for (const auto& [c, why] : outcome.summary.rejected) print(c, "not reported (" + why + "):");
+  for (const RunChange& c : outcome.changes) {
+    if ((c.centre_utm.head<2>() - explain.at).norm() > explain.radius_m) continue;
+    std::fprintf(stderr,
+                 "\n  reported: %s at %.2f %.2f %.2f, confidence %.2f",
+                 ToString(c.kind),
+                 c.centre_utm.x(),
+                 c.centre_utm.y(),
+                 c.centre_utm.z(),
+                 c.confidence);
+  }
+}
+
 /// CompareRuns, printing progress; with `save`, each stretch is stored as the server stores it.
 Result Compare(const MapStore& store,
                int64_t reference,
                int64_t run,
                const RunComparisonOptions& options,
                bool save,
+               const Explain& explain,
                std::vector<RunChange>* changes,
                RunComparisonSummary* summary) {
   std::unique_ptr<ChangeStore> saved;
@@ -49,6 +93,7 @@ Result Compare(const MapStore& store,
   Result r = CompareRuns(
       store, reference, run, options, changes, summary, [&](const StretchOutcome& outcome) {
         std::fprintf(stderr, "\rraillomer-changes: km %.3f", outcome.range.to_m / 1000.0);
+        if (explain.on) PrintExplained(outcome, explain);
         if (!saved) return Result{};
         // The run's earlier changes go once the runs are known to compare.
         if (!requested) {
@@ -74,7 +119,7 @@ int main(int argc, char** argv) {
       "store folder (stop the server serving it first) and prints each change with its "
       "kilometre, side, offset, size and margin against the structure gauge.\n\n"
       "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--from-km <km>] "
-      "[--to-km <km>] [--json <file>]"};
+      "[--to-km <km>] [--json <file>] [--save] [--explain-at <easting,northing>]"};
   std::string data_dir, json_path;
   bool save = false;
   int64_t run = 0, reference = 0;
@@ -86,6 +131,15 @@ int main(int argc, char** argv) {
                save,
                "store the changes in the store as the server's own detection does (replacing the "
                "run's earlier ones), for the server to serve");
+  std::vector<double> explain_at;
+  Explain explain;
+  app.add_option("--explain-at",
+                 explain_at,
+                 "easting,northing (the reference run's map): print every object compared "
+                 "near it, reported or not, with its evidence")
+      ->expected(2)
+      ->delimiter(',');
+  app.add_option("--explain-radius", explain.radius_m, "metres around --explain-at (default 5)");
   double from_km = -1e9, to_km = 1e9;
   app.add_option("--from-km", from_km, "compare from this kilometre of the line (default: start)");
   app.add_option("--to-km", to_km, "compare up to this kilometre (default: the line's end)");
@@ -110,11 +164,15 @@ int main(int argc, char** argv) {
     return 2;
   }
   RunComparisonOptions options;
+  if (explain_at.size() == 2) {
+    explain.on = options.change.keep_rejected = true;
+    explain.at = Eigen::Vector2d(explain_at[0], explain_at[1]);
+  }
   options.from_m = 1000.0 * from_km;
   options.to_m = 1000.0 * to_km;
   std::vector<RunChange> changes;
   RunComparisonSummary summary;
-  r = Compare(*store, reference, run, options, save, &changes, &summary);
+  r = Compare(*store, reference, run, options, save, explain, &changes, &summary);
   std::fprintf(stderr, "\n");
   if (!r) {
     std::fprintf(stderr, "raillomer-changes: %s\n", r.message.c_str());

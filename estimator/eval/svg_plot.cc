@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <limits>
 
+#include "api/markup.h"
+
 namespace raillomer::eval {
 
 namespace {
@@ -38,28 +40,7 @@ std::string TickLabel(double value, double step) {
   return buffer;
 }
 
-std::string Escape(const std::string& text) {
-  std::string out;
-  for (char c : text) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
+std::string Escape(const std::string& text) { return api::EscapeMarkup(text); }
 
 std::string Text(double x, double y, const std::string& text, const std::string& extra = "") {
   return "<text x=\"" + Num(x) + "\" y=\"" + Num(y) + "\"" + (extra.empty() ? "" : " " + extra) +

@@ -44,23 +44,39 @@ int64_t IngestRun(MapStore& store,
   return run.id;
 }
 
-TEST(RunComparison, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
-  test::ScratchDir dir("raillomer_compare_");
-  std::string error;
-  StoreOptions options;
-  options.flush_interval_ms = 0;
-  auto store = MapStore::Open(dir.path().string(), options, &error);
-  ASSERT_TRUE(store) << error;
+/// The points a LiDAR leaves of a 1.2 x 0.8 x 1.6 m box on the ground, its corner at
+/// (x0, y0) (submap frame, decimetres), on the 0.1 m grid: its shell.
+std::vector<Eigen::Vector3f> Box(int x0, int y0) {
+  std::vector<Eigen::Vector3f> box;
+  for (int x = x0; x < x0 + 12; ++x)
+    for (int y = y0; y < y0 + 8; ++y)
+      for (int z = 1; z < 16; ++z)
+        if (x == x0 || x == x0 + 11 || y == y0 || y == y0 + 7 || z == 15)
+          box.emplace_back(0.1f * x + 0.05f, 0.1f * y + 0.05f, 0.1f * z + 0.05f);
+  return box;
+}
+
+/// A store in a scratch folder, written only when asked (Flush, FinishRun).
+class RunComparisonTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    StoreOptions options;
+    options.flush_interval_ms = 0;
+    std::string error;
+    store_ = MapStore::Open(dir_.path().string(), options, &error);
+    ASSERT_TRUE(store_) << error;
+  }
+
+  test::ScratchDir dir_{"raillomer_compare_"};
+  std::unique_ptr<MapStore> store_;
+};
+
+TEST_F(RunComparisonTest, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
+  MapStore* store = store_.get();
   const int64_t reference = IngestRun(*store, Eigen::Vector3d::Zero(), {});
   // A 1.2 x 0.8 x 1.6 m box on the ground 3 m left of the track, 75 m along (submap 3 starts
-  // at 60 m), on the 0.1 m grid, in front of the wall, which the reference run's rays through
-  // its place hit.
-  std::vector<Eigen::Vector3f> box;
-  for (int x = 150; x < 162; ++x)
-    for (int y = 26; y < 34; ++y)
-      for (int z = 1; z < 16; ++z)
-        if (x == 150 || x == 161 || y == 26 || y == 33 || z == 15)
-          box.emplace_back(0.1f * x + 0.05f, 0.1f * y + 0.05f, 0.1f * z + 0.05f);
+  // at 60 m), in front of the wall, which the reference run's rays through its place hit.
+  const std::vector<Eigen::Vector3f> box = Box(150, 26);
   // Another GNSS error: 0.4 m aside and 0.1 m up (along this bare corridor a shift along the
   // track could not be told, nor can it on real plain track without masts).
   const int64_t later = IngestRun(*store, Eigen::Vector3d(0.0, -0.4, 0.1), box);
@@ -86,6 +102,23 @@ TEST(RunComparison, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
   EXPECT_EQ(
       CompareRuns(*store, reference, other.id, RunComparisonOptions(), &changes, &summary).outcome,
       Outcome::kInvalid);
+}
+
+TEST_F(RunComparisonTest, AnObjectStandingElsewhereHasMoved) {
+  MapStore* store = store_.get();
+  // A cabinet 65 m along, 3 m left; a week later 5 m further on.
+  const int64_t reference = IngestRun(*store, Eigen::Vector3d::Zero(), Box(50, 26));
+  const int64_t later = IngestRun(*store, Eigen::Vector3d(0.0, -0.4, 0.1), Box(100, 26));
+  std::vector<RunChange> changes;
+  RunComparisonSummary summary;
+  ASSERT_TRUE(CompareRuns(*store, reference, later, RunComparisonOptions(), &changes, &summary));
+  ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects";
+  const RunChange& c = changes[0];
+  EXPECT_EQ(c.kind, ChangeKind::kMoved);
+  EXPECT_NEAR(c.moved_m, 5.0, 0.3);
+  EXPECT_NEAR(c.chainage_m, 70.6, 0.6);  // where it stands now
+  const Eigen::Vector3d before = test::CorridorStart() + Eigen::Vector3d(65.6, 3.0, 0.8);
+  EXPECT_LT((c.moved_from_utm - before).head<2>().norm(), 0.3);
 }
 
 }  // namespace

@@ -1,10 +1,12 @@
 """The simulator's edits of a changed run (changes.json) against the changes a server reports:
 simulated runs streamed into a server by raillomer-estimator, the truth placed in the reference
 run's map, and recall, precision and position errors as the issue measures them."""
+import asyncio
 import json
 import math
 import os
 import subprocess
+import threading
 import time
 
 import harness
@@ -129,3 +131,32 @@ def wait_for_detection(server, run, timeout_s=300.0):
             raise RuntimeError("detection of run %d not done after %.0f s: %s" %
                                (run, timeout_s, body["detection"]))
         time.sleep(0.2)
+
+
+class Live:
+    """The live hub's pose and change messages of every run, with the time each arrived."""
+
+    def __init__(self, port):
+        self.messages = []
+        self.ready = threading.Event()
+        self.stop = False
+        self.thread = threading.Thread(target=lambda: asyncio.run(self._run(port)), daemon=True)
+        self.thread.start()
+        self.ready.wait(10)
+
+    async def _run(self, port):
+        import websockets
+        async with websockets.connect("ws://127.0.0.1:%d/live" % port, max_queue=None) as ws:
+            await ws.send(json.dumps({"subscribe": "all"}))
+            await ws.recv()
+            self.ready.set()
+            while not self.stop:
+                try:
+                    text = await asyncio.wait_for(ws.recv(), 0.5)
+                except asyncio.TimeoutError:
+                    continue
+                except websockets.ConnectionClosed:  # the server stopped
+                    return
+                m = json.loads(text)
+                if m.get("type") in ("pose", "change"):
+                    self.messages.append((time.time(), m))

@@ -62,6 +62,7 @@ def setUpModule():
     FIX["server"] = harness.Server(data=os.path.join(FIX["dir"], "data"))
     FIX["reference_dir"] = change_truth.stream_run(
         FIX["server"], "demo", os.path.join(FIX["dir"], "run1"), "Demo")
+    FIX["live"] = change_truth.Live(FIX["server"].ws_port)
     change_truth.stream_run(FIX["server"], CHANGED, os.path.join(FIX["dir"], "run2"), "Demo",
                             seed=5)
     FIX["truth"] = change_truth.truth_changes(CHANGED, os.path.join(FIX["dir"], "sim"))
@@ -69,6 +70,7 @@ def setUpModule():
 
 
 def tearDownModule():
+    FIX["live"].stop = True
     FIX["server"].cleanup()
     shutil.rmtree(FIX["dir"], ignore_errors=True)
 
@@ -105,6 +107,18 @@ class ChangeDetection(unittest.TestCase):
             self.assertEqual(p["intrudes_envelope"], t["intrudes_clearance"], json.dumps(t))
             self.assertEqual(p["side"], "left" if t["lateral_m"] >= 0 else "right")
         self.assertEqual(extra, [], "reported, but no edit there")
+
+    def test_changes_are_announced_live_as_the_train_passes(self):
+        messages = [(t, m) for t, m in FIX["live"].messages
+                    if m["type"] == "change" and m["run"] == 2]
+        announced = [f["id"] for _, m in messages for f in m["changes"]]
+        self.assertEqual(sorted(announced), sorted(f["id"] for f in self.found["features"]))
+        # Stretch by stretch: each announcement reaches further along the line, the last says
+        # the run's report is final.
+        reached = [m["detection"]["compared_to_m"] for _, m in messages]
+        self.assertGreaterEqual(len(set(reached)), 3)
+        self.assertEqual(reached, sorted(reached))
+        self.assertEqual(messages[-1][1]["detection"]["status"], "done")
 
     def test_features_are_geojson_with_the_documented_properties(self):
         for f in self.found["features"]:

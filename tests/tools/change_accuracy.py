@@ -17,14 +17,12 @@ residual on the rails.
   change_accuracy.py --build build [--lines demo,rich_low_station_a] [--out result.json] [--check]
 """
 import argparse
-import asyncio
 import json
 import math
 import os
 import statistics
 import sys
 import tempfile
-import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -47,35 +45,6 @@ LINES = ["demo", "rich_low_station_a", "rich_high_town_a", "rich_low_yard_b",
          "lidar_blackout", "winter_wheel_slip", "poor_high_catenary_b", "poor_high_open_a",
          "rich_high_mixed_b", "tunnel_gnss_outage"]
 REPEAT_SEED = 101
-
-
-class Live:
-    """The live hub's pose and change messages of every run, with the time each arrived."""
-
-    def __init__(self, port):
-        self.messages = []
-        self.ready = threading.Event()
-        self.stop = False
-        self.thread = threading.Thread(target=lambda: asyncio.run(self._run(port)), daemon=True)
-        self.thread.start()
-        self.ready.wait(10)
-
-    async def _run(self, port):
-        import websockets
-        async with websockets.connect("ws://127.0.0.1:%d/live" % port, max_queue=None) as ws:
-            await ws.send(json.dumps({"subscribe": "all"}))
-            await ws.recv()
-            self.ready.set()
-            while not self.stop:
-                try:
-                    text = await asyncio.wait_for(ws.recv(), 0.5)
-                except asyncio.TimeoutError:
-                    continue
-                except websockets.ConnectionClosed:  # the server stopped
-                    return
-                m = json.loads(text)
-                if m.get("type") in ("pose", "change"):
-                    self.messages.append((time.time(), m))
 
 
 def pose_chainage(server, run):
@@ -142,7 +111,7 @@ def run_case(server, live, line, scenario, seed, run_id, work, kind):
 def run_line(line, work_root, include_repeat):
     work = tempfile.mkdtemp(prefix=line + "_", dir=work_root)
     server = harness.Server(data=os.path.join(work, "data"))
-    live = Live(server.ws_port)
+    live = change_truth.Live(server.ws_port)
     rows = []
     try:
         change_truth.stream_run(server, line, os.path.join(work, "run1"), line)
