@@ -164,7 +164,11 @@ bool Confirm(const std::vector<GridCell>& cluster,
   change->centre = change->box.center();
   if (cluster.size() < o.min_object_voxels || change->box.sizes().maxCoeff() < o.min_object_m)
     return false;
-  const size_t n = std::min(o.voxels_sampled, cluster.size());
+  // A large object gets more samples: a tree's crown, with sky behind most of it, is reached
+  // by the other run's rays only here and there.
+  const size_t n = std::min(
+      cluster.size(),
+      std::min(o.max_voxels_sampled, o.voxels_sampled + cluster.size() / o.voxels_per_sample));
   change->seen_empty = change->samples = 0;
   for (size_t k = 0; k < n; ++k) {
     bool reached = false;
@@ -187,8 +191,12 @@ bool ChangeOptions::IsValid(std::string* error) const {
   if (!(seen_empty_share > 0.0 && seen_empty_share <= 1.0 && thin_seen_empty_share > 0.0 &&
         thin_seen_empty_share <= 1.0))
     return *error = "seen_empty_share and thin_seen_empty_share must be in (0, 1]", false;
-  if (voxels_sampled < 1 || sensors_sampled < 1)
-    return *error = "voxels_sampled and sensors_sampled must be at least 1", false;
+  if (voxels_sampled < 1 || sensors_sampled < 1 || max_voxels_sampled < voxels_sampled ||
+      voxels_per_sample < 1)
+    return *error =
+               "voxels_sampled, sensors_sampled and voxels_per_sample must be at least 1, "
+               "max_voxels_sampled at least voxels_sampled",
+           false;
   return true;
 }
 

@@ -37,7 +37,11 @@ struct ChangeOptions {
   /// The other run saw a candidate voxel empty when one of its rays passed through it and hit
   /// something at least this far beyond (a hit nearer is that voxel's own surface).
   double beyond_m = 0.6;
-  size_t voxels_sampled = 16;  ///< candidate voxels of an object tested for being seen empty
+  /// Candidate voxels of an object tested for being seen empty: this many, one more for every
+  /// voxels_per_sample of it, at most max_voxels_sampled.
+  size_t voxels_sampled = 16;
+  size_t voxels_per_sample = 50;
+  size_t max_voxels_sampled = 64;
   size_t sensors_sampled = 6;  ///< sensor poses tried per voxel, spread over those in view
   /// An object is a change when the other run's rays reached at least min_seen_voxels of its
   /// sampled voxels and passed through this share of those they reached. A voxel no ray

@@ -241,56 +241,19 @@ Result ChangeStore::SaveStretch(int64_t run,
     line = q.Text(0);
   }
   const int64_t now = NowNs();
-  Statement add_stretch(*db_,
-                        "INSERT INTO change_stretches (run_id, stretch, reference_run, from_m, "
-                        "to_m, compared, rms_m, rail_rms_m, transform, seconds, done_ns) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  add_stretch.Bind(1, run)
-      .Bind(2, o.range.index)
-      .Bind(3, reference)
-      .Bind(4, o.range.from_m)
-      .Bind(5, o.range.to_m)
-      .Bind(6, o.compared ? 1 : 0)
-      .Bind(7, o.registration_rms_m);
-  if (std::isnan(o.rail_rms_m))
-    add_stretch.BindNull(8);
-  else
-    add_stretch.Bind(8, o.rail_rms_m);
-  if (!add_stretch.Bind(9, TransformText(o)).Bind(10, o.seconds).Bind(11, now).Run())
-    return DbError("cannot store the stretch", add_stretch.error());
-  Statement add(*db_,
-                "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
-                "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
-                "updated_ns) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  for (const RunChange& c : o.changes) {
-    add.Reset();
-    if (!add.Bind(1, run)
-             .Bind(2, reference)
-             .Bind(3, o.range.index)
-             .Bind(4, line)
-             .Bind(5, ToString(c.kind))
-             .Bind(6, c.chainage_m)
-             .Bind(7, c.offset_m)
-             .Bind(8, c.utm_zone)
-             .Bind(9, c.centre_utm.x())
-             .Bind(10, c.centre_utm.y())
-             .Bind(11, c.centre_utm.z())
-             .Bind(12, PropertiesOf(c))
-             .Bind(13, c.intrudes_envelope ? 1 : 0)
-             .Bind(14, c.size_m.maxCoeff())
-             .Bind(15, now)
-             .Bind(16, now)
-             .Run())
-      return DbError("cannot store a change", add.error());
-    StoredChange s;
-    s.id = db_->LastInsertId();
-    s.run_id = run;
-    s.reference_run = reference;
-    s.line = line;
-    s.change = c;
-    s.created_ns = s.updated_ns = now;
-    stored->push_back(std::move(s));
+  r = InsertStretchLocked(run, reference, o, now);
+  for (size_t i = 0; r && i < o.changes.size(); ++i) {
+    StoredChange c;
+    c.run_id = run;
+    c.reference_run = reference;
+    c.line = line;
+    c.change = o.changes[i];
+    c.change.stretch = o.range.index;
+    c.created_ns = c.updated_ns = now;
+    r = InsertChangeLocked(&c);
+    stored->push_back(std::move(c));
   }
+  if (!r) return r;
   r = CloseFixedLocked(run, o.range, *stored, closed);
   if (!r) return r;
   Statement touch(*db_,
@@ -299,6 +262,58 @@ Result ChangeStore::SaveStretch(int64_t run,
   std::string error;
   if (!touch.Bind(1, now).Bind(2, run).Run() || !t.Commit(&error))
     return DbError("cannot commit the stretch", touch.error() + error);
+  return {};
+}
+
+Result ChangeStore::InsertStretchLocked(int64_t run,
+                                        int64_t reference,
+                                        const StretchOutcome& o,
+                                        int64_t now) {
+  Statement add(*db_,
+                "INSERT INTO change_stretches (run_id, stretch, reference_run, from_m, to_m, "
+                "compared, rms_m, rail_rms_m, transform, seconds, done_ns) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  add.Bind(1, run)
+      .Bind(2, o.range.index)
+      .Bind(3, reference)
+      .Bind(4, o.range.from_m)
+      .Bind(5, o.range.to_m)
+      .Bind(6, o.compared ? 1 : 0)
+      .Bind(7, o.registration_rms_m);
+  if (std::isnan(o.rail_rms_m))
+    add.BindNull(8);
+  else
+    add.Bind(8, o.rail_rms_m);
+  if (!add.Bind(9, TransformText(o)).Bind(10, o.seconds).Bind(11, now).Run())
+    return DbError("cannot store the stretch", add.error());
+  return {};
+}
+
+Result ChangeStore::InsertChangeLocked(StoredChange* s) {
+  const RunChange& c = s->change;
+  Statement add(*db_,
+                "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
+                "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
+                "updated_ns) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!add.Bind(1, s->run_id)
+           .Bind(2, s->reference_run)
+           .Bind(3, c.stretch)
+           .Bind(4, s->line)
+           .Bind(5, ToString(c.kind))
+           .Bind(6, c.chainage_m)
+           .Bind(7, c.offset_m)
+           .Bind(8, c.utm_zone)
+           .Bind(9, c.centre_utm.x())
+           .Bind(10, c.centre_utm.y())
+           .Bind(11, c.centre_utm.z())
+           .Bind(12, PropertiesOf(c))
+           .Bind(13, c.intrudes_envelope ? 1 : 0)
+           .Bind(14, c.size_m.maxCoeff())
+           .Bind(15, s->created_ns)
+           .Bind(16, s->updated_ns)
+           .Run())
+    return DbError("cannot store a change", add.error());
+  s->id = db_->LastInsertId();
   return {};
 }
 

@@ -106,6 +106,12 @@ class ChangeStore {
  private:
   ChangeStore();
   Result DetectionLocked(int64_t run, DetectionState* out) const;
+  Result InsertStretchLocked(int64_t run,
+                             int64_t reference,
+                             const StretchOutcome& outcome,
+                             int64_t now);
+  /// Inserts a change (its run, reference, line and stamps set); its id is set.
+  Result InsertChangeLocked(StoredChange* change);
   Result CloseFixedLocked(int64_t run,
                           const StretchRange& range,
                           const std::vector<StoredChange>& seen,

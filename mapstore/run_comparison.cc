@@ -251,6 +251,61 @@ size_t PointsInBox(const std::vector<Eigen::Vector3d>& points, const Eigen::Alig
       points.begin(), points.end(), [&](const Eigen::Vector3d& p) { return box.contains(p); }));
 }
 
+/// A run's map and poses, for loading its part of a stretch.
+struct RunSource {
+  int64_t id = 0;
+  const std::vector<api::StreamPose>* poses = nullptr;
+};
+
+/// Each run's points and sensors around a stretch. Both reach overlap_m past the stretch's
+/// ends (the later 5 m more every way, room for the registration's shift), so an object across
+/// an end is seen whole; the stretch that holds its centre reports it.
+Result LoadParts(const MapStore& store,
+                 const Stretch& stretch,
+                 const RunComparisonOptions& o,
+                 const RunSource& reference,
+                 const RunSource& later,
+                 StretchParts* parts) {
+  const double reach = o.corridor_m + o.overlap_m + kShiftRoomM;
+  std::vector<Eigen::Vector3d> utm;
+  Result r = PointsIn(store, reference.id, stretch.Box(reach), &utm);
+  if (!r) return r;
+  parts->reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
+  r = PointsIn(store, later.id, stretch.Box(reach + kShiftRoomM), &utm);
+  if (!r) return r;
+  parts->later.points = stretch.Local(utm, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
+  const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
+  parts->reference.sensors = SensorsIn(*reference.poses, seen_from, stretch.origin());
+  parts->later.sensors = SensorsIn(*later.poses, seen_from, stretch.origin());
+  return {};
+}
+
+/// The later run's points and sensors moved by its registration, its points cut a metre
+/// beyond the reference's: what the reference has near its cut is compared with all the later
+/// run has there.
+void MoveLater(const Stretch& stretch,
+               const RunComparisonOptions& o,
+               const Eigen::Isometry3d& T_reference_later,
+               StretchParts* parts) {
+  std::vector<Eigen::Vector3d> registered;
+  for (const Eigen::Vector3d& p : parts->later.points) {
+    const Eigen::Vector3d q = T_reference_later * p;
+    if (stretch.Within(q + stretch.origin(), o.corridor_m + 1.0, o.overlap_m + 1.0))
+      registered.push_back(q);
+  }
+  parts->later.points = std::move(registered);
+  for (Eigen::Isometry3d& s : parts->later.sensors) s = T_reference_later * s;
+}
+
+/// M3C2's LoD95 with each map's voxel quantisation (sigma = voxel / sqrt 12) and the
+/// registration's residual, never below the comparison's own threshold.
+double LevelOfDetection(const ChangeOptions& o, double registration_rms_m) {
+  const double quantisation = o.voxel_m / std::sqrt(12.0);
+  return std::max(o.level_of_detection_m,
+                  1.96 * std::sqrt(2.0 * quantisation * quantisation +
+                                   registration_rms_m * registration_rms_m));
+}
+
 /// A change of a stretch placed on the line and checked against the gauge and the vegetation
 /// rule.
 RunChange Place(const StretchChange& c,
@@ -552,50 +607,28 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
   }
   const Stretch stretch(std::move(segment.samples));
   out->origin = stretch.origin();
-  std::vector<Eigen::Vector3d> utm;
   StretchParts parts;
-  // Both runs reach overlap_m past the stretch's ends (the later 5 m more every way, room for
-  // the registration's shift), so an object across an end is seen whole; the stretch that
-  // holds its centre reports it.
-  const double reach = o.corridor_m + o.overlap_m + kShiftRoomM;
-  Result r = PointsIn(store_, reference_.id, stretch.Box(reach), &utm);
+  const Result r = LoadParts(
+      store_, stretch, o, {reference_.id, &reference_poses_}, {later_.id, &later_poses_}, &parts);
   if (!r) return r;
-  parts.reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
-  r = PointsIn(store_, later_.id, stretch.Box(reach + kShiftRoomM), &utm);
-  if (!r) return r;
-  parts.later.points = stretch.Local(utm, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
-  const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
-  parts.reference.sensors = SensorsIn(reference_poses_, seen_from, stretch.origin());
-  parts.later.sensors = SensorsIn(later_poses_, seen_from, stretch.origin());
   if (parts.reference.points.size() < 1000 || parts.later.points.size() < 1000) {
     out->skipped = "fewer than 1000 points of a run there";
     return {};
   }
-  // The later run onto the reference: its points and its sensors, from where its path lies
-  // off the reference's.
+  // The later run onto the reference, from where its path lies off the reference's.
   const RegistrationResult fit = RegisterClouds(parts.reference.points,
                                                 parts.later.points,
                                                 PathOffset(stretch, parts.later.sensors),
                                                 o.registration);
+  out->registration_rms_m = fit.rms_m;
   if (!(fit.rms_m <= o.max_registration_rms_m)) {
     // Compared misregistered, everything would differ: better none than a field of false
     // changes.
     out->skipped = "the runs did not register (RMS " + std::to_string(fit.rms_m) + " m)";
-    out->registration_rms_m = fit.rms_m;
     return {};
   }
-  // Registered, the later run's points are cut a metre beyond the reference's: what the
-  // reference has near its cut is compared with all the later run has there.
-  std::vector<Eigen::Vector3d> registered;
-  for (const Eigen::Vector3d& p : parts.later.points) {
-    const Eigen::Vector3d q = fit.T_fixed_moving * p;
-    if (stretch.Within(q + stretch.origin(), o.corridor_m + 1.0, o.overlap_m + 1.0))
-      registered.push_back(q);
-  }
-  parts.later.points = std::move(registered);
-  for (Eigen::Isometry3d& s : parts.later.sensors) s = fit.T_fixed_moving * s;
+  MoveLater(stretch, o, fit.T_fixed_moving, &parts);
   out->compared = true;
-  out->registration_rms_m = fit.rms_m;
   out->T_reference_later = fit.T_fixed_moving;
   const std::vector<StretchChange> found =
       CompareStretch(parts.reference, parts.later, o.change, &out->summary);
@@ -605,25 +638,28 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
       std::isnan(drop)
           ? drop
           : RailResidual(stretch, parts.reference.points, parts.later.points, parts.rail_drop_m);
-  // M3C2's LoD95 with each map's voxel quantisation (sigma = voxel / sqrt 12) and the
-  // registration's residual, never below the comparison's own threshold.
-  const double quantisation = o.change.voxel_m / std::sqrt(12.0);
-  parts.lod_m =
-      std::max(o.change.level_of_detection_m,
-               1.96 * std::sqrt(2.0 * quantisation * quantisation + fit.rms_m * fit.rms_m));
+  parts.lod_m = LevelOfDetection(o.change, fit.rms_m);
   const StructureGauge gauge(o.clearance);
-  const double line_start = line_.chainage_offset_m, line_end = line_start + line_.length_m;
-  const bool first = range.from_m <= line_start + 1e-6, last = range.to_m >= line_end - 1e-6;
   std::vector<RunChange> placed;
   for (const StretchChange& c : found)
     placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
   MarkVegetation(stretch, parts, o, found, &placed);
   PairMoved(o, &placed);
+  KeepOwn(range, std::move(placed), out);
+  out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return {};
+}
+
+void RunComparison::KeepOwn(const StretchRange& range,
+                            std::vector<RunChange> placed,
+                            StretchOutcome* out) const {
+  const double line_start = line_.chainage_offset_m, line_end = line_start + line_.length_m;
+  const bool first = range.from_m <= line_start + 1e-6, last = range.to_m >= line_end - 1e-6;
   for (RunChange& c : placed) {
     // The later run's points reach a metre beyond the reference's every way: what lies beyond
     // the corridor there has nothing of the reference to compare with; an object centred in
     // the overlap with the next or previous stretch is that stretch's.
-    if (std::abs(c.offset_m) > o.corridor_m || (c.chainage_m < range.from_m && !first) ||
+    if (std::abs(c.offset_m) > options_.corridor_m || (c.chainage_m < range.from_m && !first) ||
         (c.chainage_m >= range.to_m && !last))
       continue;
     // What is gone cannot be in the way: only what is there now intrudes.
@@ -631,8 +667,6 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
     c.stretch = range.index;
     out->changes.push_back(std::move(c));
   }
-  out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return {};
 }
 
 Result CompareRuns(const MapStore& store,

@@ -144,6 +144,9 @@ class RunComparison {
 
  private:
   RunComparison(const MapStore& store, const RunComparisonOptions& options);
+  /// The changes of `placed` that are this stretch's: in the corridor, centred in the stretch
+  /// (an object centred in the overlap is the neighbour's).
+  void KeepOwn(const StretchRange& range, std::vector<RunChange> placed, StretchOutcome* out) const;
 
   const MapStore& store_;
   RunComparisonOptions options_;

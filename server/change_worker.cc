@@ -122,6 +122,43 @@ void ChangeWorker::Pass() {
   }
 }
 
+bool ChangeWorker::Ready(const mapstore::RunInfo& run,
+                         const mapstore::RunComparison& comparison,
+                         const std::set<int>& stored,
+                         std::vector<mapstore::StretchRange>* ready) const {
+  // A live run's stretch waits for the train to be past it and for its map (the stored
+  // submaps, which trail the poses) to hold all its LiDARs saw of it.
+  const bool finished = run.status == "finished";
+  int64_t mapped_ns = 0;
+  if (!finished && !changes_->MappedUntil(run.id, &mapped_ns)) return false;
+  const double infinity = std::numeric_limits<double>::infinity();
+  const double train = finished ? infinity : comparison.later_reach_m();
+  const double mapped = finished ? infinity : comparison.ReachUntil(mapped_ns);
+  ready->clear();
+  for (const mapstore::StretchRange& range : comparison.stretches()) {
+    if (stored.count(range.index)) continue;
+    if (train < range.to_m + options_.past_m || mapped < range.to_m + options_.mapped_past_m) break;
+    ready->push_back(range);
+  }
+  return true;
+}
+
+void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
+                                     const std::vector<mapstore::StretchRange>& batch,
+                                     std::vector<mapstore::StretchOutcome>* outcomes,
+                                     std::vector<Result>* results) {
+  outcomes->assign(batch.size(), mapstore::StretchOutcome());
+  results->assign(batch.size(), Result());
+  std::vector<std::thread> workers;
+  for (size_t i = 1; i < batch.size(); ++i)
+    workers.emplace_back([&, i] {
+      LowerPriority();
+      (*results)[i] = comparison.Compare(batch[i], &(*outcomes)[i]);
+    });
+  (*results)[0] = comparison.Compare(batch[0], &(*outcomes)[0]);
+  for (std::thread& t : workers) t.join();
+}
+
 void ChangeWorker::LowerPriority() {
   // Ingest and the API come first: comparing waits for the CPU they leave.
   setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
@@ -160,37 +197,19 @@ void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& s
   std::set<int> stored;
   if (!changes_->StoredStretches(run.id, &stored)) return;
   const bool finished = run.status == "finished";
-  // A live run's stretch waits for the train to be past it and for its map (the stored
-  // submaps, which trail the poses) to hold all its LiDARs saw of it.
-  int64_t mapped_ns = 0;
-  if (!finished && !changes_->MappedUntil(run.id, &mapped_ns)) return;
-  const double infinity = std::numeric_limits<double>::infinity();
-  const double train = finished ? infinity : comparison->later_reach_m();
-  const double mapped = finished ? infinity : comparison->ReachUntil(mapped_ns);
   std::vector<mapstore::StretchRange> ready;
-  for (const mapstore::StretchRange& range : comparison->stretches()) {
-    if (stored.count(range.index)) continue;
-    if (train < range.to_m + options_.past_m || mapped < range.to_m + options_.mapped_past_m) break;
-    ready.push_back(range);
-  }
+  if (!Ready(run, *comparison, stored, &ready)) return;
   if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
   const size_t threads = static_cast<size_t>(std::max(1, options_.threads));
   for (size_t first = 0; first < ready.size() && !stopping(); first += threads) {
-    // A few stretches side by side, then stored and announced in order.
-    const size_t n = std::min(threads, ready.size() - first);
-    std::vector<mapstore::StretchOutcome> outcomes(n);
-    std::vector<Result> results(n);
-    std::vector<std::thread> workers;
-    for (size_t i = 1; i < n; ++i)
-      workers.emplace_back([&, i] {
-        LowerPriority();
-        results[i] = comparison->Compare(ready[first + i], &outcomes[i]);
-      });
-    results[0] = comparison->Compare(ready[first], &outcomes[0]);
-    for (std::thread& t : workers) t.join();
-    for (size_t i = 0; i < n; ++i) {
+    const std::vector<mapstore::StretchRange> batch(
+        ready.begin() + first, ready.begin() + std::min(ready.size(), first + threads));
+    std::vector<mapstore::StretchOutcome> outcomes;
+    std::vector<Result> results;
+    CompareSideBySide(*comparison, batch, &outcomes, &results);
+    for (size_t i = 0; i < batch.size(); ++i) {
       if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return;
-      stored.insert(ready[first + i].index);
+      stored.insert(batch[i].index);
     }
   }
   if (finished && stored.size() >= comparison->stretches().size()) {

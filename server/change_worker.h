@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <functional>
 #include <mutex>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -73,6 +74,17 @@ class ChangeWorker {
   /// Compares the stretches of `state.run_id` that are ready; marks it done when the run
   /// finished and every stretch is stored.
   void Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state);
+  /// The run's stretches not stored yet that can be compared now, in order; false if the
+  /// store could not say.
+  bool Ready(const mapstore::RunInfo& run,
+             const mapstore::RunComparison& comparison,
+             const std::set<int>& stored,
+             std::vector<mapstore::StretchRange>* ready) const;
+  /// Compares a batch of stretches on a thread each (the first on this one).
+  static void CompareSideBySide(const mapstore::RunComparison& comparison,
+                                const std::vector<mapstore::StretchRange>& batch,
+                                std::vector<mapstore::StretchOutcome>* outcomes,
+                                std::vector<mapstore::Result>* results);
   /// Stores a compared stretch and announces its changes; false (logged) on an error.
   bool Store(int64_t run,
              int64_t reference,

@@ -111,6 +111,64 @@ Result Compare(const MapStore& store,
   return r;
 }
 
+/// The summary line and a row per change.
+void PrintTable(int64_t run,
+                int64_t reference,
+                const std::string& line,
+                const RunComparisonSummary& summary,
+                const std::vector<RunChange>& changes) {
+  std::printf(
+      "run %lld against run %lld (line '%s'): %.2f km in %zu stretches, registration "
+      "RMS %.3f m (rails %.3f m); %zu objects differed, %zu not observed by the other run\n",
+      static_cast<long long>(run),
+      static_cast<long long>(reference),
+      line.c_str(),
+      summary.km,
+      summary.stretches_compared,
+      summary.registration_rms_m,
+      summary.rail_rms_m,
+      summary.objects,
+      summary.not_observed);
+  std::printf("%-10s %10s %7s %6s %18s %9s %9s %5s\n",
+              "kind",
+              "km",
+              "offset",
+              "side",
+              "size m (a x c x h)",
+              "margin",
+              "intrudes",
+              "conf");
+  for (const RunChange& c : changes)
+    std::printf("%-10s %10.3f %7.2f %6s %6.1f %5.1f %5.1f %9.2f %9s %5.2f\n",
+                ToString(c.kind),
+                c.chainage_m / 1000.0,
+                c.offset_m,
+                c.offset_m >= 0.0 ? "left" : "right",
+                c.size_m.x(),
+                c.size_m.y(),
+                c.size_m.z(),
+                c.margin_m,
+                c.intrudes_envelope ? "yes" : "no",
+                c.confidence);
+}
+
+void WriteJson(const std::string& path,
+               int64_t run,
+               int64_t reference,
+               const RunComparisonSummary& summary,
+               const std::vector<RunChange>& changes) {
+  nlohmann::json out = {{"run", run},
+                        {"reference_run", reference},
+                        {"km", summary.km},
+                        {"registration_rms_m", summary.registration_rms_m},
+                        {"rail_residual_m",
+                         std::isnan(summary.rail_rms_m) ? nlohmann::json(nullptr)
+                                                        : nlohmann::json(summary.rail_rms_m)},
+                        {"changes", nlohmann::json::array()}};
+  for (const RunChange& c : changes) out["changes"].push_back(ChangeJson(c));
+  std::ofstream(path) << out.dump(1) << "\n";
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -178,50 +236,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "raillomer-changes: %s\n", r.message.c_str());
     return 2;
   }
-  std::printf(
-      "run %lld against run %lld (line '%s'): %.2f km in %zu stretches, registration "
-      "RMS %.3f m (rails %.3f m); %zu objects differed, %zu not observed by the other run\n",
-      static_cast<long long>(run),
-      static_cast<long long>(reference),
-      info.line.c_str(),
-      summary.km,
-      summary.stretches_compared,
-      summary.registration_rms_m,
-      summary.rail_rms_m,
-      summary.objects,
-      summary.not_observed);
-  std::printf("%-8s %10s %7s %6s %18s %9s %9s %5s\n",
-              "kind",
-              "km",
-              "offset",
-              "side",
-              "size m (a x c x h)",
-              "margin",
-              "intrudes",
-              "conf");
-  for (const RunChange& c : changes)
-    std::printf("%-8s %10.3f %7.2f %6s %6.1f %5.1f %5.1f %9.2f %9s %5.2f\n",
-                ToString(c.kind),
-                c.chainage_m / 1000.0,
-                c.offset_m,
-                c.offset_m >= 0.0 ? "left" : "right",
-                c.size_m.x(),
-                c.size_m.y(),
-                c.size_m.z(),
-                c.margin_m,
-                c.intrudes_envelope ? "yes" : "no",
-                c.confidence);
-  if (!json_path.empty()) {
-    nlohmann::json out = {{"run", run},
-                          {"reference_run", reference},
-                          {"km", summary.km},
-                          {"registration_rms_m", summary.registration_rms_m},
-                          {"rail_residual_m",
-                           std::isnan(summary.rail_rms_m) ? nlohmann::json(nullptr)
-                                                          : nlohmann::json(summary.rail_rms_m)},
-                          {"changes", nlohmann::json::array()}};
-    for (const RunChange& c : changes) out["changes"].push_back(ChangeJson(c));
-    std::ofstream(json_path) << out.dump(1) << "\n";
-  }
+  PrintTable(run, reference, info.line, summary, changes);
+  if (!json_path.empty()) WriteJson(json_path, run, reference, summary, changes);
   return 0;
 }

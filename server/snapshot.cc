@@ -140,60 +140,51 @@ Result Load(const mapstore::MapStore& store,
   return {};
 }
 
-}  // namespace
+/// What a snapshot shows, in the track frame at the change: both runs' points, where the
+/// change is, and how far the panels reach.
+struct Scene {
+  TrackFrame track;
+  std::vector<Eigen::Vector3d> before, after;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  double half_along = 0.0, lateral_min = 0.0, lateral_max = 0.0, top = 0.0;
+};
 
-Result RenderSnapshot(const mapstore::MapStore& store,
-                      const mapstore::ChangeStore& changes,
-                      const mapstore::StoredChange& s,
-                      const mapstore::ClearanceOptions& clearance,
-                      std::string* png) {
+/// Both runs' points around the change (the later where the comparison registered it), and
+/// the track frame there.
+Result LoadScene(const mapstore::MapStore& store,
+                 const mapstore::ChangeStore& changes,
+                 const mapstore::StoredChange& s,
+                 Scene* scene) {
   const mapstore::RunChange& c = s.change;
   mapstore::StretchFrame frame;
   Result r = changes.Frame(s.run_id, c.stretch, &frame);
   if (!r) return r;
-  const double half_along = std::max(6.0, 0.5 * c.size_m.x() + 4.0);
-  const double lateral_min = std::min(-3.5, c.offset_m - 0.5 * c.size_m.y() - 2.0);
-  const double lateral_max = std::max(3.5, c.offset_m + 0.5 * c.size_m.y() + 2.0);
-  const double reach = std::max(half_along, std::max(-lateral_min, lateral_max)) + 2.0;
+  scene->half_along = std::max(6.0, 0.5 * c.size_m.x() + 4.0);
+  scene->lateral_min = std::min(-3.5, c.offset_m - 0.5 * c.size_m.y() - 2.0);
+  scene->lateral_max = std::max(3.5, c.offset_m + 0.5 * c.size_m.y() + 2.0);
+  scene->top = std::max(8.0, c.height_above_rail_max_m + 1.5);
+  const double reach =
+      std::max(scene->half_along, std::max(-scene->lateral_min, scene->lateral_max)) + 2.0;
   const Eigen::AlignedBox2d box(c.centre_utm.head<2>().array() - reach,
                                 c.centre_utm.head<2>().array() + reach);
   std::vector<mapstore::ExportPoint> before, after;
   r = Load(store, s.reference_run, box, nullptr, &before);
   if (r) r = Load(store, s.run_id, box, &frame, &after);
+  if (r) r = FrameAt(store, s, before, &scene->track);
   if (!r) return r;
-  TrackFrame track;
-  r = FrameAt(store, s, before, &track);
-  if (!r) return r;
-  const auto in_track = [&](const std::vector<mapstore::ExportPoint>& points) {
-    std::vector<Eigen::Vector3d> out;
-    out.reserve(points.size());
-    for (const mapstore::ExportPoint& p : points) out.push_back(track.Of(p.p));
-    return out;
-  };
-  const std::vector<Eigen::Vector3d> ref = in_track(before), later = in_track(after);
-  const Eigen::Vector3d centre = track.Of(c.centre_utm);
-  const double top = std::max(8.0, c.height_above_rail_max_m + 1.5);
+  for (const mapstore::ExportPoint& p : before) scene->before.push_back(scene->track.Of(p.p));
+  for (const mapstore::ExportPoint& p : after) scene->after.push_back(scene->track.Of(p.p));
+  scene->centre = scene->track.Of(c.centre_utm);
+  return {};
+}
 
-  Canvas canvas(2 * kPanel + 30, kHeader + kPanel + kFooter, kWhite);
-  // Plan: along to the right, left side up; everything below the gauge's top.
-  const Window plan =
-      Fit(10, centre.x() - half_along, centre.x() + half_along, lateral_min, lateral_max, false);
-  // Section: seen along increasing chainage, so the track's left is on the picture's left.
-  const Window section = Fit(kPanel + 20, lateral_min, lateral_max, -1.5, top, true);
-  Grid(canvas, plan);
-  Grid(canvas, section);
-  const double half_slab = 0.5 * c.size_m.x() + 0.3;
-  const Eigen::AlignedBox3d plan_keep(Eigen::Vector3d(-1e9, -1e9, -1.0),
-                                      Eigen::Vector3d(1e9, 1e9, 1e9));
-  const Eigen::AlignedBox3d slab(Eigen::Vector3d(centre.x() - half_slab, -1e9, -1e9),
-                                 Eigen::Vector3d(centre.x() + half_slab, 1e9, 1e9));
-  Points(canvas, plan, ref, 0, 1, plan_keep, kBefore);
-  Points(canvas, plan, later, 0, 1, plan_keep, kAfter);
-  Points(canvas, section, ref, 1, 2, slab, kBefore);
-  Points(canvas, section, later, 1, 2, slab, kAfter);
-  // The structure gauge: its outline in the section, its widest lateral reach in the plan.
-  const mapstore::StructureGauge gauge(clearance);
-  const std::vector<Eigen::Vector2d> outline = gauge.Outline(track.section);
+/// The structure gauge: its outline in the section, its widest lateral reach in the plan; and
+/// the track centre, dashed.
+void DrawGauge(Canvas& canvas,
+               const Window& plan,
+               const Window& section,
+               const std::vector<Eigen::Vector2d>& outline,
+               double top) {
   double gauge_left = 0.0, gauge_right = 0.0;
   for (size_t i = 0; i < outline.size(); ++i) {
     const Eigen::Vector2d& a = outline[i];
@@ -206,7 +197,14 @@ Result RenderSnapshot(const mapstore::MapStore& store,
     canvas.Line(plan.left, plan.Y(lateral), plan.left + kPanel, plan.Y(lateral), kGauge);
   canvas.Line(plan.left, plan.Y(0.0), plan.left + kPanel, plan.Y(0.0), kInk, 4);
   canvas.Line(section.X(0.0), section.Y(-1.5), section.X(0.0), section.Y(top), kInk, 4);
-  // The change: its extent along, across and up, around its centre.
+}
+
+/// The change's extent along, across and up, around its centre, in both panels.
+void DrawChange(Canvas& canvas,
+                const Window& plan,
+                const Window& section,
+                const mapstore::RunChange& c,
+                const Eigen::Vector3d& centre) {
   const double ax = 0.5 * c.size_m.x(), ay = 0.5 * c.size_m.y();
   canvas.Rect(plan.X(centre.x() - ax),
               plan.Y(c.offset_m + ay),
@@ -218,9 +216,11 @@ Result RenderSnapshot(const mapstore::MapStore& store,
               section.X(c.offset_m - ay),
               section.Y(c.height_above_rail_min_m),
               kChange);
-  for (const Window* w : {&plan, &section})
-    canvas.Rect(w->left, w->top, w->left + kPanel, w->top + kPanel, kInk);
-  // Words: what, where, and the legend.
+}
+
+/// What and where (the title), the panels' names and the legend.
+void DrawWords(Canvas& canvas, const Window& section, const mapstore::StoredChange& s) {
+  const mapstore::RunChange& c = s.change;
   const std::string title =
       std::string(mapstore::ToString(c.kind)) + " #" + std::to_string(s.id) +
       Format("  KM %.3f  %.1f M ", c.chainage_m / 1000.0, std::abs(c.offset_m)) +
@@ -241,6 +241,51 @@ Result RenderSnapshot(const mapstore::MapStore& store,
       y,
       Format("GRID 1 M   SIZE %.1f X %.1f X %.1f M", c.size_m.x(), c.size_m.y(), c.size_m.z()),
       kInk);
+}
+
+}  // namespace
+
+Result RenderSnapshot(const mapstore::MapStore& store,
+                      const mapstore::ChangeStore& changes,
+                      const mapstore::StoredChange& s,
+                      const mapstore::ClearanceOptions& clearance,
+                      std::string* png) {
+  Scene scene;
+  const Result r = LoadScene(store, changes, s, &scene);
+  if (!r) return r;
+  const Eigen::Vector3d& centre = scene.centre;
+  Canvas canvas(2 * kPanel + 30, kHeader + kPanel + kFooter, kWhite);
+  // Plan: along to the right, left side up, everything above a metre below the rails.
+  const Window plan = Fit(10,
+                          centre.x() - scene.half_along,
+                          centre.x() + scene.half_along,
+                          scene.lateral_min,
+                          scene.lateral_max,
+                          false);
+  // Section: seen along increasing chainage, so the track's left is on the picture's left;
+  // the points of a slab as long as the change.
+  const Window section =
+      Fit(kPanel + 20, scene.lateral_min, scene.lateral_max, -1.5, scene.top, true);
+  Grid(canvas, plan);
+  Grid(canvas, section);
+  const double half_slab = 0.5 * s.change.size_m.x() + 0.3;
+  const Eigen::AlignedBox3d plan_keep(Eigen::Vector3d(-1e9, -1e9, -1.0),
+                                      Eigen::Vector3d(1e9, 1e9, 1e9));
+  const Eigen::AlignedBox3d slab(Eigen::Vector3d(centre.x() - half_slab, -1e9, -1e9),
+                                 Eigen::Vector3d(centre.x() + half_slab, 1e9, 1e9));
+  Points(canvas, plan, scene.before, 0, 1, plan_keep, kBefore);
+  Points(canvas, plan, scene.after, 0, 1, plan_keep, kAfter);
+  Points(canvas, section, scene.before, 1, 2, slab, kBefore);
+  Points(canvas, section, scene.after, 1, 2, slab, kAfter);
+  DrawGauge(canvas,
+            plan,
+            section,
+            mapstore::StructureGauge(clearance).Outline(scene.track.section),
+            scene.top);
+  DrawChange(canvas, plan, section, s.change, centre);
+  for (const Window* w : {&plan, &section})
+    canvas.Rect(w->left, w->top, w->left + kPanel, w->top + kPanel, kInk);
+  DrawWords(canvas, section, s);
   *png = canvas.Png();
   return {};
 }
