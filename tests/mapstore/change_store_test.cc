@@ -5,7 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "mapstore/change_store.h"
-#include "tests/support/process.h"
+#include "tests/mapstore/store_fixture.h"
 
 namespace raillomer::mapstore {
 namespace {
@@ -35,14 +35,12 @@ StretchOutcome Stretch(int index, std::vector<RunChange> changes) {
   return o;
 }
 
-class ChangeStoreTest : public ::testing::Test {
+class ChangeStoreTest : public StoreTest {
  protected:
   void SetUp() override {
-    StoreOptions options;
-    options.flush_interval_ms = 0;
+    StoreTest::SetUp();
+    if (HasFatalFailure()) return;
     std::string error;
-    store_ = MapStore::Open(dir_.path().string(), options, &error);
-    ASSERT_TRUE(store_) << error;
     for (int i = 0; i < 3; ++i) {
       RunInfo run;
       ASSERT_TRUE(store_->CreateRun({"Line", "RLM-1", 1'600'000'000'000'000'000 + i}, &run));
@@ -51,8 +49,6 @@ class ChangeStoreTest : public ::testing::Test {
     ASSERT_TRUE(changes_) << error;
   }
 
-  test::ScratchDir dir_{"raillomer_change_store_"};
-  std::unique_ptr<MapStore> store_;
   std::unique_ptr<ChangeStore> changes_;
   const Eigen::Vector3d at_{500010.0, 4000002.0, 11.0};
 };

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "mapstore/run_comparison.h"
+#include "tests/mapstore/store_fixture.h"
 #include "tests/support/corridor_submap.h"
 #include "tests/support/process.h"
 
@@ -56,20 +57,7 @@ std::vector<Eigen::Vector3f> Box(int x0, int y0) {
   return box;
 }
 
-/// A store in a scratch folder, written only when asked (Flush, FinishRun).
-class RunComparisonTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    StoreOptions options;
-    options.flush_interval_ms = 0;
-    std::string error;
-    store_ = MapStore::Open(dir_.path().string(), options, &error);
-    ASSERT_TRUE(store_) << error;
-  }
-
-  test::ScratchDir dir_{"raillomer_compare_"};
-  std::unique_ptr<MapStore> store_;
-};
+using RunComparisonTest = StoreTest;
 
 TEST_F(RunComparisonTest, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
   MapStore* store = store_.get();
