@@ -6,6 +6,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "api/clock.h"
 #include "mapstore/sqlite.h"
 
 namespace raillomer::mapstore {
@@ -18,11 +19,7 @@ Result DbError(const std::string& what, const std::string& message) {
   return Fail(Outcome::kError, what + ": " + message);
 }
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
+using api::NowNs;
 
 json Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 Eigen::Vector3d VecOf(const json& j) {

@@ -13,6 +13,7 @@
 #include <unordered_map>
 
 #include "api/atomic_file.h"
+#include "api/clock.h"
 #include "api/trajectory.h"
 #include "mapstore/schema.h"
 #include "mapstore/sqlite.h"
@@ -21,11 +22,7 @@
 namespace raillomer::mapstore {
 namespace {
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
+using api::NowNs;
 
 std::string Hex64(uint64_t v) {
   char text[17];

@@ -13,6 +13,8 @@
 #include <boost/beast/websocket.hpp>
 #include <nlohmann/json.hpp>
 
+#include "api/clock.h"
+
 namespace raillomer::server {
 namespace {
 
@@ -22,11 +24,7 @@ namespace websocket = beast::websocket;
 namespace net = boost::asio;
 using tcp = net::ip::tcp;
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
+using api::NowNs;
 
 /// One message for every subscriber of a run (run 0: for everyone).
 struct Message {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "api/clock.h"
 #include "api/trajectory.h"
 #include "mapstore/schema.h"
 #include "server/api_json.h"
@@ -36,11 +37,7 @@ bool BoxParam(const HttpRequest& req, HttpResponse& res, Eigen::AlignedBox2d* bo
   return true;
 }
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
+using api::NowNs;
 
 /// Answers a GET of one stored record by the path's id: `get(id, &record)`, sent as JSON by
 /// `to_json`, or the store's error.

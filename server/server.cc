@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <mutex>
 
+#include "api/clock.h"
 #include "server/change_json.h"
 #include "server/http_front.h"
 #include "server/live_hub.h"
@@ -107,14 +108,8 @@ class Server::Impl {
                                         {"changes", features},
                                         {"closed", closing},
                                         {"detection", DetectionJson(state, "")},
-                                        {"sent_ns", NowNs()}}
+                                        {"sent_ns", api::NowNs()}}
                              .dump());
-  }
-
-  static int64_t NowNs() {
-    return std::chrono::duration_cast<std::chrono::nanoseconds>(
-               std::chrono::system_clock::now().time_since_epoch())
-        .count();
   }
 
   void Stop() {
