@@ -24,7 +24,14 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev python3 python3-rosbag python3-yaml
   # the slow tier's fuzz target (libFuzzer with clang)
   clang
+  # the browser viewer's tests: Debian's chromium, driven by Playwright
+  chromium
 )
+# Node.js and npm build the viewer; a machine that has them (from NodeSource, say, whose nodejs
+# carries npm and conflicts with Debian's npm package) keeps its own.
+if ! command -v npm >/dev/null 2>&1; then
+  packages+=(nodejs npm)
+fi
 
 if [ "$(id -u)" -ne 0 ]; then
   echo "install-deps.sh: must run as root (apt-get install)" >&2

@@ -7,5 +7,6 @@ bash deploy/install-deps.sh
 build="${BUILD_DIR:-build}"
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release
 cmake --build "$build" -j2
+bash deploy/build-web.sh --tests
 cd "$build"
 ctest -LE slow -j2 --output-on-failure

@@ -119,6 +119,10 @@ class Api {
 
   void Info(const HttpRequest&, HttpResponse& res) {
     const mapstore::TileGrid& g = store_.options().grid;
+    const mapstore::ClearanceOptions& k = c_.config->changes.comparison.clearance;
+    json outline = json::array();
+    for (const Eigen::Vector2d& corner : k.gauge_outline)
+      outline.push_back({corner.x(), corner.y()});
     SendJson(res,
              {{"name", "raillomer-server"},
               {"api", "v1"},
@@ -129,7 +133,14 @@ class Api {
                {{"tile_m", g.tile_m},
                 {"voxel_m", g.voxel_m},
                 {"levels", g.levels},
-                {"max_error_m", g.Quantization(0).MaxErrorM()}}}});
+                {"max_error_m", g.Quantization(0).MaxErrorM()}}},
+              // What the viewer draws in its cross-sections: the gauge the changes are checked
+              // against (lateral m, left positive; height above the rail plane m).
+              {"clearance",
+               {{"gauge_outline", outline},
+                {"widen_below_radius_m", k.widen_below_radius_m},
+                {"vegetation_zone_m", k.vegetation_zone_m},
+                {"vegetation_allowance_m", k.vegetation_allowance_m}}}});
   }
 
   void CreateRun(const HttpRequest& req, HttpResponse& res) {

@@ -170,7 +170,10 @@ std::vector<std::pair<std::string, std::string>> DescribeConfig(const ServerConf
       {"ws_threads", s(c.ws_threads)},
       {"ws_max_clients", s(c.ws_max_clients)},
       {"ws_queue_messages", s(c.ws_queue_messages)},
-      {"web_root", c.web_root.empty() ? "(none)" : c.web_root},
+      {"web_root",
+       c.web_root.empty()
+           ? "(none: build the viewer, npm --prefix web ci && npm --prefix web run build)"
+           : c.web_root},
       {"store.tile_m", s(o.grid.tile_m)},
       {"store.voxel_m", s(o.grid.voxel_m)},
       {"store.levels", s(o.grid.levels)},

@@ -5,7 +5,10 @@
 #include <sys/stat.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <string>
+#include <system_error>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
@@ -41,6 +44,21 @@ void PrintRecovery(const raillomer::mapstore::RecoveryReport& report) {
         ListSubmaps(report.lost).c_str());
 }
 
+/// The viewer's files when neither flag nor config names them: the installed build
+/// (<prefix>/share/raillomer/web beside <prefix>/bin), else the source tree's build (web/dist),
+/// whichever holds an index.html; empty when neither does.
+std::string DefaultWebRoot() {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  std::vector<fs::path> candidates;
+  if (!ec) candidates.push_back(exe.parent_path().parent_path() / "share" / "raillomer" / "web");
+  candidates.emplace_back(RAILLOMER_SOURCE_WEB_DIST);
+  for (const fs::path& dir : candidates)
+    if (fs::is_regular_file(dir / "index.html", ec)) return dir.string();
+  return "";
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -57,7 +75,10 @@ int main(int argc, char** argv) {
   app.add_option("--port", port, "HTTP port (default 8470; 0 lets the OS pick)");
   app.add_option("--ws-port", ws_port, "live WebSocket port (default: port + 1)");
   app.add_option("--host", host, "address to listen on (default 127.0.0.1)");
-  app.add_option("--web-root", web_root, "the viewer's static files, served at /");
+  app.add_option("--web-root",
+                 web_root,
+                 "the viewer's static files, served at / (default: the installed viewer, or "
+                 "web/dist of the source tree once built)");
   app.add_option("--config", config_path, "YAML config; flags override it");
   CLI11_PARSE(app, argc, argv);
 
@@ -72,6 +93,7 @@ int main(int argc, char** argv) {
   if (ws_port >= 0) config.ws_port = ws_port;
   if (!host.empty()) config.host = host;
   if (!web_root.empty()) config.web_root = web_root;
+  if (config.web_root.empty()) config.web_root = DefaultWebRoot();
   if (!config.IsValid(&error)) {
     std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
     return 2;

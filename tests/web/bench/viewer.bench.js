@@ -1,0 +1,73 @@
+// The viewer's figures (issue 49) on a streamed 3 km run, server on loopback, headless Debian
+// chromium with software WebGL (SwiftShader): first points after navigation, live tiles'
+// delay from the server writing them to the screen (p95), the page's JavaScript gzipped, and
+// console errors. Prints the figures as JSON and checks them against the targets.
+import fs from 'node:fs';
+import path from 'node:path';
+import zlib from 'node:zlib';
+import { test, expect } from '@playwright/test';
+import { getJson, repo, startServer, streamRun, waitFor, webRoot } from '../fixture.js';
+import { viewerState, watchErrors } from '../helpers.js';
+
+const SCENARIO = process.env.BENCH_SCENARIO || 'rich_high_town_a';
+const percentile = (v, q) => [...v].sort((a, b) => a - b)[Math.min(v.length - 1, Math.floor(q * v.length))];
+
+function javascriptGzipBytes() {
+  const assets = path.join(webRoot, 'assets');
+  return fs
+    .readdirSync(assets)
+    .filter((f) => f.endsWith('.js'))
+    .reduce((n, f) => n + zlib.gzipSync(fs.readFileSync(path.join(assets, f)), { level: 9 }).length, 0);
+}
+
+test('viewer figures on a streamed 3 km run', async ({ page, browser }) => {
+  test.setTimeout(1_800_000);
+  const server = await startServer();
+  const errors = watchErrors(page);
+  try {
+    const stream = streamRun(server, SCENARIO, 'Bench line');
+    const run = await waitFor('the run to be created', async () => (await getJson(server, '/api/v1/runs')).runs[0], 120_000, 100);
+    await page.goto(`${server.base}/?run=${run.id}`);
+    await stream.done;
+    await page.waitForTimeout(3000);
+    const live = (await viewerState(page)).liveLatencyMs;
+    await page.close();
+
+    // A fresh page on the finished run: the time from navigation to the first points drawn.
+    const fresh = await browser.newPage();
+    const freshErrors = watchErrors(fresh);
+    const firstPoints = [];
+    for (let i = 0; i < 3; i++) {
+      const t0 = Date.now();
+      await fresh.goto(`${server.base}/?run=${run.id}`);
+      await expect.poll(async () => (await viewerState(fresh))?.points ?? 0, { timeout: 60_000, intervals: [20] }).toBeGreaterThan(0);
+      // The frame after the tile went in has been rendered once frames counts past it.
+      const frames = (await viewerState(fresh)).frames;
+      await expect.poll(async () => (await viewerState(fresh)).frames, { intervals: [20] }).toBeGreaterThan(frames);
+      firstPoints.push(Date.now() - t0);
+    }
+    const result = {
+      scenario: SCENARIO,
+      km: (await getJson(server, '/api/v1/lines')).lines[0]?.length_m / 1000,
+      rendering: 'headless chromium, SwiftShader (software WebGL), 2 cores shared with server and estimator',
+      first_points_ms: firstPoints,
+      first_points_ms_median: percentile(firstPoints, 0.5),
+      live_tiles_drawn: live.length,
+      live_tile_ms_p50: live.length ? Math.round(percentile(live, 0.5)) : null,
+      live_tile_ms_p95: live.length ? Math.round(percentile(live, 0.95)) : null,
+      javascript_gzip_kb: Math.round(javascriptGzipBytes() / 1024),
+      console_errors: errors.errors.length + freshErrors.errors.length,
+    };
+    console.log(`VIEWER_BENCH ${JSON.stringify(result)}`);
+    fs.mkdirSync(path.join(repo, 'tests/web/results'), { recursive: true });
+    fs.writeFileSync(path.join(repo, 'tests/web/results/bench.json'), JSON.stringify(result, null, 2));
+    expect(result.first_points_ms_median).toBeLessThanOrEqual(1500);
+    expect(result.live_tiles_drawn).toBeGreaterThan(0);
+    expect(result.live_tile_ms_p95).toBeLessThanOrEqual(3000);
+    expect(result.javascript_gzip_kb).toBeLessThanOrEqual(400);
+    errors.check();
+    freshErrors.check();
+  } finally {
+    server.stop();
+  }
+});

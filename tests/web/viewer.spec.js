@@ -1,0 +1,139 @@
+// The viewer in Debian's chromium against a real server holding two streamed runs of the demo
+// line: points drawn, km navigation, the cross-section's gauge, the changes, POIs, errors.
+import { test, expect } from '@playwright/test';
+import { getJson } from './fixture.js';
+import { BACKGROUND, countColor, fixture, shot, viewerState, waitForPoints, watchErrors } from './helpers.js';
+
+let errors;
+test.beforeEach(({ page }) => {
+  errors = watchErrors(page);
+});
+test.afterEach(() => errors.check());
+
+test('the bare address opens the most recent run and draws its points', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/`);
+  await waitForPoints(page, 10_000);
+  const runs = (await getJson(f, '/api/v1/runs')).runs;
+  const live = runs.filter((r) => r.status === 'live');
+  const newest = (live.length ? live : runs).reduce((a, b) => (b.start_ns > a.start_ns ? b : a));
+  const state = await viewerState(page);
+  expect(state.run).toBe(newest.id);
+  await expect.poll(() => page.url()).toContain(`run=${newest.id}`);
+  const png = await shot(page, 'map', page.locator('#viewport > canvas'));
+  const drawn = countColor(png, BACKGROUND, 6).other;
+  expect(drawn / (png.width * png.height)).toBeGreaterThan(0.02);
+});
+
+test('a kilometre typed as K0+200 moves the camera there', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.reference}`);
+  await waitForPoints(page);
+  const before = (await viewerState(page)).target;
+  await page.fill('#km-input', 'K0+200');
+  await page.press('#km-input', 'Enter');
+  const tum = await (await fetch(`${f.base}/api/v1/runs/${f.reference}/trajectory?format=tum`)).text();
+  const geo = await getJson(f, `/api/v1/runs/${f.reference}/trajectory?format=geojson`);
+  const poses = tum.split('\n').filter((l) => l && !l.startsWith('#')).map((l) => l.split(' ').map(Number));
+  const chainage = geo.features?.[0]?.properties.chainage_m ?? geo.properties.chainage_m;
+  let best = 0;
+  chainage.forEach((c, i) => {
+    if (c !== null && Math.abs(c - 200) < Math.abs(chainage[best] - 200)) best = i;
+  });
+  const expected = poses[best].slice(1, 4);
+  const after = (await viewerState(page)).target;
+  expect(Math.hypot(after[0] - expected[0], after[1] - expected[1])).toBeLessThan(2);
+  expect(Math.hypot(after[0] - before[0], after[1] - before[1])).toBeGreaterThan(20);
+  await expect.poll(() => page.url()).toMatch(/km=0\.(19|20)\d/);
+  await waitForPoints(page);
+  await shot(page, 'km-jump');
+  // A link with that URL opens the same view.
+  const link = page.url();
+  const other = await page.context().newPage();
+  await other.goto(link);
+  await expect.poll(async () => (await viewerState(other))?.target ?? [0, 0]).not.toEqual([0, 0]);
+  const reopened = (await viewerState(other)).target;
+  expect(Math.hypot(reopened[0] - after[0], reopened[1] - after[1])).toBeLessThan(0.5);
+});
+
+test('a cross-section shows the points under the structure gauge', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.reference}`);
+  await waitForPoints(page);
+  await page.click('button[data-tab="tools"]');
+  await page.fill('#section-km', '0.15');
+  await page.fill('#section-thickness', '1');
+  await page.click('#section-btn');
+  await expect(page.locator('#section-panel')).toBeVisible();
+  await expect.poll(() => page.evaluate(() => window.raillomer.tools.section?.points ?? 0)).toBeGreaterThan(200);
+  const section = await page.evaluate(() => window.raillomer.tools.section);
+  // Both rails lie on the rail plane the section found, the nearest point's margin is measured
+  // (the platform edge at K0+150 stands inside the default four-corner gauge).
+  expect(section.rails[0]).toBeGreaterThanOrEqual(4);
+  expect(section.rails[1]).toBeGreaterThanOrEqual(4);
+  expect(Number.isFinite(section.margin)).toBe(true);
+  await expect(page.locator('#section-panel')).toBeVisible();
+  const png = await shot(page, 'section', page.locator('#section-canvas'));
+  expect(countColor(png, [255, 77, 79], 30).near).toBeGreaterThan(300); // the gauge's outline
+  expect(countColor(png, [255, 138, 61], 30).near).toBeGreaterThan(100); // the points
+});
+
+test('the changed run lists its changes; one is opened and its status set', async ({ page }) => {
+  const f = fixture();
+  const api = await getJson(f, `/api/v1/runs/${f.changed}/changes`);
+  expect(api.features.length).toBeGreaterThan(0);
+  await page.goto(`${f.base}/?run=${f.changed}`);
+  const items = page.locator('#changes-list li');
+  await expect(items).toHaveCount(api.features.length);
+  const first = api.features[0].properties;
+  await page.click(`#changes-list li[data-change-id="${first.id}"]`);
+  await expect(page.locator('#change-detail')).toBeVisible();
+  await expect(page.locator('#change-title')).toContainText(first.kind);
+  await expect.poll(() => page.evaluate(() => document.getElementById('change-snapshot').naturalWidth)).toBeGreaterThan(100);
+  // Without the token the write is refused and says so.
+  await page.selectOption('#change-status', 'confirmed');
+  await page.click('#change-save');
+  await expect(page.locator('#status')).toContainText('token');
+  await page.fill('#token-input', f.token);
+  await page.click('#change-save');
+  await expect(page.locator('#status')).toContainText('confirmed');
+  const stored = await getJson(f, `/api/v1/changes/${first.id}`);
+  expect(stored.properties.status).toBe('confirmed');
+  await shot(page, 'change');
+  // The report is one click away.
+  const href = await page.locator('#report-link').getAttribute('href');
+  expect((await fetch(f.base + href)).status).toBe(200);
+});
+
+test('a point of interest is added, renamed and deleted through the page', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.reference}`);
+  await waitForPoints(page);
+  await page.fill('#token-input', f.token);
+  await page.click('button[data-tab="pois"]');
+  await page.fill('#poi-kind', 'mast');
+  await page.fill('#poi-name', 'M-17');
+  await page.click('#poi-save');
+  await expect(page.locator('#poi-list li')).toHaveCount(1);
+  let pois = (await getJson(f, '/api/v1/pois?line=Demo')).pois;
+  expect(pois.map((p) => p.name)).toEqual(['M-17']);
+  await page.click('#poi-list li .poi-edit');
+  await page.fill('#poi-name', 'M-18');
+  await page.click('#poi-save');
+  await expect(page.locator('#poi-list li')).toContainText('M-18');
+  pois = (await getJson(f, '/api/v1/pois?line=Demo')).pois;
+  expect(pois.map((p) => p.name)).toEqual(['M-18']);
+  await page.click('#poi-list li .poi-delete');
+  await expect(page.locator('#poi-list li')).toHaveCount(0);
+  expect((await getJson(f, '/api/v1/pois?line=Demo')).pois).toEqual([]);
+});
+
+test('an unreachable server is said so, not left blank', async ({ page }) => {
+  const f = fixture();
+  await page.route('**/api/v1/**', (route) => route.abort('connectionrefused'));
+  errors.errors.length = 0;
+  await page.goto(`${f.base}/`);
+  await expect(page.locator('#message')).toContainText('unreachable');
+  // The browser logs the refused requests itself; those are what this test provokes.
+  errors.errors.splice(0, errors.errors.length, ...errors.errors.filter((e) => !/ERR_CONNECTION_REFUSED|Failed to load resource/.test(e)));
+});

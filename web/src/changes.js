@@ -1,0 +1,172 @@
+// A run's changes: the list (filtered by kind, intrusion and km), boxes in the 3D view, the
+// selected change's properties, snapshot and status, and new ones as the live hub finds them.
+import * as THREE from 'three';
+import { api, send } from './api.js';
+import { formatKm, parseKm } from './track.js';
+import { escapeHtml, fmt } from './util.js';
+
+const $ = (id) => document.getElementById(id);
+const KIND_COLORS = { added: 0xff7b72, removed: 0x58a6ff, moved: 0xd2a8ff, vegetation: 0x3fb950 };
+
+export class ChangesPanel {
+  constructor(app) {
+    this.app = app;
+    this.items = [];
+    this.detection = null;
+    this.selected = null;
+    this.group = new THREE.Group();
+    this.group.name = 'changes';
+    app.view.scene.add(this.group);
+    for (const id of ['change-kind', 'change-intrusions', 'change-from', 'change-to']) {
+      $(id).addEventListener('change', () => this.render());
+    }
+    $('change-save').onclick = () => this.save();
+  }
+
+  async load(run) {
+    this.run = run;
+    this.items = [];
+    this.selected = null;
+    $('change-detail').hidden = true;
+    $('report-link').href = `/api/v1/runs/${run.id}/changes/report`;
+    try {
+      const answer = await api.changes(run.id);
+      this.items = answer.features.map((f) => f.properties);
+      this.detection = answer.detection;
+    } catch (e) {
+      this.app.fail(e);
+    }
+    this.render();
+    if (this.pendingSelect) this.select(this.pendingSelect, true);
+  }
+
+  onLive(message) {
+    for (const f of [...message.changes, ...message.closed]) this.upsert(f.properties);
+    this.detection = message.detection;
+    this.render();
+  }
+
+  upsert(change) {
+    const i = this.items.findIndex((c) => c.id === change.id);
+    if (i >= 0) this.items[i] = change;
+    else this.items.push(change);
+  }
+
+  filtered() {
+    const kind = $('change-kind').value;
+    const intrusions = $('change-intrusions').checked;
+    const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
+    return this.items
+      .filter((c) => !kind || c.kind === kind)
+      .filter((c) => !intrusions || c.intrudes_envelope)
+      .filter((c) => Number.isNaN(from) || c.chainage_m >= from * 1000)
+      .filter((c) => Number.isNaN(to) || c.chainage_m <= to * 1000)
+      .sort((a, b) => b.intrudes_envelope - a.intrudes_envelope || a.chainage_m - b.chainage_m);
+  }
+
+  render() {
+    const d = this.detection;
+    $('detection').textContent = d
+      ? `detection ${d.status}` +
+        (d.reference_run ? ` against run ${d.reference_run}` : '') +
+        (d.km_compared ? `, ${fmt(d.km_compared)} km compared` : '') +
+        (d.reason ? ` (${d.reason})` : '') +
+        ` · ${this.items.length} changes`
+      : '';
+    const list = $('changes-list');
+    list.innerHTML = '';
+    for (const c of this.filtered()) {
+      const li = document.createElement('li');
+      li.dataset.changeId = c.id;
+      li.classList.toggle('intrudes', !!c.intrudes_envelope);
+      li.classList.toggle('selected', this.selected?.id === c.id);
+      li.innerHTML =
+        `<span class="kind ${escapeHtml(c.kind)}">${escapeHtml(c.kind)}</span>` +
+        `${formatKm(c.chainage_m / 1000)} ${escapeHtml(c.side)} ${fmt(Math.abs(c.offset_m), 1)} m` +
+        ` · ${fmt(Math.max(...c.size_m), 1)} m` +
+        (c.intrudes_envelope ? ' · <b>in gauge</b>' : '') +
+        ` · <i>${escapeHtml(c.status)}</i>`;
+      li.onclick = () => this.select(c.id, true);
+      list.appendChild(li);
+    }
+    this.drawBoxes();
+  }
+
+  drawBoxes() {
+    for (const child of [...this.group.children]) {
+      child.geometry.dispose();
+      child.removeFromParent();
+    }
+    if (!this.app.view.origin) return;
+    for (const c of this.items) {
+      const centre = this.app.view.toScene(c.utm);
+      const at = this.app.track?.hasChainage ? this.app.track.at(c.chainage_m) : null;
+      const [along, across, height] = c.size_m.map((v) => Math.max(v, 0.2));
+      const box = new THREE.LineSegments(
+        new THREE.EdgesGeometry(new THREE.BoxGeometry(along, across, height)),
+        new THREE.LineBasicMaterial({
+          color: this.selected?.id === c.id ? 0xffffff : KIND_COLORS[c.kind] ?? 0xffffff,
+        }),
+      );
+      box.position.copy(centre);
+      if (at) box.rotation.z = Math.atan2(at.dir[1], at.dir[0]);
+      box.userData.change = c.id;
+      this.group.add(box);
+    }
+    this.app.view.requestRender();
+  }
+
+  /** Shows a change's properties and snapshot; flies to it. */
+  select(id, fly) {
+    const c = this.items.find((x) => x.id === id);
+    if (!c) {
+      this.pendingSelect = id; // the URL named it before the list arrived
+      return;
+    }
+    this.pendingSelect = null;
+    this.selected = c;
+    $('change-detail').hidden = false;
+    $('change-title').textContent = `Change ${c.id}: ${c.kind} at ${formatKm(c.chainage_m / 1000)}`;
+    const rows = [
+      ['side, offset', `${c.side}, ${fmt(c.offset_m)} m`],
+      ['size (along, across, height)', c.size_m.map((v) => fmt(v)).join(' × ') + ' m'],
+      ['height above rail', `${fmt(c.height_above_rail_m[0])} to ${fmt(c.height_above_rail_m[1])} m`],
+      ['in the gauge', c.intrudes_envelope ? `yes, ${fmt(-c.margin_m)} m inside` : `no, margin ${fmt(c.margin_m)} m`],
+      ['vegetation rule', c.breaks_vegetation_rule ? 'broken' : 'kept'],
+      ['UTM', `${c.utm.map((v) => v.toFixed(2)).join(', ')} (${c.utm_zone})`],
+      ['reference run', c.reference_run],
+      ['points (reference, run)', `${c.points.reference}, ${c.points.run}`],
+      ['level of detection', `${fmt(c.lod_m)} m`],
+      ['confidence', fmt(c.confidence)],
+    ];
+    $('change-props').innerHTML = rows
+      .map(([k, v]) => `<tr><td>${escapeHtml(k)}</td><td>${escapeHtml(v)}</td></tr>`)
+      .join('');
+    $('change-snapshot').src = `${c.snapshot}?v=${c.updated_ns}`;
+    $('change-status').value = c.status;
+    $('change-note').value = c.note ?? '';
+    this.app.showTab('changes');
+    this.render();
+    if (fly && this.app.view.origin) this.app.view.lookAt(this.app.view.toScene(c.utm), 25, null, 0.5);
+  }
+
+  async save() {
+    const c = this.selected;
+    if (!c) return;
+    const token = this.app.token;
+    if (!token) return this.app.fail('setting a status needs the token (the field under the panels)');
+    try {
+      const answer = await send('PATCH', `/api/v1/changes/${c.id}`, {
+        status: $('change-status').value,
+        note: $('change-note').value,
+      }, token);
+      this.upsert(answer.properties ?? answer);
+      this.selected = this.items.find((x) => x.id === c.id);
+      $('status').classList.remove('error');
+      $('status').textContent = `change ${c.id} is ${this.selected.status}`;
+      this.render();
+    } catch (e) {
+      this.app.fail(e);
+    }
+  }
+}

@@ -1,0 +1,39 @@
+// A pool of decoder workers: decode(buffer) resolves with the tile's points.
+export class DecoderPool {
+  constructor(size = 2) {
+    this.workers = [];
+    this.jobs = new Map();
+    this.next = 0;
+    this.seq = 0;
+    for (let i = 0; i < size; i++) {
+      const worker = new Worker(new URL('./decoder.worker.js', import.meta.url), {
+        type: 'module',
+      });
+      worker.onmessage = (event) => this.done(event.data);
+      worker.onerror = (event) => this.failAll(`the decoder failed: ${event.message}`);
+      this.workers.push(worker);
+    }
+  }
+
+  decode(buffer) {
+    const id = ++this.seq;
+    const worker = this.workers[this.next++ % this.workers.length];
+    return new Promise((resolve, reject) => {
+      this.jobs.set(id, { resolve, reject });
+      worker.postMessage({ id, buffer }, [buffer]);
+    });
+  }
+
+  done(message) {
+    const job = this.jobs.get(message.id);
+    if (!job) return;
+    this.jobs.delete(message.id);
+    if (message.error) job.reject(new Error(message.error));
+    else job.resolve(message);
+  }
+
+  failAll(error) {
+    for (const job of this.jobs.values()) job.reject(new Error(error));
+    this.jobs.clear();
+  }
+}

@@ -1,0 +1,322 @@
+// One run's map as tiles: its index by level, the tiles the camera needs under a point budget
+// (nearest first, coarser further away), loading and decoding them, and letting go of those
+// that left the view.
+import * as THREE from 'three';
+import { api, request } from './api.js';
+import { tilePoints } from './points.js';
+
+const MAX_IN_FLIGHT = 4;
+const keyOf = (level, ix, iy) => `${level}/${ix}/${iy}`;
+
+export class TileLayer {
+  constructor({ run, runIndex, view, grid, decoder, material, onChange }) {
+    this.run = run;
+    this.runIndex = runIndex;
+    this.view = view;
+    this.grid = grid; // {tile_m, voxel_m, levels}
+    this.decoder = decoder;
+    this.material = material;
+    this.onChange = onChange;
+    this.index = []; // per level: Map key -> tile info
+    this.loaded = new Map(); // key -> {info, points, version, used}
+    this.inFlight = new Map(); // key -> AbortController
+    this.group = new THREE.Group();
+    this.group.name = `run ${run}`;
+    this.visible = new Set();
+    this.wanted = [];
+    this.stats = { requested: 0, loaded: 0, failed: 0, notModified: 0, points: 0 };
+    this.lastError = null;
+    this.firstDrawnAt = null;
+    this.announced = new Map(); // key@version -> server's sent_ns of a live tiles message
+    this.liveLatencyMs = []; // from the server announcing a tile to drawing it
+  }
+
+  side(level) {
+    return this.grid.tile_m * 2 ** level;
+  }
+
+  async loadIndex() {
+    const levels = await Promise.all(
+      Array.from({ length: this.grid.levels }, (_, level) => api.tiles(this.run, level)),
+    );
+    this.index = levels.map((l) => new Map(l.tiles.map((t) => [keyOf(t.level, t.ix, t.iy), t])));
+    return this.tileCount();
+  }
+
+  tileCount() {
+    return this.index.reduce((n, m) => n + m.size, 0);
+  }
+
+  /** The first tile's origin (to place the scene frame), or null for a run without tiles. */
+  anyOrigin() {
+    for (const m of this.index) for (const t of m.values()) return t.origin;
+    return null;
+  }
+
+  /** Tiles written while the run streams: their index entries again, in the box they span. */
+  async refresh(updates, sentNs) {
+    const byLevel = new Map();
+    for (const u of updates) {
+      if (sentNs) this.announced.set(`${keyOf(u.level, u.ix, u.iy)}@${u.version}`, sentNs);
+      if (!byLevel.has(u.level)) byLevel.set(u.level, []);
+      byLevel.get(u.level).push(u);
+    }
+    await Promise.all(
+      [...byLevel].map(async ([level, list]) => {
+        const s = this.side(level);
+        const xs = list.map((u) => u.ix), ys = list.map((u) => u.iy);
+        const bbox = [
+          Math.min(...xs) * s + 0.01, Math.min(...ys) * s + 0.01,
+          (Math.max(...xs) + 1) * s - 0.01, (Math.max(...ys) + 1) * s - 0.01,
+        ];
+        const answer = await api.tiles(this.run, level, bbox);
+        while (this.index.length <= level) this.index.push(new Map());
+        for (const t of answer.tiles) this.index[level].set(keyOf(t.level, t.ix, t.iy), t);
+      }),
+    );
+  }
+
+  box(t) {
+    const s = this.side(t.level);
+    const o = this.view.origin;
+    const x = t.ix * s - o[0], y = t.iy * s - o[1], z = t.origin[2] - o[2];
+    return new THREE.Box3(new THREE.Vector3(x, y, z - s / 2), new THREE.Vector3(x + s, y + s, z + s));
+  }
+
+  /**
+   * The tiles to draw: from the coarsest level down, a tile is refined while its voxel covers
+   * more than `pixels` on screen; `pixels` grows until the points fit the budget.
+   */
+  select(budget) {
+    const cam = this.view.camera;
+    cam.updateMatrixWorld();
+    const frustum = new THREE.Frustum().setFromProjectionMatrix(
+      new THREE.Matrix4().multiplyMatrices(cam.projectionMatrix, cam.matrixWorldInverse),
+    );
+    const top = this.index.length - 1;
+    if (top < 0) return [];
+    const candidates = [];
+    for (const t of this.index[top].values()) {
+      const box = this.box(t);
+      if (frustum.intersectsBox(box)) candidates.push({ t, box });
+    }
+    for (let pixels = 1.5; pixels < 200; pixels *= 2) {
+      const chosen = [];
+      let points = 0;
+      const visit = ({ t, box }) => {
+        const d = box.distanceToPoint(cam.position);
+        const voxel = this.grid.voxel_m * 2 ** t.level;
+        if (t.level > 0 && voxel * this.view.pixelsPerMetre(d) > pixels) {
+          const children = this.children(t)
+            .map((c) => ({ t: c, box: this.box(c) }))
+            .filter((c) => frustum.intersectsBox(c.box));
+          if (children.length) return children.forEach(visit);
+        }
+        chosen.push({ t, d });
+        points += t.points;
+      };
+      candidates.forEach(visit);
+      if (points <= budget || pixels * 2 >= 200) {
+        chosen.sort((a, b) => a.d - b.d);
+        let sum = 0;
+        return chosen.filter((c) => (sum += c.t.points) <= budget).map((c) => c.t);
+      }
+    }
+    return [];
+  }
+
+  children(t) {
+    const level = this.index[t.level - 1];
+    if (!level) return [];
+    const out = [];
+    for (const dx of [0, 1]) {
+      for (const dy of [0, 1]) {
+        const c = level.get(keyOf(t.level - 1, 2 * t.ix + dx, 2 * t.iy + dy));
+        if (c) out.push(c);
+      }
+    }
+    return out;
+  }
+
+  /** Draws what is wanted and loaded (a loaded coarser tile stands in for one on its way). */
+  update(budget) {
+    if (!this.view.origin) return;
+    this.wanted = this.select(budget);
+    const wantedKeys = new Set(this.wanted.map((t) => keyOf(t.level, t.ix, t.iy)));
+    const top = this.index.length - 1;
+    for (const t of this.wanted) {
+      const a = this.ancestor(t, top);
+      if (a) wantedKeys.add(keyOf(a.level, a.ix, a.iy));
+    }
+    for (const [key, controller] of this.inFlight) {
+      if (!wantedKeys.has(key)) {
+        controller.abort();
+        this.inFlight.delete(key);
+      }
+    }
+    // The coarse ancestors first: a few small tiles put the whole view on screen at once,
+    // and stand in while the finer ones load.
+    for (const t of this.wanted) {
+      const top = this.ancestor(t, this.index.length - 1);
+      if (top && !this.loaded.has(keyOf(top.level, top.ix, top.iy))) this.fetchTile(top, keyOf(top.level, top.ix, top.iy));
+    }
+    const show = new Set();
+    for (const t of this.wanted) {
+      const key = keyOf(t.level, t.ix, t.iy);
+      const have = this.loaded.get(key);
+      if (have) show.add(key);
+      if (!have || have.version !== t.version) {
+        this.fetchTile(t, key);
+        if (!have) {
+          const stand = this.loadedAncestor(t);
+          if (stand) show.add(stand);
+        }
+      }
+    }
+    this.setVisible(show);
+    this.evict(budget);
+  }
+
+  ancestor(t, level) {
+    if (level <= t.level) return null;
+    const f = 2 ** (level - t.level);
+    return this.index[level]?.get(keyOf(level, Math.floor(t.ix / f), Math.floor(t.iy / f))) ?? null;
+  }
+
+  loadedAncestor(t) {
+    for (let level = t.level + 1; level < this.index.length; level++) {
+      const f = 2 ** (level - t.level);
+      const key = keyOf(level, Math.floor(t.ix / f), Math.floor(t.iy / f));
+      if (this.loaded.has(key)) return key;
+    }
+    return null;
+  }
+
+  setVisible(show) {
+    let points = 0;
+    const now = performance.now();
+    for (const key of this.visible) {
+      if (!show.has(key)) this.group.remove(this.loaded.get(key)?.points);
+    }
+    for (const key of show) {
+      const tile = this.loaded.get(key);
+      tile.used = now;
+      points += tile.info.points;
+      if (!this.visible.has(key)) this.group.add(tile.points);
+      const sent = this.announced.get(`${key}@${tile.version}`);
+      if (sent) {
+        this.liveLatencyMs.push(Date.now() - sent / 1e6);
+        this.announced.delete(`${key}@${tile.version}`);
+      }
+    }
+    if (show.size && this.firstDrawnAt === null) this.firstDrawnAt = now;
+    this.visible = show;
+    this.stats.points = points;
+  }
+
+  fetchTile(t, key) {
+    if (this.inFlight.has(key) || this.inFlight.size >= MAX_IN_FLIGHT) return;
+    const controller = new AbortController();
+    this.inFlight.set(key, controller);
+    this.stats.requested += 1;
+    // no-cache: the browser revalidates with the tile's ETag, a 304 costs no bytes.
+    request(`/api/v1/runs/${this.run}/tiles/${key}`, {
+      signal: controller.signal,
+      cache: 'no-cache',
+    })
+      .then((res) => res.arrayBuffer())
+      .then((buffer) => this.decoder.decode(buffer))
+      .then((decoded) => this.store(t, key, decoded))
+      .catch((e) => {
+        if (e.name === 'AbortError') return;
+        this.stats.failed += 1;
+        this.lastError = `tile ${key} of run ${this.run}: ${e.message}`;
+      })
+      .finally(() => {
+        if (this.inFlight.get(key) === controller) this.inFlight.delete(key);
+        this.onChange();
+      });
+  }
+
+  store(t, key, decoded) {
+    const old = this.loaded.get(key);
+    const points = tilePoints(decoded, this.offset(t), this.material);
+    points.userData = { run: this.run, key, level: t.level, runIndex: this.runIndex };
+    if (old) {
+      this.group.remove(old.points);
+      old.points.geometry.dispose();
+      this.visible.delete(key);
+    }
+    this.loaded.set(key, { info: t, points, version: t.version, used: performance.now() });
+    this.stats.loaded += 1;
+  }
+
+  offset(t) {
+    const o = this.view.origin;
+    return [t.origin[0] - o[0], t.origin[1] - o[1], t.origin[2] - o[2]];
+  }
+
+  /** Lets go of tiles out of view once those held pass twice the budget. */
+  evict(budget) {
+    let held = 0;
+    for (const tile of this.loaded.values()) held += tile.info.points;
+    if (held <= 2 * budget) return;
+    const idle = [...this.loaded].filter(([key]) => !this.visible.has(key));
+    idle.sort((a, b) => a[1].used - b[1].used);
+    for (const [key, tile] of idle) {
+      if (held <= budget) break;
+      tile.points.geometry.dispose();
+      this.loaded.delete(key);
+      held -= tile.info.points;
+    }
+  }
+
+  /**
+   * The full-detail (level 0) tiles within `radius` of a scene point, loaded if they are not:
+   * sections and measurements need every point, whatever the view draws.
+   */
+  async detailNear(center, radius) {
+    const o = this.view.origin;
+    const s = this.side(0);
+    const x0 = Math.floor((center.x + o[0] - radius) / s), x1 = Math.floor((center.x + o[0] + radius) / s);
+    const y0 = Math.floor((center.y + o[1] - radius) / s), y1 = Math.floor((center.y + o[1] + radius) / s);
+    const keys = [];
+    for (let ix = x0; ix <= x1; ix++) {
+      for (let iy = y0; iy <= y1; iy++) {
+        const t = this.index[0]?.get(keyOf(0, ix, iy));
+        if (!t) continue;
+        const key = keyOf(0, ix, iy);
+        keys.push(key);
+        if (this.loaded.get(key)?.version === t.version) continue;
+        const res = await request(`/api/v1/runs/${this.run}/tiles/${key}`, { cache: 'no-cache' });
+        this.store(t, key, await this.decoder.decode(await res.arrayBuffer()));
+      }
+    }
+    return keys;
+  }
+
+  /** The points of loaded tiles (by key) near a scene point. */
+  *pointsNear(center, radius, keys = this.visible) {
+    for (const key of keys) {
+      const tile = this.loaded.get(key);
+      if (!tile) continue;
+      const p = tile.points;
+      const sphere = p.geometry.boundingSphere;
+      if (sphere.center.clone().add(p.position).distanceTo(center) > sphere.radius + radius) continue;
+      const pos = p.geometry.attributes.position.array;
+      const intensity = p.geometry.attributes.intensity.array;
+      for (let i = 0; i < pos.length; i += 3) {
+        const x = pos[i] + p.position.x, y = pos[i + 1] + p.position.y, z = pos[i + 2] + p.position.z;
+        if (Math.abs(x - center.x) > radius || Math.abs(y - center.y) > radius) continue;
+        yield [x, y, z, intensity[i / 3], tile.info.level];
+      }
+    }
+  }
+
+  dispose() {
+    for (const c of this.inFlight.values()) c.abort();
+    for (const tile of this.loaded.values()) tile.points.geometry.dispose();
+    this.loaded.clear();
+    this.group.removeFromParent();
+  }
+}
