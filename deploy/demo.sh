@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job end to end on the embedded default: simulate the 30 s demo run (two LiDARs, IMU,
-# odometer, GNSS) into runs/demo, start raillomer-server (runs/server, http://127.0.0.1:8470),
+# odometer, GNSS) into runs/demo, build the browser viewer, start raillomer-server (runs/server,
+# http://127.0.0.1:8470, serving the viewer at /),
 # run the estimator on the recorded bag streaming its poses and submaps to the server, score the
 # estimate and the GNSS receiver's fixes against the ground truth (the estimate in UTM, as it
 # comes, and its map's sharpness), and leave the server up with the run on its API.
@@ -15,6 +16,8 @@ data="${RAILLOMER_SERVER_DATA:-runs/server}"
 bash deploy/install-deps.sh
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release
 cmake --build build -j2 --target raillomer-sim raillomer-eval raillomer-estimator raillomer-server
+# The browser viewer (web/dist), which the server serves at /.
+bash deploy/build-web.sh
 ./build/bin/raillomer-sim --scenario "$scenario" --out "$out"
 
 # The server: reuse one this script started before, else start it in the background.
@@ -53,8 +56,9 @@ run=$(curl -sf "http://127.0.0.1:$port/api/v1/runs" | /usr/bin/python3 -c \
   'import json,sys; print(json.load(sys.stdin)["runs"][-1]["id"])')
 echo "demo: outputs in $out (run.bag, truth.tum, gnss.tum, rig.yaml, estimate/, estimate_eval.json,"
 echo "      estimate_eval.svg, gnss_eval.json, gnss_eval.svg)"
-echo "demo: raillomer-server is up at http://127.0.0.1:$port/ (data in $data, log $data/server.log):"
+echo "demo: raillomer-server is up (data in $data, log $data/server.log):"
 echo "      curl http://127.0.0.1:$port/api/v1/runs/$run"
 echo "      curl 'http://127.0.0.1:$port/api/v1/runs/$run/tiles?level=0'"
 echo "      curl 'http://127.0.0.1:$port/api/v1/runs/$run/trajectory?format=geojson'"
 echo "      stop it with: kill \$(cat $data/server.pid)"
+echo "demo: the viewer, with the demo run open: http://127.0.0.1:$port/?run=$run"

@@ -429,17 +429,55 @@ Result ChangeStore::MappedUntil(int64_t run, int64_t* stamp_ns) const {
   return {};
 }
 
-Result ChangeStore::Frame(int64_t run, int stretch, StretchFrame* out) const {
-  std::lock_guard<std::mutex> lock(mu_);
-  Statement q(*db_, "SELECT transform FROM change_stretches WHERE run_id = ? AND stretch = ?");
-  if (!q.Bind(1, run).Bind(2, stretch).Step())
-    return Fail(Outcome::kNotFound, "stretch " + std::to_string(stretch) + " not compared");
-  const json j = json::parse(q.Text(0), nullptr, false);
-  if (j.is_discarded()) return Fail(Outcome::kError, "a stretch's transform is unreadable");
+namespace {
+
+/// A stretch's stored transform (JSON: origin, T row-major 3x4) into `out`.
+bool ReadTransform(const std::string& text, StretchFrame* out) {
+  const json j = json::parse(text, nullptr, false);
+  if (j.is_discarded() || !j.contains("origin") || !j.contains("T") || j.at("T").size() != 12)
+    return false;
   out->origin = VecOf(j.at("origin"));
   out->T_reference_later.setIdentity();
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 4; ++c) out->T_reference_later.matrix()(r, c) = j.at("T").at(r * 4 + c);
+  return true;
+}
+
+}  // namespace
+
+Result ChangeStore::Frame(int64_t run, int stretch, StretchFrame* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  Statement q(*db_,
+              "SELECT transform, from_m, to_m, rms_m FROM change_stretches "
+              "WHERE run_id = ? AND stretch = ?");
+  if (!q.Bind(1, run).Bind(2, stretch).Step())
+    return Fail(Outcome::kNotFound, "stretch " + std::to_string(stretch) + " not compared");
+  if (!ReadTransform(q.Text(0), out))
+    return Fail(Outcome::kError, "a stretch's transform is unreadable");
+  out->stretch = stretch;
+  out->from_m = q.Double(1);
+  out->to_m = q.Double(2);
+  out->rms_m = q.Double(3);
+  return {};
+}
+
+Result ChangeStore::Frames(int64_t run, std::vector<StretchFrame>* out) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  out->clear();
+  Statement q(*db_,
+              "SELECT stretch, transform, from_m, to_m, rms_m FROM change_stretches "
+              "WHERE run_id = ? AND compared = 1 ORDER BY from_m");
+  q.Bind(1, run);
+  while (q.Step()) {
+    StretchFrame f;
+    if (!ReadTransform(q.Text(1), &f))
+      return Fail(Outcome::kError, "a stretch's transform is unreadable");
+    f.stretch = static_cast<int>(q.Int(0));
+    f.from_m = q.Double(2);
+    f.to_m = q.Double(3);
+    f.rms_m = q.Double(4);
+    out->push_back(f);
+  }
   return {};
 }
 

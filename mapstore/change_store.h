@@ -58,6 +58,9 @@ struct ChangeFilter {
 
 /// A compared stretch's registration, for drawing the later run where the comparison put it.
 struct StretchFrame {
+  int stretch = 0;
+  double from_m = 0.0, to_m = 0.0;  ///< chainage the stretch covers
+  double rms_m = 0.0;               ///< the registration's RMS residual
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
   Eigen::Isometry3d T_reference_later = Eigen::Isometry3d::Identity();
 };
@@ -100,6 +103,8 @@ class ChangeStore {
                 const std::optional<std::string>& note,
                 StoredChange* out);
   Result Frame(int64_t run, int stretch, StretchFrame* out) const;
+  /// Every compared stretch's registration of the run, in chainage order.
+  Result Frames(int64_t run, std::vector<StretchFrame>* out) const;
   /// The last stamp of the run's stored submaps (what its map holds up to); 0 with none.
   Result MappedUntil(int64_t run, int64_t* stamp_ns) const;
 

@@ -71,6 +71,36 @@ class ChangeApi {
     SendJson(res, ChangeCollection(found, DetectionJson(state, reason)), "application/geo+json");
   }
 
+  /// Where the comparison put the run: each compared stretch's registration onto the
+  /// reference, so a viewer draws both runs registered as the detection saw them.
+  void Registration(const HttpRequest& req, HttpResponse& res) {
+    int64_t run = 0;
+    if (!PathId(req, res, &run)) return;
+    mapstore::DetectionState state;
+    std::string reason;
+    std::vector<mapstore::StretchFrame> frames;
+    mapstore::Result r = worker_.State(run, &state, &reason);
+    if (r) r = changes_.Frames(run, &frames);
+    if (!r) return SendResult(res, r);
+    json stretches = json::array();
+    for (const mapstore::StretchFrame& f : frames) {
+      json T = json::array();
+      for (int row = 0; row < 3; ++row)
+        for (int col = 0; col < 4; ++col) T.push_back(f.T_reference_later.matrix()(row, col));
+      stretches.push_back({{"stretch", f.stretch},
+                           {"from_m", f.from_m},
+                           {"to_m", f.to_m},
+                           {"registration_rms_m", f.rms_m},
+                           {"origin", {f.origin.x(), f.origin.y(), f.origin.z()}},
+                           {"T_reference_run", T}});
+    }
+    SendJson(
+        res,
+        {{"run", run},
+         {"reference_run", state.reference_run == 0 ? json(nullptr) : json(state.reference_run)},
+         {"stretches", stretches}});
+  }
+
   void Recompute(const HttpRequest& req, HttpResponse& res) {
     int64_t run = 0, reference = 0;
     if (!PathId(req, res, &run) ||
@@ -164,6 +194,11 @@ std::vector<HttpRoute> ChangeRoutes(const ApiContext& context) {
       route("GET", "/api/v1/runs/{run}/changes", "changes.list", R, &ChangeApi::List),
       route("POST", "/api/v1/runs/{run}/changes", "changes.recompute", W, &ChangeApi::Recompute),
       route("GET", "/api/v1/runs/{run}/changes/report", "changes.report", R, &ChangeApi::Report),
+      route("GET",
+            "/api/v1/runs/{run}/changes/registration",
+            "changes.registration",
+            R,
+            &ChangeApi::Registration),
       route("GET", "/api/v1/changes/{id}", "changes.get", R, &ChangeApi::Get),
       route("PATCH", "/api/v1/changes/{id}", "changes.update", W, &ChangeApi::Update, 64 << 10),
       route(

@@ -137,3 +137,70 @@ test('an unreachable server is said so, not left blank', async ({ page }) => {
   // The browser logs the refused requests itself; those are what this test provokes.
   errors.errors.splice(0, errors.errors.length, ...errors.errors.filter((e) => !/ERR_CONNECTION_REFUSED|Failed to load resource/.test(e)));
 });
+
+test('two runs in one view: coloured by run, split by a divide, coloured by change', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.changed}&compare=${f.reference}&color=run`);
+  await waitForPoints(page);
+  expect((await viewerState(page)).compare).toBe(f.reference);
+  await expect(page.locator('.split-control')).toBeVisible();
+  const canvas = page.locator('#viewport > canvas');
+  let png = await shot(page, 'two-runs', canvas);
+  // Both runs' colours (blue: the reference, orange: the later run; shaded by intensity).
+  const blueish = (p) => countHue(p, (r, g, b) => b > r + 40 && b > g);
+  const orangeish = (p) => countHue(p, (r, g, b) => r > b + 40 && g > b);
+  const blueBefore = blueish(png);
+  expect(blueBefore).toBeGreaterThan(2000);
+  expect(orangeish(png)).toBeGreaterThan(2000);
+  // The divide at the start: only the later run is left in view (a change's box and the
+  // legend's swatch stay blue).
+  await page.locator('#split').fill('0');
+  await expect.poll(async () => blueish(await shot(page, 'two-runs-split', canvas))).toBeLessThan(blueBefore / 10);
+  png = await shot(page, 'two-runs-split', canvas);
+  expect(orangeish(png)).toBeGreaterThan(2000);
+  // Colour by change: the distance to the other run, grey where they agree.
+  await page.locator('#split').fill('500');
+  await page.selectOption('#color-select', 'change');
+  await expect(page.locator('#legend')).toContainText('distance to the other run');
+  await waitForPoints(page);
+  png = await shot(page, 'change-colours', canvas);
+  // Registered as the detection registered them, the runs agree almost everywhere.
+  const grey = countHue(png, (r, g, b) => Math.abs(r - g) < 8 && Math.abs(g - b) < 8 && r > 60);
+  const red = countHue(png, (r, g, b) => r > 150 && g < 110 && b < 80);
+  expect(grey).toBeGreaterThan(2000);
+  expect(grey).toBeGreaterThan(5 * red);
+});
+
+test('measuring two points and the track profile', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.reference}`);
+  await waitForPoints(page);
+  await page.click('button[data-tab="tools"]');
+  const box = await page.locator('#viewport > canvas').boundingBox();
+  await page.mouse.move(box.x + box.width * 0.5, box.y + box.height * 0.75);
+  await page.keyboard.down('Shift');
+  await page.mouse.down();
+  await page.mouse.up();
+  await page.mouse.move(box.x + box.width * 0.6, box.y + box.height * 0.85);
+  await page.mouse.down();
+  await page.mouse.up();
+  await page.keyboard.up('Shift');
+  await expect(page.locator('#measure-out')).toContainText('distance');
+  await expect(page.locator('#measure-out')).toContainText('above rail');
+  const m = await page.evaluate(() => window.raillomer.tools.measurement);
+  expect(m.distance).toBeGreaterThan(0.5);
+  expect(m.distance).toBeLessThan(100);
+  await page.click('button[data-tab="profile"]');
+  await page.fill('#profile-from', '0.05');
+  await page.fill('#profile-to', '0.25');
+  await page.click('#profile-form button');
+  await expect
+    .poll(async () => countHue(await shot(page, 'profile', page.locator('#profile-canvas')), (r, g, b) => b > 200 && r < 120))
+    .toBeGreaterThan(50);
+});
+
+function countHue(png, test) {
+  let n = 0;
+  for (let i = 0; i < png.pixels.length; i += 3) if (test(png.pixels[i], png.pixels[i + 1], png.pixels[i + 2])) n++;
+  return n;
+}

@@ -91,5 +91,6 @@ export const api = {
       `/api/v1/lines/${encodeURIComponent(line)}/segment?from_km=${fromKm}&to_km=${toKm}`,
     ),
   changes: (run) => getJson(`/api/v1/runs/${run}/changes`),
+  registration: (run) => getJson(`/api/v1/runs/${run}/changes/registration`),
   pois: (line) => getJson(`/api/v1/pois?line=${encodeURIComponent(line)}`),
 };

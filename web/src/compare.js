@@ -3,6 +3,8 @@
 // 27 around a point searched; beyond that the distance reads as the cap, 1 m).
 const CELL_M = 0.5;
 const CAP_M = 1.0;
+import { framePoints } from './registration.js';
+
 const B = 65536;
 const H = 32768;
 
@@ -11,10 +13,7 @@ const keyOf = (cx, cy, cz) => ((cx + H) * B + (cy + H)) * B + (cz + H);
 function hashPoints(objects) {
   const cells = new Map();
   for (const obj of objects) {
-    const pos = obj.geometry.attributes.position.array;
-    const o = obj.position;
-    for (let i = 0; i < pos.length; i += 3) {
-      const x = pos[i] + o.x, y = pos[i + 1] + o.y, z = pos[i + 2] + o.z;
+    for (const [x, y, z] of framePoints(obj)) {
       const key = keyOf(Math.floor(x / CELL_M), Math.floor(y / CELL_M), Math.floor(z / CELL_M));
       let cell = cells.get(key);
       if (!cell) cells.set(key, (cell = []));
@@ -24,13 +23,10 @@ function hashPoints(objects) {
   return cells;
 }
 
-export function changeDistances(points, others) {
+export function changeDistances(points, others, toleranceM = 0) {
   const cells = hashPoints(others);
-  const pos = points.geometry.attributes.position.array;
-  const o = points.position;
   const out = points.geometry.attributes.change;
-  for (let i = 0, k = 0; i < pos.length; i += 3, k++) {
-    const x = pos[i] + o.x, y = pos[i + 1] + o.y, z = pos[i + 2] + o.z;
+  for (const [x, y, z, k] of framePoints(points)) {
     const cx = Math.floor(x / CELL_M), cy = Math.floor(y / CELL_M), cz = Math.floor(z / CELL_M);
     let best = CAP_M * CAP_M;
     for (let dx = -1; dx <= 1; dx++) {
@@ -45,7 +41,7 @@ export function changeDistances(points, others) {
         }
       }
     }
-    out.array[k] = Math.sqrt(best);
+    out.array[k] = Math.max(0, Math.sqrt(best) - toleranceM);
   }
   out.needsUpdate = true;
 }

@@ -14,6 +14,7 @@ import { View } from './view.js';
 import { readUrl, writeUrl } from './url.js';
 import { drawLegend } from './legend.js';
 import { cutSection } from './section.js';
+import { Registration } from './registration.js';
 import { escapeHtml } from './util.js';
 
 const $ = (id) => document.getElementById(id);
@@ -75,6 +76,7 @@ export class App {
       return;
     }
     const url = readUrl();
+    if (COLOR_MODES.includes(url.color)) $('color-select').value = url.color;
     const run = this.pickRun(url);
     this.fillSelects(run, url.compare);
     await this.open(run.id, url.compare, url);
@@ -134,6 +136,7 @@ export class App {
       this.fail(e, true);
       return;
     }
+    await this.applyRegistration();
     const origin = this.layers.map((l) => l.anyOrigin()).find(Boolean) ?? this.track?.poses[0]?.p;
     if (!origin) {
       this.message(
@@ -171,9 +174,50 @@ export class App {
 
   async loadTrack(runId) {
     const [tum, geo] = await Promise.all([api.trajectoryTum(runId), api.trajectoryGeo(runId)]);
-    this.track = new Track(parseTrajectory(tum, geo));
+    this.rawTrack = new Track(parseTrajectory(tum, geo));
+    this.setTrack(this.rawTrack);
+  }
+
+  setTrack(track) {
+    this.track = track;
     if (this.trackGroup) this.trackGroup.removeFromParent();
     this.trackGroup = null;
+    this.drawTrack();
+  }
+
+  /**
+   * Later runs are drawn where change detection registered them onto their reference (whose
+   * map the changes are placed in): a run alone onto its reference, two runs when one is the
+   * other's reference.
+   */
+  async applyRegistration() {
+    const answers = await Promise.all(
+      this.layers.map((l) => api.registration(l.run).catch(() => null)),
+    );
+    this.registration = null;
+    this.layers.forEach((layer, i) => {
+      const a = answers[i];
+      const other = this.layers.length === 2 ? this.layers[1 - i].run : null;
+      const use = a?.reference_run && a.stretches.length && (other === null || other === a.reference_run);
+      const registration = use ? new Registration(a) : null;
+      layer.setRegistration(registration, this.rawTrack);
+      if (layer.run === this.run.id) this.registration = registration;
+    });
+    const reg = this.registration;
+    if (!reg) return this.setTrack(this.rawTrack);
+    const poses = this.rawTrack.poses.map((p) =>
+      Number.isFinite(p.chainage) ? { ...p, p: reg.apply(reg.at(p.chainage), p.p) } : p,
+    );
+    this.setTrack(new Track(poses));
+    this.view.requestRender();
+  }
+
+  /** A point of the opened run (UTM) where the view draws it (its registration applied). */
+  registered(utm) {
+    const reg = this.registration;
+    if (!reg) return utm;
+    const located = this.rawTrack?.locate(utm);
+    return located ? reg.apply(reg.at(located.chainage), utm) : utm;
   }
 
   placeScene(origin, url) {
@@ -250,6 +294,42 @@ export class App {
     return true;
   }
 
+  /** The chainage (m) under the view's centre, or null off the track. */
+  currentChainage() {
+    if (!this.track?.hasChainage || !this.view.origin) return null;
+    return this.track.locate(this.view.toUtm(this.view.controls.target))?.chainage ?? null;
+  }
+
+  /** Moves the view `metres` along the track, keeping the camera's place relative to it. */
+  moveAlong(metres) {
+    const c = this.currentChainage();
+    if (c === null) return false;
+    const [lo, hi] = this.track.range();
+    const next = Math.min(hi, Math.max(lo, c + metres));
+    const at = this.track.at(next);
+    const target = this.view.toScene(at.p);
+    const offset = this.view.camera.position.clone().sub(this.view.controls.target);
+    this.view.controls.target.copy(target);
+    this.view.camera.position.copy(target).add(offset);
+    this.view.controls.update();
+    this.km = next / 1000;
+    $('km-input').value = formatKm(this.km);
+    this.view.requestRender();
+    return next > lo && next < hi;
+  }
+
+  /** Ride: the view moves along the track at 15 m/s until unticked or the run ends. */
+  ride(on) {
+    clearInterval(this.rideTimer);
+    if (!on) return;
+    this.rideTimer = setInterval(() => {
+      if (!this.moveAlong(3)) {
+        $('drive').checked = false;
+        clearInterval(this.rideTimer);
+      }
+    }, 200);
+  }
+
   /** Per frame: tiles to draw, the status line, the URL. */
   frame() {
     const share = Math.floor(this.budget / Math.max(1, this.layers.length));
@@ -314,8 +394,11 @@ export class App {
     else if (m.type === 'tiles') {
       const layer = this.layers.find((l) => l.run === m.run);
       if (layer) this.refreshTiles(layer, m.tiles, m.sent_ns);
-    } else if (m.type === 'change' && m.run === this.run?.id) this.changes.onLive(m);
-    else if (m.type === 'run') this.onRunMessage(m);
+    } else if (m.type === 'change' && this.layers.some((l) => l.run === m.run)) {
+      if (m.run === this.run?.id) this.changes.onLive(m);
+      clearTimeout(this.registrationTimer);
+      this.registrationTimer = setTimeout(() => this.applyRegistration().catch((e) => this.fail(e)), 1000);
+    } else if (m.type === 'run') this.onRunMessage(m);
   }
 
   async refreshTiles(layer, tiles, sentNs) {
@@ -333,7 +416,18 @@ export class App {
 
   moveTrain(m) {
     if (!m.georeferenced || !this.view.origin) return;
-    const p = this.view.toScene(m.p);
+    // The path grows with the run: read it again now and then (km marks, sections, km jumps).
+    if (!this.trackLoading && performance.now() - (this.trackLoadedAt ?? 0) > 15_000) {
+      this.trackLoading = true;
+      this.loadTrack(this.run.id)
+        .then(() => this.applyRegistration())
+        .catch((e) => this.fail(e))
+        .finally(() => {
+          this.trackLoading = false;
+          this.trackLoadedAt = performance.now();
+        });
+    }
+    const p = this.view.toScene(this.registered(m.p));
     this.train.visible = true;
     this.train.position.copy(p);
     this.train.position.z += 2 - (this.railDrop ?? 0); // the box stands on the rails
@@ -356,7 +450,10 @@ export class App {
     }
     if (m.run === this.run?.id) {
       this.run = this.runs.find((r) => r.id === m.run);
-      if (this.run?.status === 'finished') await this.loadTrack(this.run.id).then(() => this.drawTrack());
+      if (this.run?.status === 'finished') {
+        await this.loadTrack(this.run.id);
+        await this.applyRegistration();
+      }
     }
   }
 
@@ -385,6 +482,9 @@ export class App {
       $('status').classList.remove('error');
       this.jumpToKm(km);
     };
+    $('km-back').onclick = () => this.moveAlong(-100);
+    $('km-ahead').onclick = () => this.moveAlong(100);
+    $('drive').onchange = () => this.ride($('drive').checked);
     $('color-select').onchange = () => {
       if ($('color-select').value === 'change' && this.layers.length < 2) this.compareWithReference();
       this.applyColorMode();

@@ -4,6 +4,7 @@
 import * as THREE from 'three';
 import { api, request } from './api.js';
 import { tilePoints } from './points.js';
+import { framePoints } from './registration.js';
 
 const MAX_IN_FLIGHT = 4;
 const keyOf = (level, ix, iy) => `${level}/${ix}/${iy}`;
@@ -238,9 +239,32 @@ export class TileLayer {
       });
   }
 
+  /** Draws the run registered onto its reference (null: as it was recorded). */
+  setRegistration(registration, track) {
+    this.registration = registration;
+    this.track = track;
+    for (const tile of this.loaded.values()) this.place(tile.points, tile.info);
+  }
+
+  /** A tile's matrix: at its origin, through its stretch's registration if there is one. */
+  place(points, t) {
+    const o = this.view.origin;
+    if (this.registration && !this.registration.empty) {
+      const half = this.side(t.level) / 2;
+      const centre = [t.origin[0] + half, t.origin[1] + half, t.origin[2]];
+      const located = this.track?.locate(centre);
+      const s = located ? this.registration.at(located.chainage) : null;
+      points.matrix.copy(this.registration.matrix(s, t.origin, o));
+    } else {
+      points.matrix.makeTranslation(t.origin[0] - o[0], t.origin[1] - o[1], t.origin[2] - o[2]);
+    }
+    points.matrixWorldNeedsUpdate = true;
+  }
+
   store(t, key, decoded) {
     const old = this.loaded.get(key);
     const points = tilePoints(decoded, this.offset(t), this.material);
+    this.place(points, t);
     points.userData = { run: this.run, key, level: t.level, runIndex: this.runIndex };
     if (old) {
       this.group.remove(old.points);
@@ -301,14 +325,12 @@ export class TileLayer {
       const tile = this.loaded.get(key);
       if (!tile) continue;
       const p = tile.points;
-      const sphere = p.geometry.boundingSphere;
-      if (sphere.center.clone().add(p.position).distanceTo(center) > sphere.radius + radius) continue;
-      const pos = p.geometry.attributes.position.array;
+      const sphere = p.geometry.boundingSphere.clone().applyMatrix4(p.matrix);
+      if (sphere.center.distanceTo(center) > sphere.radius + radius) continue;
       const intensity = p.geometry.attributes.intensity.array;
-      for (let i = 0; i < pos.length; i += 3) {
-        const x = pos[i] + p.position.x, y = pos[i + 1] + p.position.y, z = pos[i + 2] + p.position.z;
+      for (const [x, y, z, i] of framePoints(p)) {
         if (Math.abs(x - center.x) > radius || Math.abs(y - center.y) > radius) continue;
-        yield [x, y, z, intensity[i / 3], tile.info.level];
+        yield [x, y, z, intensity[i], tile.info.level];
       }
     }
   }

@@ -11,6 +11,9 @@ import { changeDistances } from './compare.js';
 
 const $ = (id) => document.getElementById(id);
 
+const neighbours = (t) =>
+  [-1, 0, 1].flatMap((dx) => [-1, 0, 1].map((dy) => `${t.level}/${t.ix + dx}/${t.iy + dy}`));
+
 /** Section points on the rail plane at each rail's offset: [left, right]. */
 const railPoints = (points) =>
   [1, -1].map((side) => points.filter(([u, h]) => Math.abs(h) < 0.08 && Math.abs(u - side * 0.7175) < 0.1).length);
@@ -201,7 +204,11 @@ export class Tools {
     return new THREE.Plane().setFromNormalAndCoplanarPoint(n, p);
   }
 
-  /** Colour by change: each drawn point's distance to the other run's drawn points. */
+  /**
+   * Colour by change: each drawn point's distance to the other run's points of the same level
+   * in its tile and the eight around it (the runs' registration moves points across tile
+   * borders), less half the level's voxel (coarse tiles differ by their resolution).
+   */
   updateChangeColours() {
     const layers = this.app.layers;
     if (layers.length < 2) return;
@@ -209,10 +216,11 @@ export class Tools {
       const other = layers[1 - i];
       for (const key of layer.visible) {
         const tile = layer.loaded.get(key);
-        const otherTile = other.loaded.get(key);
-        const stamp = otherTile ? otherTile.version + ':' + otherTile.points.id : 'none';
-        if (!tile || this.coloured.get(tile.points) === stamp || !otherTile) continue;
-        changeDistances(tile.points, [otherTile.points]);
+        const around = neighbours(tile.info).map((k) => other.loaded.get(k)).filter(Boolean);
+        const stamp = around.map((t) => t.points.id).join(',');
+        if (!around.length || this.coloured.get(tile.points) === stamp) continue;
+        const voxel = this.app.info.tiles.voxel_m * 2 ** tile.info.level;
+        changeDistances(tile.points, around.map((t) => t.points), voxel / 2);
         this.coloured.set(tile.points, stamp);
       }
     });
