@@ -57,9 +57,37 @@ export async function request(path, options = {}) {
   return res;
 }
 
+/** An answer index.html started fetching before the viewer loaded, taken once. */
+function prefetched(path) {
+  const pending = window.__raillomerPrefetch;
+  const p = pending?.get(path);
+  if (p) pending.delete(path);
+  return p;
+}
+
 export async function getJson(path, options = {}) {
+  const early = prefetched(path);
+  if (early) {
+    try {
+      return await early;
+    } catch {
+      // Ask again: the error then says what went wrong.
+    }
+  }
   const res = await request(path, options);
   return res.json();
+}
+
+async function getText(path) {
+  const early = prefetched(path);
+  if (early) {
+    try {
+      return await early;
+    } catch {
+      // as in getJson
+    }
+  }
+  return (await request(path)).text();
 }
 
 /** A write with the ingest token (PATCH, POST, DELETE). */
@@ -83,8 +111,7 @@ export const api = {
   lines: () => getJson('/api/v1/lines').then((r) => r.lines),
   tiles: (run, level, bbox) =>
     getJson(`/api/v1/runs/${run}/tiles?level=${level}${bbox ? `&bbox=${bbox.join(',')}` : ''}`),
-  trajectoryTum: (run) =>
-    request(`/api/v1/runs/${run}/trajectory?format=tum`).then((r) => r.text()),
+  trajectoryTum: (run) => getText(`/api/v1/runs/${run}/trajectory?format=tum`),
   trajectoryGeo: (run) => getJson(`/api/v1/runs/${run}/trajectory?format=geojson`),
   segment: (line, fromKm, toKm) =>
     getJson(

@@ -38,6 +38,14 @@ export class App {
     this.pois = new PoiPanel(this);
     this.tools = new Tools(this);
     this.view.onFrame(() => this.frame());
+    this.view.onRendered(() => {
+      // Milliseconds from navigation to the first frame with points (performance.now() counts
+      // from the navigation's start).
+      if (this.firstPointsMs === undefined && this.layers.some((l) => l.visible.size)) {
+        this.firstPointsMs = performance.now();
+      }
+    });
+    this.extras(false);
   }
 
   get token() {
@@ -61,6 +69,7 @@ export class App {
   }
 
   async start() {
+    performance.mark('raillomer:start');
     $('token-input').value = savedToken();
     this.bindControls();
     try {
@@ -128,15 +137,17 @@ export class App {
     this.message('');
     const ids = this.compare ? [this.compare.id, runId] : [runId];
     try {
-      [this.layers] = await Promise.all([
+      [this.layers, , this.registrations] = await Promise.all([
         Promise.all(ids.map((id, i) => this.openLayer(id, ids.length === 2 ? i : 1))),
         this.loadTrack(runId),
+        this.loadRegistrations(ids),
       ]);
     } catch (e) {
       this.fail(e, true);
       return;
     }
-    await this.applyRegistration();
+    performance.mark('raillomer:run-loaded');
+    await this.applyRegistration(this.registrations);
     const origin = this.layers.map((l) => l.anyOrigin()).find(Boolean) ?? this.track?.poses[0]?.p;
     if (!origin) {
       this.message(
@@ -147,6 +158,7 @@ export class App {
       );
     }
     if (origin) this.placeScene(origin, url);
+    performance.mark('raillomer:scene-placed');
     this.live.subscribe(ids);
     // A train still on the line: follow it, so the map is seen growing.
     if (this.run.status === 'live' && !url.cam && !Number.isFinite(url.km)) $('follow').checked = true;
@@ -190,10 +202,12 @@ export class App {
    * map the changes are placed in): a run alone onto its reference, two runs when one is the
    * other's reference.
    */
-  async applyRegistration() {
-    const answers = await Promise.all(
-      this.layers.map((l) => api.registration(l.run).catch(() => null)),
-    );
+  loadRegistrations(ids) {
+    return Promise.all(ids.map((id) => api.registration(id).catch(() => null)));
+  }
+
+  async applyRegistration(answers = null) {
+    answers ??= await this.loadRegistrations(this.layers.map((l) => l.run));
     this.registration = null;
     this.layers.forEach((layer, i) => {
       const a = answers[i];
@@ -223,7 +237,6 @@ export class App {
   placeScene(origin, url) {
     this.view.setOrigin(origin);
     this.uniforms.originZ.value = this.view.origin[2];
-    this.drawTrack();
     if (url.cam) {
       this.view.camera.position.copy(this.view.toScene(url.cam.slice(0, 3)));
       this.view.controls.target.copy(this.view.toScene(url.cam.slice(3, 6)));
@@ -239,7 +252,23 @@ export class App {
       this.view.lookAt(this.view.toScene(origin), 70);
     }
     if (url.change) this.changes.select(url.change, true);
+  }
+
+  /**
+   * Once the first points are on screen: the track, its labels, the change boxes, POIs and
+   * eye-dome lighting (their shaders and canvases cost the first frame a second in software).
+   */
+  afterFirstPoints() {
+    if (!this.view.plain) return;
+    this.view.plain = false;
+    this.extras(true);
+    this.drawTrack();
     this.fitTrackToRails().catch((e) => this.fail(e));
+    this.view.requestRender();
+  }
+
+  extras(visible) {
+    for (const group of [this.changes.group, this.pois.group, this.tools.measureGroup]) group.visible = visible;
   }
 
   /**
@@ -259,7 +288,7 @@ export class App {
   }
 
   drawTrack() {
-    if (!this.track || !this.view.origin || this.trackGroup) return;
+    if (!this.track || !this.view.origin || this.trackGroup || this.view.plain) return;
     this.trackGroup = trackObjects(this.track, this.view);
     if (this.railDrop) this.trackGroup.position.z = -this.railDrop;
     this.view.scene.add(this.trackGroup);
@@ -334,6 +363,7 @@ export class App {
   frame() {
     const share = Math.floor(this.budget / Math.max(1, this.layers.length));
     for (const layer of this.layers) layer.update(share);
+    if (this.view.plain && this.layers.some((l) => l.visible.size)) setTimeout(() => this.afterFirstPoints(), 0);
     this.tools.onFrame();
     if (this.uniforms.mode.value === 3) this.tools.updateChangeColours();
     this.updateStatus();
@@ -535,7 +565,7 @@ export class App {
       points: this.layers.reduce((n, l) => n + l.stats.points, 0),
       tilesLoaded: this.layers.reduce((n, l) => n + l.loaded.size, 0),
       inFlight: this.layers.reduce((n, l) => n + l.inFlight.size, 0),
-      firstDrawnMs: this.layers.map((l) => l.firstDrawnAt).filter((t) => t !== null).map((t) => t - this.startedAt)[0] ?? null,
+      firstPointsMs: this.firstPointsMs ?? null,
       frames: this.view.frames,
       live: this.liveState,
       changes: this.changes.items.length,

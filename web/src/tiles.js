@@ -210,7 +210,10 @@ export class TileLayer {
         this.announced.delete(`${key}@${tile.version}`);
       }
     }
-    if (show.size && this.firstDrawnAt === null) this.firstDrawnAt = now;
+    if (show.size && this.firstDrawnAt === null) {
+      this.firstDrawnAt = now;
+      performance.mark('raillomer:first-drawn');
+    }
     this.visible = show;
     this.stats.points = points;
   }
@@ -226,8 +229,14 @@ export class TileLayer {
       cache: 'no-cache',
     })
       .then((res) => res.arrayBuffer())
-      .then((buffer) => this.decoder.decode(buffer))
-      .then((decoded) => this.store(t, key, decoded))
+      .then((buffer) => {
+        performance.mark(`raillomer:fetched ${key}`);
+        return this.decoder.decode(buffer);
+      })
+      .then((decoded) => {
+        performance.mark(`raillomer:decoded ${key}`);
+        this.store(t, key, decoded);
+      })
       .catch((e) => {
         if (e.name === 'AbortError') return;
         this.stats.failed += 1;

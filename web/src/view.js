@@ -47,7 +47,10 @@ const edlFragment = /* glsl */ `
 export class View {
   constructor(container) {
     this.container = container;
-    this.renderer = new THREE.WebGLRenderer({ antialias: false });
+    const early = window.__raillomerCanvas; // started by index.html
+    this.renderer = new THREE.WebGLRenderer(
+      early ? { canvas: early.canvas, context: early.gl, antialias: false } : { antialias: false },
+    );
     this.renderer.setPixelRatio(1);
     this.renderer.localClippingEnabled = true;
     this.renderer.setClearColor(0x10141a);
@@ -62,8 +65,12 @@ export class View {
     this.controls.addEventListener('change', () => this.requestRender());
     this.origin = null; // [E, N, h] of the scene frame
     this.edlEnabled = true;
+    // Until the first points are on screen, frames are drawn plain: the extras' shaders
+    // (eye-dome lighting, lines, labels) compile after them, not before.
+    this.plain = true;
     this.edlStrength = 0.4;
     this.listeners = [];
+    this.renderedListeners = [];
     this.pending = false;
     this.frames = 0;
     this.makeEdl();
@@ -99,7 +106,12 @@ export class View {
   resize() {
     const w = Math.max(1, this.container.clientWidth);
     const h = Math.max(1, this.container.clientHeight);
-    this.renderer.setSize(w, h);
+    if (w === this.width && h === this.height) return;
+    this.width = w;
+    this.height = h;
+    // Resizing the drawing buffer costs; a canvas made at this size keeps its own.
+    const size = this.renderer.getSize(new THREE.Vector2());
+    if (size.x !== w || size.y !== h) this.renderer.setSize(w, h);
     this.target.setSize(w, h);
     this.edlMaterial.uniforms.texel.value.set(1 / w, 1 / h);
     this.camera.aspect = w / h;
@@ -128,6 +140,11 @@ export class View {
     this.listeners.push(fn);
   }
 
+  /** Called after each frame is drawn. */
+  onRendered(fn) {
+    this.renderedListeners.push(fn);
+  }
+
   requestRender() {
     if (this.pending) return;
     this.pending = true;
@@ -139,7 +156,10 @@ export class View {
 
   draw() {
     for (const fn of this.listeners) fn();
-    if (this.edlEnabled) {
+    // Nothing is placed before the scene has its origin: an empty frame would only cost time
+    // (compiling shaders in software takes a good part of a second).
+    if (!this.origin) return;
+    if (this.edlEnabled && !this.plain) {
       this.edlMaterial.uniforms.strength.value = this.edlStrength;
       this.renderer.setRenderTarget(this.target);
       this.renderer.render(this.scene, this.camera);
@@ -149,6 +169,8 @@ export class View {
       this.renderer.render(this.scene, this.camera);
     }
     this.frames += 1;
+    for (const fn of this.renderedListeners) fn();
+    if (this.frames <= 3) performance.mark(`raillomer:frame ${this.frames}`);
   }
 
   /** Looks at a scene point from `distance` metres, along `heading` (radians, east = 0). */
