@@ -204,3 +204,18 @@ function countHue(png, test) {
   for (let i = 0; i < png.pixels.length; i += 3) if (test(png.pixels[i], png.pixels[i + 1], png.pixels[i + 2])) n++;
   return n;
 }
+
+test('tiles seen before are revalidated by their ETag, not fetched again', async ({ page }) => {
+  const f = fixture();
+  const count304 = async () => {
+    const text = await (await fetch(`${f.base}/metrics`)).text();
+    const m = /raillomer_http_requests_total\{route="tiles\.get",status="304"\} (\d+)/.exec(text);
+    return m ? Number(m[1]) : 0;
+  };
+  await page.goto(`${f.base}/?run=${f.reference}`);
+  await waitForPoints(page);
+  const before = await count304();
+  await page.reload();
+  await waitForPoints(page);
+  expect(await count304()).toBeGreaterThan(before);
+});

@@ -74,6 +74,7 @@ export class App {
     this.bindControls();
     try {
       [this.info, this.runs] = await Promise.all([api.info(), api.runs()]);
+      performance.mark('raillomer:runs');
     } catch (e) {
       this.fail(e, true);
       return;
@@ -180,13 +181,16 @@ export class App {
       onChange: () => this.view.requestRender(),
     });
     await layer.loadIndex();
+    performance.mark(`raillomer:index ${id}`);
     this.view.scene.add(layer.group);
     return layer;
   }
 
   async loadTrack(runId) {
     const [tum, geo] = await Promise.all([api.trajectoryTum(runId), api.trajectoryGeo(runId)]);
+    performance.mark('raillomer:track-fetched');
     this.rawTrack = new Track(parseTrajectory(tum, geo));
+    performance.mark('raillomer:track-parsed');
     this.setTrack(this.rawTrack);
   }
 
