@@ -219,3 +219,20 @@ test('tiles seen before are revalidated by their ETag, not fetched again', async
   await waitForPoints(page);
   expect(await count304()).toBeGreaterThan(before);
 });
+
+test('a run without tiles says so over the view', async ({ page }) => {
+  const f = fixture();
+  const post = (p, body) =>
+    fetch(f.base + p, {
+      method: 'POST',
+      headers: { Authorization: `Bearer ${f.token}`, 'Content-Type': 'application/json' },
+      body: JSON.stringify(body),
+    }).then((r) => r.json());
+  const run = await post('/api/v1/runs', { line: 'Empty line', vehicle: 'RLM-9' });
+  try {
+    await page.goto(`${f.base}/?run=${run.id}`);
+    await expect(page.locator('#message')).toContainText(`Run ${run.id} has no tiles yet`);
+  } finally {
+    await post(`/api/v1/runs/${run.id}/finish`, {});
+  }
+});

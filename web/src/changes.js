@@ -8,6 +8,13 @@ import { escapeHtml, fmt } from './util.js';
 const $ = (id) => document.getElementById(id);
 const KIND_COLORS = { added: 0xff7b72, removed: 0x58a6ff, moved: 0xd2a8ff, vegetation: 0x3fb950 };
 
+/** The change against the structure gauge, in words (a removed object no longer intrudes). */
+function gaugeText(c) {
+  if (c.intrudes_envelope) return `yes, ${fmt(-c.margin_m)} m inside`;
+  if (c.kind === 'removed' && c.margin_m < 0) return `no longer: it stood ${fmt(-c.margin_m)} m inside`;
+  return `no, ${fmt(c.margin_m)} m clear`;
+}
+
 export class ChangesPanel {
   constructor(app) {
     this.app = app;
@@ -131,7 +138,7 @@ export class ChangesPanel {
       ['side, offset', `${c.side}, ${fmt(c.offset_m)} m`],
       ['size (along, across, height)', c.size_m.map((v) => fmt(v)).join(' × ') + ' m'],
       ['height above rail', `${fmt(c.height_above_rail_m[0])} to ${fmt(c.height_above_rail_m[1])} m`],
-      ['in the gauge', c.intrudes_envelope ? `yes, ${fmt(-c.margin_m)} m inside` : `no, margin ${fmt(c.margin_m)} m`],
+      ['in the gauge', gaugeText(c)],
       ['vegetation rule', c.breaks_vegetation_rule ? 'broken' : 'kept'],
       ['UTM', `${c.utm.map((v) => v.toFixed(2)).join(', ')} (${c.utm_zone})`],
       ['reference run', c.reference_run],

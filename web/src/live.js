@@ -1,5 +1,5 @@
-// The live hub (WebSocket on the server's ws_port): poses, tiles written, changes found and runs
-// created or finished, for the runs subscribed to; reconnects with a growing pause.
+// The live hub (WebSocket on the server's ws_port): poses, tiles written, changes found and the
+// run finished, for the runs on screen; reconnects with a growing pause.
 export class Live {
   constructor(onMessage, onState) {
     this.onMessage = onMessage;
@@ -37,15 +37,19 @@ export class Live {
     this.socket.onerror = () => {}; // onclose follows and retries
   }
 
-  /** Runs of interest; run messages of every run arrive regardless (new runs appear). */
+  /** The runs on screen: their poses, tiles, changes and run messages, no other run's. */
   subscribe(runs) {
-    this.runs = runs;
+    const gone = this.runs.filter((r) => !runs.includes(r));
+    this.runs = [...runs];
+    if (this.socket?.readyState === WebSocket.OPEN && gone.length) {
+      this.socket.send(JSON.stringify({ unsubscribe: gone }));
+    }
     this.sendSubscription();
   }
 
   sendSubscription() {
-    if (this.socket?.readyState === WebSocket.OPEN) {
-      this.socket.send(JSON.stringify({ subscribe: 'all' }));
+    if (this.socket?.readyState === WebSocket.OPEN && this.runs.length) {
+      this.socket.send(JSON.stringify({ subscribe: this.runs }));
     }
   }
 }

@@ -32,7 +32,6 @@ export class App {
     this.view.scene.add(this.train);
     this.budget = 2_000_000;
     this.errors = [];
-    this.startedAt = performance.now();
     this.live = new Live((m) => this.onLive(m), (s) => this.setLiveState(s));
     this.changes = new ChangesPanel(this);
     this.pois = new PoiPanel(this);
