@@ -1,6 +1,7 @@
 // The viewer: picks a line and run (from the URL, or the most recent run, a live one first),
 // streams its tiles into the 3D view, and wires the panels: changes, tools, POIs, profile.
 import './style.css';
+import * as THREE from 'three';
 import { api, ApiError, saveToken, savedToken } from './api.js';
 import { DecoderPool } from './decoder.js';
 import { Live } from './live.js';
@@ -42,6 +43,11 @@ export class App {
       // from the navigation's start).
       if (this.firstPointsMs === undefined && this.layers.some((l) => l.visible.size)) {
         this.firstPointsMs = performance.now();
+      }
+      // The first frame has sent for the first tiles: compile while they come.
+      if (!this.shadersWarm && this.view.origin) {
+        this.shadersWarm = true;
+        setTimeout(() => this.warmShaders(), 0);
       }
     });
     this.extras(false);
@@ -255,6 +261,21 @@ export class App {
       this.view.lookAt(this.view.toScene(origin), 70);
     }
     if (url.change) this.changes.select(url.change, true);
+  }
+
+  /**
+   * Compiles the point shaders while the first tiles are on their way (in software a compile
+   * takes a good part of a second; the first frame with points then only draws).
+   */
+  warmShaders() {
+    const scene = new THREE.Scene();
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3), 3));
+    geometry.setAttribute('intensity', new THREE.BufferAttribute(new Uint8Array(1), 1, true));
+    geometry.setAttribute('change', new THREE.BufferAttribute(new Float32Array(1), 1));
+    for (const layer of this.layers) scene.add(new THREE.Points(geometry, layer.material));
+    this.view.renderer.compile(scene, this.view.camera);
+    geometry.dispose();
   }
 
   /**
