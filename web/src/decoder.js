@@ -1,4 +1,4 @@
-// A pool of decoder workers: decode(buffer) resolves with the tile's points.
+// A pool of tile workers: load(url) resolves with the tile's decoded points.
 export class DecoderPool {
   constructor(size = 2) {
     this.workers = [];
@@ -15,12 +15,14 @@ export class DecoderPool {
     }
   }
 
-  decode(buffer) {
+  /** Fetches and decodes a tile in a worker; `signal` aborts it (an AbortError). */
+  load(url, signal) {
     const id = ++this.seq;
     const worker = this.workers[this.next++ % this.workers.length];
     return new Promise((resolve, reject) => {
       this.jobs.set(id, { resolve, reject });
-      worker.postMessage({ id, buffer }, [buffer]);
+      worker.postMessage({ id, url });
+      signal?.addEventListener('abort', () => worker.postMessage({ cancel: id }), { once: true });
     });
   }
 
@@ -28,7 +30,8 @@ export class DecoderPool {
     const job = this.jobs.get(message.id);
     if (!job) return;
     this.jobs.delete(message.id);
-    if (message.error) job.reject(new Error(message.error));
+    if (message.aborted) job.reject(new DOMException('the tile left the view', 'AbortError'));
+    else if (message.error) job.reject(new Error(message.error));
     else job.resolve(message);
   }
 

@@ -1,6 +1,8 @@
-// Decodes tiles (Draco point clouds) off the main thread with Google's draco3d decoder: a
-// message {id, buffer} is answered with {id, positions (Float32Array, offsets from the tile
-// origin), intensities (Uint8Array), points} or {id, error}.
+// Loads and decodes tiles (Draco point clouds) off the main thread with Google's draco3d
+// decoder: {id, url} is fetched (revalidated by its ETag) and answered with {id, positions
+// (Float32Array, offsets from the tile origin), intensities (Uint8Array), points} or {id, error};
+// {cancel: id} aborts a fetch still on its way. The main thread, busy compiling shaders or
+// drawing in software, holds up neither.
 import DracoDecoderModule from 'draco3d/draco_decoder_nodejs.js';
 import wasmUrl from 'draco3d/draco_decoder.wasm?url';
 
@@ -46,13 +48,38 @@ function decode(draco, bytes) {
   }
 }
 
-self.onmessage = async (event) => {
-  const { id, buffer } = event.data;
+const inFlight = new Map(); // id -> AbortController
+
+async function errorOf(res) {
   try {
+    const body = await res.json();
+    if (body?.error?.message) return `${res.status}: ${body.error.message}`;
+  } catch {
+    // not JSON
+  }
+  return `${res.status} ${res.statusText}`;
+}
+
+async function load(id, url) {
+  const controller = new AbortController();
+  inFlight.set(id, controller);
+  try {
+    const res = await fetch(url, { cache: 'no-cache', signal: controller.signal });
+    if (!res.ok) throw new Error(await errorOf(res));
+    const bytes = new Int8Array(await res.arrayBuffer());
     const draco = await ready;
-    const out = decode(draco, new Int8Array(buffer));
+    const out = decode(draco, bytes);
     self.postMessage({ id, ...out }, [out.positions.buffer, out.intensities.buffer]);
   } catch (e) {
-    self.postMessage({ id, error: String(e.message || e) });
+    if (e.name === 'AbortError') self.postMessage({ id, aborted: true });
+    else self.postMessage({ id, error: String(e.message || e) });
+  } finally {
+    inFlight.delete(id);
   }
+}
+
+self.onmessage = (event) => {
+  const { id, url, cancel } = event.data;
+  if (cancel !== undefined) inFlight.get(cancel)?.abort();
+  else load(id, url);
 };

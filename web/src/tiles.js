@@ -2,7 +2,7 @@
 // (nearest first, coarser further away), loading and decoding them, and letting go of those
 // that left the view.
 import * as THREE from 'three';
-import { api, request } from './api.js';
+import { api } from './api.js';
 import { tilePoints } from './points.js';
 import { framePoints } from './registration.js';
 
@@ -223,20 +223,11 @@ export class TileLayer {
     const controller = new AbortController();
     this.inFlight.set(key, controller);
     this.stats.requested += 1;
-    // no-cache: the browser revalidates with the tile's ETag, a 304 costs no bytes.
-    request(`/api/v1/runs/${this.run}/tiles/${key}`, {
-      signal: controller.signal,
-      cache: 'no-cache',
-    })
-      .then((res) => res.arrayBuffer())
-      .then((buffer) => {
-        performance.mark(`raillomer:fetched ${key}`);
-        return this.decoder.decode(buffer);
-      })
-      .then((decoded) => {
-        performance.mark(`raillomer:decoded ${key}`);
-        this.store(t, key, decoded);
-      })
+    // The worker fetches with no-cache: the browser revalidates with the tile's ETag, a 304
+    // costs no bytes.
+    this.decoder
+      .load(this.url(key), controller.signal)
+      .then((decoded) => this.store(t, key, decoded))
       .catch((e) => {
         if (e.name === 'AbortError') return;
         this.stats.failed += 1;
@@ -284,6 +275,10 @@ export class TileLayer {
     this.stats.loaded += 1;
   }
 
+  url(key) {
+    return `/api/v1/runs/${this.run}/tiles/${key}`;
+  }
+
   offset(t) {
     const o = this.view.origin;
     return [t.origin[0] - o[0], t.origin[1] - o[1], t.origin[2] - o[2]];
@@ -321,8 +316,7 @@ export class TileLayer {
         const key = keyOf(0, ix, iy);
         keys.push(key);
         if (this.loaded.get(key)?.version === t.version) continue;
-        const res = await request(`/api/v1/runs/${this.run}/tiles/${key}`, { cache: 'no-cache' });
-        this.store(t, key, await this.decoder.decode(await res.arrayBuffer()));
+        this.store(t, key, await this.decoder.load(this.url(key)));
       }
     }
     return keys;
