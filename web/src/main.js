@@ -154,17 +154,7 @@ export class App {
     }
     performance.mark('raillomer:run-loaded');
     await this.applyRegistration(this.registrations);
-    const origin = this.layers.map((l) => l.anyOrigin()).find(Boolean) ?? this.track?.poses[0]?.p;
-    if (!origin) {
-      this.message(
-        this.run.status === 'live'
-          ? `Run ${runId} has no tiles yet: they appear as the train streams them.`
-          : `Run ${runId} has no tiles: nothing was mapped.`,
-        'info',
-      );
-    }
-    if (origin) this.placeScene(origin, url);
-    performance.mark('raillomer:scene-placed');
+    this.placeOrExplain(url);
     this.live.subscribe(ids);
     // A train still on the line: follow it, so the map is seen growing.
     if (this.run.status === 'live' && !url.cam && !Number.isFinite(url.km)) $('follow').checked = true;
@@ -173,6 +163,23 @@ export class App {
     this.tools.onRunOpened();
     this.applyColorMode();
     this.view.requestRender();
+  }
+
+  /** Places the scene at the run's first tile (or pose); without either, says why. */
+  placeOrExplain(url) {
+    const origin = this.layers.map((l) => l.anyOrigin()).find(Boolean) ?? this.track?.poses[0]?.p;
+    if (origin) {
+      this.placeScene(origin, url);
+      performance.mark('raillomer:scene-placed');
+      return;
+    }
+    const id = this.run.id;
+    this.message(
+      this.run.status === 'live'
+        ? `Run ${id} has no tiles yet: they appear as the train streams them.`
+        : `Run ${id} has no tiles: nothing was mapped.`,
+      'info',
+    );
   }
 
   async openLayer(id, runIndex) {
@@ -516,6 +523,16 @@ export class App {
   }
 
   bindControls() {
+    this.bindRunPickers();
+    this.bindNavigation();
+    this.bindDisplay();
+    $('token-input').onchange = () => saveToken(this.token);
+    for (const b of document.querySelectorAll('.tabs button')) {
+      b.onclick = () => this.showTab(b.dataset.tab);
+    }
+  }
+
+  bindRunPickers() {
     $('line-select').onchange = () => {
       const run = this.pickRun({ line: $('line-select').value });
       this.fillRuns(run.line, run.id);
@@ -529,6 +546,9 @@ export class App {
     $('compare-select').onchange = () => {
       this.reopen(this.run.id, Number($('compare-select').value) || null);
     };
+  }
+
+  bindNavigation() {
     $('km-form').onsubmit = (e) => {
       e.preventDefault();
       const km = parseKm($('km-input').value);
@@ -539,6 +559,9 @@ export class App {
     $('km-back').onclick = () => this.moveAlong(-100);
     $('km-ahead').onclick = () => this.moveAlong(100);
     $('drive').onchange = () => this.ride($('drive').checked);
+  }
+
+  bindDisplay() {
     $('color-select').onchange = () => {
       if ($('color-select').value === 'change' && this.layers.length < 2) this.compareWithReference();
       this.applyColorMode();
@@ -551,10 +574,6 @@ export class App {
       this.view.edlEnabled = $('edl').checked;
       this.view.requestRender();
     };
-    $('token-input').onchange = () => saveToken(this.token);
-    for (const b of document.querySelectorAll('.tabs button')) {
-      b.onclick = () => this.showTab(b.dataset.tab);
-    }
   }
 
   showTab(name) {
