@@ -83,6 +83,15 @@ TEST_F(ChangeStoreTest, StoresAStretchOnceWithItsChanges) {
   ASSERT_TRUE(changes_->Frame(2, 0, &frame));
   EXPECT_TRUE(frame.T_reference_later.isApprox(o.T_reference_later));
   EXPECT_TRUE(frame.origin.isApprox(o.origin));
+  // Every compared stretch's registration, with its chainage (what the viewer draws with).
+  std::vector<StretchFrame> frames;
+  ASSERT_TRUE(changes_->Frames(2, &frames));
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_EQ(frames[0].stretch, 0);
+  EXPECT_DOUBLE_EQ(frames[0].from_m, o.range.from_m);
+  EXPECT_DOUBLE_EQ(frames[0].to_m, o.range.to_m);
+  EXPECT_NEAR(frames[0].rms_m, 0.02, 1e-9);
+  EXPECT_TRUE(frames[0].T_reference_later.isApprox(o.T_reference_later));
 }
 
 TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceDropsTheOldResults) {

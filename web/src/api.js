@@ -28,7 +28,8 @@ export function saveToken(token) {
   }
 }
 
-async function errorOf(res) {
+/** The error a refused answer names (`{"error": {"code", "message"}}`), as an ApiError. */
+export async function errorOf(res) {
   let message = `${res.status} ${res.statusText}`;
   let code = '';
   try {
@@ -65,7 +66,8 @@ function prefetched(path) {
   return p;
 }
 
-export async function getJson(path, options = {}) {
+/** A GET's body as `as` ('json' or 'text'), from index.html's prefetch when it started one. */
+async function read(path, as) {
   const early = prefetched(path);
   if (early) {
     try {
@@ -74,21 +76,11 @@ export async function getJson(path, options = {}) {
       // Ask again: the error then says what went wrong.
     }
   }
-  const res = await request(path, options);
-  return res.json();
+  return (await request(path))[as]();
 }
 
-async function getText(path) {
-  const early = prefetched(path);
-  if (early) {
-    try {
-      return await early;
-    } catch {
-      // as in getJson
-    }
-  }
-  return (await request(path)).text();
-}
+export const getJson = (path) => read(path, 'json');
+const getText = (path) => read(path, 'text');
 
 /** A write with the ingest token (PATCH, POST, DELETE). */
 export async function send(method, path, body, token) {
@@ -107,8 +99,6 @@ export async function send(method, path, body, token) {
 export const api = {
   info: () => getJson('/api/v1/info'),
   runs: () => getJson('/api/v1/runs').then((r) => r.runs),
-  run: (id) => getJson(`/api/v1/runs/${id}`),
-  lines: () => getJson('/api/v1/lines').then((r) => r.lines),
   tiles: (run, level, bbox) =>
     getJson(`/api/v1/runs/${run}/tiles?level=${level}${bbox ? `&bbox=${bbox.join(',')}` : ''}`),
   trajectoryTum: (run) => getText(`/api/v1/runs/${run}/trajectory?format=tum`),

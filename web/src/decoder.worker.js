@@ -5,6 +5,7 @@
 // drawing in software, holds up neither.
 import DracoDecoderModule from 'draco3d/draco_decoder_nodejs.js';
 import wasmUrl from 'draco3d/draco_decoder.wasm?url';
+import { errorOf } from './api.js';
 
 const ready = fetch(wasmUrl)
   .then((res) => {
@@ -50,22 +51,12 @@ function decode(draco, bytes) {
 
 const inFlight = new Map(); // id -> AbortController
 
-async function errorOf(res) {
-  try {
-    const body = await res.json();
-    if (body?.error?.message) return `${res.status}: ${body.error.message}`;
-  } catch {
-    // not JSON
-  }
-  return `${res.status} ${res.statusText}`;
-}
-
 async function load(id, url) {
   const controller = new AbortController();
   inFlight.set(id, controller);
   try {
     const res = await fetch(url, { cache: 'no-cache', signal: controller.signal });
-    if (!res.ok) throw new Error(await errorOf(res));
+    if (!res.ok) throw await errorOf(res);
     const bytes = new Int8Array(await res.arrayBuffer());
     const draco = await ready;
     const out = decode(draco, bytes);

@@ -8,7 +8,7 @@ import { Live } from './live.js';
 import { ChangesPanel } from './changes.js';
 import { PoiPanel } from './pois.js';
 import { Tools } from './tools.js';
-import { COLOR_MODES, RUN_COLORS, pointMaterial, sharedUniforms } from './points.js';
+import { COLOR_MODES, RUN_COLORS, pointMaterial, sharedUniforms, tilePoints } from './points.js';
 import { TileLayer } from './tiles.js';
 import { Track, formatKm, parseKm, parseTrajectory, trackObjects, trainMarker } from './track.js';
 import { View } from './view.js';
@@ -79,7 +79,6 @@ export class App {
     this.bindControls();
     try {
       [this.info, this.runs] = await Promise.all([api.info(), api.runs()]);
-      performance.mark('raillomer:runs');
     } catch (e) {
       this.fail(e, true);
       return;
@@ -193,16 +192,13 @@ export class App {
       onChange: () => this.view.requestRender(),
     });
     await layer.loadIndex();
-    performance.mark(`raillomer:index ${id}`);
     this.view.scene.add(layer.group);
     return layer;
   }
 
   async loadTrack(runId) {
     const [tum, geo] = await Promise.all([api.trajectoryTum(runId), api.trajectoryGeo(runId)]);
-    performance.mark('raillomer:track-fetched');
     this.rawTrack = new Track(parseTrajectory(tum, geo));
-    performance.mark('raillomer:track-parsed');
     this.setTrack(this.rawTrack);
   }
 
@@ -276,13 +272,10 @@ export class App {
    */
   warmShaders() {
     const scene = new THREE.Scene();
-    const geometry = new THREE.BufferGeometry();
-    geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3), 3));
-    geometry.setAttribute('intensity', new THREE.BufferAttribute(new Uint8Array(1), 1, true));
-    geometry.setAttribute('change', new THREE.BufferAttribute(new Float32Array(1), 1));
-    for (const layer of this.layers) scene.add(new THREE.Points(geometry, layer.material));
+    const one = { positions: new Float32Array(3), intensities: new Uint8Array(1), points: 1 };
+    for (const layer of this.layers) scene.add(tilePoints(one, layer.material));
     this.view.renderer.compile(scene, this.view.camera);
-    geometry.dispose();
+    for (const p of scene.children) p.geometry.dispose();
   }
 
   /**

@@ -90,8 +90,8 @@ export function sharedUniforms() {
   };
 }
 
-/** A THREE.Points for a decoded tile, placed at its origin relative to the scene origin. */
-export function tilePoints(decoded, offset, material) {
+/** A THREE.Points for a decoded tile; its owner places it (matrix, not position). */
+export function tilePoints(decoded, material) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute('position', new THREE.BufferAttribute(decoded.positions, 3));
   geometry.setAttribute('intensity', new THREE.BufferAttribute(decoded.intensities, 1, true));
@@ -99,9 +99,7 @@ export function tilePoints(decoded, offset, material) {
   geometry.setAttribute('change', new THREE.BufferAttribute(change, 1));
   geometry.computeBoundingSphere();
   const points = new THREE.Points(geometry, material);
-  points.position.set(offset[0], offset[1], offset[2]);
   points.frustumCulled = true;
   points.matrixAutoUpdate = false;
-  points.updateMatrix();
   return points;
 }

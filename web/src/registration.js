@@ -29,26 +29,31 @@ export class Registration {
     return best?.s ?? null;
   }
 
-  /** A UTM point of the run in the reference's map. */
+  /** A UTM point of the run in the reference's map (through stretch `s`; none: as it is). */
   apply(s, p) {
-    if (!s) return p;
-    const a = [p[0] - s.origin[0], p[1] - s.origin[1], p[2] - s.origin[2]];
-    return [0, 1, 2].map((i) => s.R[i][0] * a[0] + s.R[i][1] * a[1] + s.R[i][2] * a[2] + s.t[i] + s.origin[i]);
+    return applyStretch(s, p);
   }
+}
 
-  /** The matrix placing a tile's points (offsets from `tileOrigin`) in the scene (origin O). */
-  matrix(s, tileOrigin, O) {
-    const m = new THREE.Matrix4();
-    if (!s) return m.makeTranslation(tileOrigin[0] - O[0], tileOrigin[1] - O[1], tileOrigin[2] - O[2]);
-    const d = this.apply(s, tileOrigin);
-    const R = s.R;
-    return m.set(
-      R[0][0], R[0][1], R[0][2], d[0] - O[0],
-      R[1][0], R[1][1], R[1][2], d[1] - O[1],
-      R[2][0], R[2][1], R[2][2], d[2] - O[2],
-      0, 0, 0, 1,
-    );
-  }
+function applyStretch(s, p) {
+  if (!s) return p;
+  const a = [p[0] - s.origin[0], p[1] - s.origin[1], p[2] - s.origin[2]];
+  return [0, 1, 2].map((i) => s.R[i][0] * a[0] + s.R[i][1] * a[1] + s.R[i][2] * a[2] + s.t[i] + s.origin[i]);
+}
+
+/**
+ * The matrix placing a tile's points (offsets from `tileOrigin`, UTM) in the scene (origin `O`),
+ * through a stretch's registration (none: at the tile's origin as recorded).
+ */
+export function tileMatrix(s, tileOrigin, O) {
+  const d = applyStretch(s, tileOrigin);
+  const R = s?.R ?? [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
+  return new THREE.Matrix4().set(
+    R[0][0], R[0][1], R[0][2], d[0] - O[0],
+    R[1][0], R[1][1], R[1][2], d[1] - O[1],
+    R[2][0], R[2][1], R[2][2], d[2] - O[2],
+    0, 0, 0, 1,
+  );
 }
 
 /** The points of a THREE.Points in its parent's frame (its matrix applied). */

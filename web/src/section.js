@@ -3,7 +3,7 @@
 // and the nearest point's margin, drawn in 2D.
 import { formatKm } from './track.js';
 
-const RAIL_HALF_GAUGE_M = 0.7175; // rail-head centres: 1435 mm gauge + head width
+export const RAIL_HALF_GAUGE_M = 0.7175; // rail-head centres: 1435 mm gauge + head width
 
 /** Signed distance of (u, h) from a polygon: negative inside. */
 export function polygonMargin(poly, u, h) {

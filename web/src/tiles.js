@@ -4,7 +4,7 @@
 import * as THREE from 'three';
 import { api } from './api.js';
 import { tilePoints } from './points.js';
-import { framePoints } from './registration.js';
+import { framePoints, tileMatrix } from './registration.js';
 
 const MAX_IN_FLIGHT = 4;
 const keyOf = (level, ix, iy) => `${level}/${ix}/${iy}`;
@@ -25,7 +25,7 @@ export class TileLayer {
     this.group.name = `run ${run}`;
     this.visible = new Set();
     this.wanted = [];
-    this.stats = { requested: 0, loaded: 0, failed: 0, notModified: 0, points: 0 };
+    this.stats = { requested: 0, loaded: 0, failed: 0, points: 0 };
     this.lastError = null;
     this.firstDrawnAt = null;
     this.announced = new Map(); // key@version -> server's sent_ns of a live tiles message
@@ -143,24 +143,22 @@ export class TileLayer {
   update(budget) {
     if (!this.view.origin) return;
     this.wanted = this.select(budget);
-    const wantedKeys = new Set(this.wanted.map((t) => keyOf(t.level, t.ix, t.iy)));
+    // The coarse ancestors of what is wanted: a few small tiles put the whole view on screen
+    // at once, and stand in while the finer ones load.
     const top = this.index.length - 1;
+    const ancestors = new Map();
     for (const t of this.wanted) {
       const a = this.ancestor(t, top);
-      if (a) wantedKeys.add(keyOf(a.level, a.ix, a.iy));
+      if (a) ancestors.set(keyOf(a.level, a.ix, a.iy), a);
     }
+    const wantedKeys = new Set([...this.wanted.map((t) => keyOf(t.level, t.ix, t.iy)), ...ancestors.keys()]);
     for (const [key, controller] of this.inFlight) {
       if (!wantedKeys.has(key)) {
         controller.abort();
         this.inFlight.delete(key);
       }
     }
-    // The coarse ancestors first: a few small tiles put the whole view on screen at once,
-    // and stand in while the finer ones load.
-    for (const t of this.wanted) {
-      const top = this.ancestor(t, this.index.length - 1);
-      if (top && !this.loaded.has(keyOf(top.level, top.ix, top.iy))) this.fetchTile(top, keyOf(top.level, top.ix, top.iy));
-    }
+    for (const [key, a] of ancestors) if (!this.loaded.has(key)) this.fetchTile(a, key);
     const show = new Set();
     for (const t of this.wanted) {
       const key = keyOf(t.level, t.ix, t.iy);
@@ -248,22 +246,19 @@ export class TileLayer {
 
   /** A tile's matrix: at its origin, through its stretch's registration if there is one. */
   place(points, t) {
-    const o = this.view.origin;
+    let stretch = null;
     if (this.registration && !this.registration.empty) {
       const half = this.side(t.level) / 2;
-      const centre = [t.origin[0] + half, t.origin[1] + half, t.origin[2]];
-      const located = this.track?.locate(centre);
-      const s = located ? this.registration.at(located.chainage) : null;
-      points.matrix.copy(this.registration.matrix(s, t.origin, o));
-    } else {
-      points.matrix.makeTranslation(t.origin[0] - o[0], t.origin[1] - o[1], t.origin[2] - o[2]);
+      const located = this.track?.locate([t.origin[0] + half, t.origin[1] + half, t.origin[2]]);
+      if (located) stretch = this.registration.at(located.chainage);
     }
+    points.matrix.copy(tileMatrix(stretch, t.origin, this.view.origin));
     points.matrixWorldNeedsUpdate = true;
   }
 
   store(t, key, decoded) {
     const old = this.loaded.get(key);
-    const points = tilePoints(decoded, this.offset(t), this.material);
+    const points = tilePoints(decoded, this.material);
     this.place(points, t);
     points.userData = { run: this.run, key, level: t.level, runIndex: this.runIndex };
     if (old) {
@@ -277,11 +272,6 @@ export class TileLayer {
 
   url(key) {
     return `/api/v1/runs/${this.run}/tiles/${key}`;
-  }
-
-  offset(t) {
-    const o = this.view.origin;
-    return [t.origin[0] - o[0], t.origin[1] - o[1], t.origin[2] - o[2]];
   }
 
   /** Lets go of tiles out of view once those held pass twice the budget. */

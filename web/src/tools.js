@@ -3,7 +3,7 @@
 import * as THREE from 'three';
 import { api } from './api.js';
 import { RUN_COLORS } from './points.js';
-import { cutSection, drawSection, widenedGauge } from './section.js';
+import { RAIL_HALF_GAUGE_M, cutSection, drawSection, widenedGauge } from './section.js';
 import { formatKm, parseKm } from './track.js';
 import { drawProfile } from './profile.js';
 import { fmt } from './util.js';
@@ -16,7 +16,7 @@ const neighbours = (t) =>
 
 /** Section points on the rail plane at each rail's offset: [left, right]. */
 const railPoints = (points) =>
-  [1, -1].map((side) => points.filter(([u, h]) => Math.abs(h) < 0.08 && Math.abs(u - side * 0.7175) < 0.1).length);
+  [1, -1].map((side) => points.filter(([u, h]) => Math.abs(h) < 0.08 && Math.abs(u - side * RAIL_HALF_GAUGE_M) < 0.1).length);
 
 export class Tools {
   constructor(app) {
@@ -25,7 +25,6 @@ export class Tools {
     this.lastPick = null;
     this.measureGroup = new THREE.Group();
     app.view.scene.add(this.measureGroup);
-    this.clipPlanes = [];
     this.coloured = new WeakMap();
     this.bind();
   }

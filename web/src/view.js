@@ -170,7 +170,6 @@ export class View {
     }
     this.frames += 1;
     for (const fn of this.renderedListeners) fn();
-    if (this.frames <= 3) performance.mark(`raillomer:frame ${this.frames}`);
   }
 
   /** Looks at a scene point from `distance` metres, along `heading` (radians, east = 0). */
