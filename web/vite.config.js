@@ -1,9 +1,23 @@
 import { defineConfig } from 'vite';
 
+// index.html starts the tile workers before the viewer's code runs; the built page learns the
+// worker's hashed file name here (without a build, as under `vite dev`, the viewer starts them).
+const workerUrlInHtml = {
+  name: 'raillomer-worker-url',
+  transformIndexHtml: {
+    order: 'post',
+    handler(html, ctx) {
+      const worker = Object.keys(ctx.bundle ?? {}).find((f) => /decoder\.worker-[\w-]+\.js$/.test(f));
+      return html.replace('__RAILLOMER_WORKER_URL__', worker ? `/${worker}` : '');
+    },
+  },
+};
+
 // The built viewer (dist/) is what raillomer-server serves at /: hashed files under /assets/,
 // the Draco decoder's wasm among them; nothing is fetched from elsewhere.
 export default defineConfig({
   base: '/',
+  plugins: [workerUrlInHtml],
   resolve: {
     alias: {
       fs: new URL('./src/node-stub.js', import.meta.url).pathname,

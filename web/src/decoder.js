@@ -1,3 +1,10 @@
+// The workers index.html started while the page loaded, taken once.
+function earlyWorkers() {
+  const workers = window.__raillomerWorkers ?? [];
+  delete window.__raillomerWorkers;
+  return workers;
+}
+
 // A pool of tile workers: load(url) resolves with the tile's decoded points.
 export class DecoderPool {
   constructor(size = 2) {
@@ -5,10 +12,10 @@ export class DecoderPool {
     this.jobs = new Map();
     this.next = 0;
     this.seq = 0;
+    const early = earlyWorkers();
     for (let i = 0; i < size; i++) {
-      const worker = new Worker(new URL('./decoder.worker.js', import.meta.url), {
-        type: 'module',
-      });
+      const worker =
+        early[i] ?? new Worker(new URL('./decoder.worker.js', import.meta.url), { type: 'module' });
       worker.onmessage = (event) => this.done(event.data);
       worker.onerror = (event) => this.failAll(`the decoder failed: ${event.message}`);
       this.workers.push(worker);
