@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <deque>
 #include <unordered_set>
 
@@ -73,23 +74,42 @@ std::vector<std::vector<GridCell>> Clusters(const std::vector<GridCell>& cells,
   return clusters;
 }
 
+void Unique(std::vector<uint64_t>* keys) {
+  std::sort(keys->begin(), keys->end());
+  keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
+}
+
 /// A run's occupied voxels as an OctoMap: every other cell is unknown, which a ray crosses.
 class Occupancy {
  public:
   Occupancy(const RunStretch& run, double occupancy_m) : run_(run), tree_(occupancy_m) {
-    // Each point's cell and its 26 neighbours, each cell set once.
-    std::unordered_set<GridCell, GridCellHash> cells;
+    for (const Eigen::Isometry3d& sensor : run.sensors) to_sensor_.push_back(sensor.inverse());
+    // Each point's cell and its 26 neighbours, each cell set once: keys packed into integers
+    // and sorted (far cheaper than a hash set of 27 entries per point).
+    const auto pack = [](uint64_t x, uint64_t y, uint64_t z) { return x << 32 | y << 16 | z; };
+    std::vector<uint64_t> own;
+    own.reserve(run.points.size());
     for (const Eigen::Vector3d& p : run.points) {
       octomap::OcTreeKey key;
-      if (!tree_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) continue;
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz) cells.insert({key[0] + dx, key[1] + dy, key[2] + dz});
+      if (tree_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key))
+        own.push_back(pack(key[0], key[1], key[2]));
     }
-    for (const GridCell& c : cells)
-      tree_.updateNode(octomap::OcTreeKey(static_cast<octomap::key_type>(c.x),
-                                          static_cast<octomap::key_type>(c.y),
-                                          static_cast<octomap::key_type>(c.z)),
+    Unique(&own);
+    std::vector<uint64_t> cells;
+    cells.reserve(27 * own.size());
+    for (uint64_t k : own) {
+      const uint64_t x = k >> 32, y = k >> 16 & 0xffff, z = k & 0xffff;
+      for (uint64_t dx = 0; dx <= 2; ++dx)
+        for (uint64_t dy = 0; dy <= 2; ++dy)
+          for (uint64_t dz = 0; dz <= 2; ++dz)
+            cells.push_back(
+                pack((x + dx - 1) & 0xffff, (y + dy - 1) & 0xffff, (z + dz - 1) & 0xffff));
+    }
+    Unique(&cells);
+    for (uint64_t k : cells)
+      tree_.updateNode(octomap::OcTreeKey(static_cast<octomap::key_type>(k >> 32),
+                                          static_cast<octomap::key_type>(k >> 16 & 0xffff),
+                                          static_cast<octomap::key_type>(k & 0xffff)),
                        true,
                        true);
     tree_.updateInnerOccupancy();
@@ -102,7 +122,7 @@ class Occupancy {
     *reached = false;
     std::vector<size_t> in_view;
     for (size_t i = 0; i < run_.sensors.size(); ++i)
-      if (InView(run_.sensors[i], v, o)) in_view.push_back(i);
+      if (InView(to_sensor_[i], v, o)) in_view.push_back(i);
     const size_t n = std::min(o.sensors_sampled, in_view.size());
     for (size_t k = 0; k < n; ++k) {
       const Eigen::Vector3d origin = run_.sensors[in_view[k * in_view.size() / n]].translation();
@@ -130,10 +150,11 @@ class Occupancy {
   }
 
  private:
-  static bool InView(const Eigen::Isometry3d& sensor,
+  /// Whether `v` lies in the field of view of the sensor whose inverse pose is `to_sensor`.
+  static bool InView(const Eigen::Isometry3d& to_sensor,
                      const Eigen::Vector3d& v,
                      const ChangeOptions& o) {
-    const Eigen::Vector3d d = sensor.inverse() * v;
+    const Eigen::Vector3d d = to_sensor * v;
     const double range = d.norm();
     if (d.x() <= 0.0 || range < o.min_range_m || range > o.max_range_m) return false;
     const double azimuth = std::atan2(d.y(), d.x()) * 180.0 / M_PI;
@@ -143,8 +164,16 @@ class Occupancy {
   }
 
   const RunStretch& run_;
+  std::vector<Eigen::Isometry3d> to_sensor_;  ///< each sensor's pose inverted
   octomap::OcTree tree_;
 };
+
+/// The share of its reached samples an object needs seen empty: more of a thin one (two sides
+/// at most thin_m), which rays hit only now and then.
+double RequiredShare(const Eigen::AlignedBox3d& box, const ChangeOptions& o) {
+  const int thin = (box.sizes().array() <= o.thin_m + 1e-9).count();
+  return thin >= 2 ? o.thin_seen_empty_share : o.seen_empty_share;
+}
 
 /// A cluster as a change if it is large enough and the other run saw its place empty.
 bool Confirm(const std::vector<GridCell>& cluster,
@@ -170,10 +199,17 @@ bool Confirm(const std::vector<GridCell>& cluster,
       cluster.size(),
       std::min(o.max_voxels_sampled, o.voxels_sampled + cluster.size() / o.voxels_per_sample));
   change->seen_empty = change->samples = 0;
+  const double share = RequiredShare(change->box, o);
   for (size_t k = 0; k < n; ++k) {
     bool reached = false;
     change->seen_empty += other.SeenEmpty(change->voxels[k * cluster.size() / n], o, &reached);
     change->samples += reached;
+    // Stop once even every sample left seen empty could not make it a change (unless the
+    // evidence is asked for in full).
+    const size_t left = n - k - 1;
+    if (!o.keep_rejected && (change->seen_empty + left < o.min_seen_voxels ||
+                             change->seen_empty + left < share * (change->samples + left)))
+      break;
   }
   change->seen_empty_share =
       change->samples > 0 ? static_cast<double>(change->seen_empty) / change->samples : 0.0;
@@ -228,10 +264,8 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
         continue;
       }
       ++s.objects;
-      const Eigen::Vector3d size = change.box.sizes();
-      const int thin = (size.array() <= o.thin_m + 1e-9).count();
-      const double share = thin >= 2 ? o.thin_seen_empty_share : o.seen_empty_share;
-      if (change.seen_empty >= o.min_seen_voxels && change.seen_empty_share >= share) {
+      if (change.seen_empty >= o.min_seen_voxels &&
+          change.seen_empty_share >= RequiredShare(change.box, o)) {
         changes.push_back(std::move(change));
       } else {
         ++s.not_observed;

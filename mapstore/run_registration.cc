@@ -163,7 +163,8 @@ bool RegistrationOptions::IsValid(std::string* error) const {
   if (!(planarity > 0.0 && planarity < 1.0 / 3.0))
     return *error = "planarity must be in (0, 1/3)", false;
   if (max_iterations < 1) return *error = "max_iterations must be at least 1", false;
-  if (max_moving_points < 100) return *error = "max_moving_points must be at least 100", false;
+  if (max_moving_points < 100 || coarse_moving_points < 100)
+    return *error = "max_moving_points and coarse_moving_points must be at least 100", false;
   if (!(kernel_floor_m > 0.0)) return *error = "kernel_floor_m must be positive", false;
   return true;
 }
@@ -289,11 +290,13 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_poin
     RegistrationOptions stage = o;
     stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
     const std::vector<Eigen::Vector3d> fixed = VoxelCentroids(fixed_points, stage.voxel_m);
+    const bool last = distance <= o.max_correspondence_m;
     const std::vector<Eigen::Vector3d> moving =
-        EvenSample(VoxelCentroids(moving_points, stage.voxel_m), o.max_moving_points);
+        EvenSample(VoxelCentroids(moving_points, stage.voxel_m),
+                   last ? o.max_moving_points : o.coarse_moving_points);
     if (fixed.size() < 10 || moving.size() < 10) return result;
     RegisterStage(fixed, moving, distance, stage, &result);
-    if (distance <= o.max_correspondence_m) break;
+    if (last) break;
     distance = std::max(o.max_correspondence_m, 0.5 * distance);
   }
   return result;

@@ -25,6 +25,9 @@ struct RegistrationOptions {
   /// Each stage pairs at most this many of the moving cloud's voxel centroids (an even
   /// sample): a stretch's structure is told by far fewer than its hundreds of thousands.
   size_t max_moving_points = 60000;
+  /// ... and the stages before the last at most this many: they only bring the clouds within
+  /// the last stage's reach.
+  size_t coarse_moving_points = 15000;
   /// The robust kernel's (Geman-McClure) scale: 1.5 times the median residual, never below
   /// half the stage's correspondence distance nor this, so that what changed between the runs
   /// does not pull.
