@@ -8,6 +8,7 @@
 #include <unordered_set>
 
 #include "mapstore/grid_cell.h"
+#include "mapstore/tile_codec.h"
 
 namespace raillomer::mapstore {
 namespace {
@@ -113,25 +114,27 @@ class Stretch {
   double chord_scale_ = 0.0;  ///< samples per metre along the chord
 };
 
-/// A run's level-0 points in a UTM box.
+/// A run's level-0 points in a UTM box, each tile read and decoded once.
 Result PointsIn(const MapStore& store,
                 int64_t run,
                 const Eigen::AlignedBox2d& box,
                 std::vector<Eigen::Vector3d>* out) {
   out->clear();
-  ExportRequest request;
-  request.run_id = run;
-  request.has_box = true;
-  request.box = box;
-  request.max_points = 100'000'000;
-  std::unique_ptr<ExportCursor> cursor;
-  Result r = store.PrepareExport(request, &cursor);
+  std::vector<TileInfo> tiles;
+  Result r = store.TilesInBox(run, 0, box, &tiles);
   if (!r) return r;
-  std::vector<ExportPoint> points;
-  while (!cursor->done()) {
-    r = cursor->Next(&points);
+  std::string bytes, error;
+  TilePoints tile;
+  for (const TileInfo& t : tiles) {
+    r = store.Tile(run, t.key, nullptr, &bytes);
     if (!r) return r;
-    for (const ExportPoint& p : points) out->push_back(p.p);
+    if (!DecodeTile(bytes, &tile, &error))
+      return Fail(Outcome::kError,
+                  "tile " + t.key.ToString() + " of run " + std::to_string(run) + ": " + error);
+    for (const Eigen::Vector3f& q : tile.points) {
+      const Eigen::Vector3d p = tile.origin + q.cast<double>();
+      if (box.contains(p.head<2>())) out->push_back(p);
+    }
   }
   return {};
 }
