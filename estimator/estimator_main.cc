@@ -7,6 +7,7 @@
 #include <iostream>
 #include <memory>
 #include <sstream>
+#include <thread>
 
 #include <sys/resource.h>
 
@@ -43,6 +44,7 @@ int main(int argc, char** argv) {
   int64_t seed = -1;
   bool no_odometer = false, no_rail_plane = false, no_height = false, no_favour = false;
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
+  bool realtime = false;
   bool no_gnss = false, no_submaps = false;
   std::string map_path, map_box_text;
   std::string server_url, token, token_file, outbox_dir, line = "unnamed line",
@@ -92,6 +94,10 @@ int main(int argc, char** argv) {
                  map_box_text,
                  "With --map: only points inside the horizontal box x0,y0,x1,y1 (UTM easting, "
                  "northing when georeferenced)");
+  app.add_flag("--realtime",
+               realtime,
+               "Feed the data at the rate it was recorded (as a train delivers it), not as fast as "
+               "it can be processed");
   app.add_flag(
       "--quiet", quiet, "No progress line, configuration log or milestones (warnings still print)");
   app.add_option("--server",
@@ -275,6 +281,10 @@ int main(int argc, char** argv) {
     if (first_s < 0.0) first_s = t;
     if (bag && duration_s > 0.0 && t - first_s > duration_s) break;
     last_s = std::max(last_s, t);
+    if (realtime)
+      std::this_thread::sleep_until(wall_start +
+                                    std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::duration<double>(t - first_s)));
     estimator.Add(message);
     const auto now = std::chrono::steady_clock::now();
     if (!quiet && now - last_report > std::chrono::seconds(5)) {

@@ -7,6 +7,7 @@
 #include <map>
 #include <unordered_set>
 
+#include "mapstore/change_shape.h"
 #include "mapstore/grid_cell.h"
 #include "mapstore/tile_codec.h"
 
@@ -363,28 +364,23 @@ RunChange Place(const StretchChange& c,
   return out;
 }
 
-/// The widest horizontal side of the voxels between two heights (local z).
-double WidthBetween(const std::vector<Eigen::Vector3d>& voxels, double z0, double z1) {
-  Eigen::AlignedBox2d box;
-  for (const Eigen::Vector3d& v : voxels)
-    if (v.z() >= z0 && v.z() <= z1) box.extend(v.head<2>());
-  return box.isEmpty() ? 0.0 : box.sizes().maxCoeff();
-}
-
-/// A tree's shape: a crown high up, wider than what carries it (a trunk, or nothing seen: a
-/// crown with nothing under it). Boxes, wagons and fallen trees stand or lie low.
-bool TreeShaped(const RunChange& c, const std::vector<Eigen::Vector3d>& voxels) {
-  if (c.height_above_rail_max_m < 2.5 || c.size_m.z() < 1.0) return false;
-  double z0 = std::numeric_limits<double>::infinity(), z1 = -z0;
-  for (const Eigen::Vector3d& v : voxels) {
-    z0 = std::min(z0, v.z());
-    z1 = std::max(z1, v.z());
+/// Vegetation centred on its trunk, placed on the line again from there (a mast, tall with a
+/// wide top too, keeps the centre of its pole and cantilever).
+void CentreTrees(const Stretch& stretch,
+                 const RunComparisonOptions& o,
+                 const std::vector<StretchChange>& found,
+                 std::vector<RunChange>* placed) {
+  for (size_t i = 0; i < placed->size(); ++i) {
+    RunChange& c = (*placed)[i];
+    Eigen::Vector2d trunk;
+    if (c.kind != ChangeKind::kVegetation || !TrunkCentre(c, found[i].voxels, o.trunk_m, &trunk))
+      continue;
+    c.centre_utm.head<2>() = trunk + stretch.origin().head<2>();
+    double offset = 0.0, along = 0.0;
+    const TrackSample& at = stretch.Nearest(c.centre_utm, &offset, &along);
+    c.chainage_m = at.point.chainage_m + along;
+    c.offset_m = offset;
   }
-  const double third = (z1 - z0) / 3.0;
-  const double top = WidthBetween(voxels, z1 - third, z1);
-  const double bottom = WidthBetween(voxels, z0, z0 + third);
-  const bool floating = c.height_above_rail_min_m >= 1.5 && top >= 1.0;
-  return floating || (top >= 1.5 && top >= 2.0 * bottom);
 }
 
 /// Added objects that grow out of what the reference had above the ground (a crown, a hedge)
@@ -519,7 +515,7 @@ bool ParseChangeKind(const std::string& name, ChangeKind* kind) {
 bool RunComparisonOptions::IsValid(std::string* error) const {
   if (!(stretch_m >= 10.0 && corridor_m > 0.0 && overlap_m >= 0.0 && look_back_m >= 0.0 &&
         moved_within_m >= 0.0 && moved_size_tolerance >= 0.0 && vegetation_share > 0.0 &&
-        vegetation_near_m > 0.0)) {
+        vegetation_near_m > 0.0 && trunk_m > 0.0)) {
     *error = "comparison options out of range (stretch_m >= 10, corridor_m > 0, ...)";
     return false;
   }
@@ -647,6 +643,7 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
   for (const StretchChange& c : found)
     placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
   MarkVegetation(stretch, parts, o, found, &placed);
+  CentreTrees(stretch, o, found, &placed);
   PairMoved(o, &placed);
   KeepOwn(range, std::move(placed), out);
   out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -41,6 +41,8 @@ struct RunComparisonOptions {
   double vegetation_share = 0.3;
   double vegetation_near_m = 1.0;
   double vegetation_above_rail_m = 1.5;
+  /// Vegetation is centred on its trunk: its lowest third when at most this wide.
+  double trunk_m = 1.0;
   bool IsValid(std::string* error) const;
 };
 
