@@ -42,6 +42,7 @@ CHANGED = {
              (os.path.join(SCENARIOS, "demo_changed_b.yaml"), 7)],
     "rich_low_station_a": [("rich_low_station_a_changed", 2)],
     "rich_high_town_a": [(os.path.join(SCENARIOS, "town_changed.yaml"), 11)],
+    "rich_high_mixed_b": [(os.path.join(SCENARIOS, "mixed_changed.yaml"), 13)],
 }
 # The suite's lines but the 20 km one, each repeated unchanged.
 LINES = ["demo", "rich_low_station_a", "rich_high_town_a", "rich_low_yard_b",
