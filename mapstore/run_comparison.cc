@@ -515,11 +515,20 @@ bool ParseChangeKind(const std::string& name, ChangeKind* kind) {
 bool RunComparisonOptions::IsValid(std::string* error) const {
   if (!(stretch_m >= 10.0 && corridor_m > 0.0 && overlap_m >= 0.0 && look_back_m >= 0.0 &&
         moved_within_m >= 0.0 && moved_size_tolerance >= 0.0 && vegetation_share > 0.0 &&
-        vegetation_near_m > 0.0 && trunk_m > 0.0)) {
+        vegetation_near_m > 0.0 && trunk_m > 0.0 && wire_zone_half_width_m >= 0.0 &&
+        wire_piece_max_m >= 0.0)) {
     *error = "comparison options out of range (stretch_m >= 10, corridor_m > 0, ...)";
     return false;
   }
   return change.IsValid(error) && clearance.IsValid(error) && registration.IsValid(error);
+}
+
+bool CatenaryWirePiece(const RunChange& c, const RunComparisonOptions& o) {
+  const double thin = o.change.thin_m + 1e-9;
+  return (c.kind == ChangeKind::kAdded || c.kind == ChangeKind::kRemoved) &&
+         std::abs(c.offset_m) <= o.wire_zone_half_width_m &&
+         c.height_above_rail_min_m >= o.wire_zone_above_rail_m && c.size_m.y() <= thin &&
+         c.size_m.z() <= thin && c.size_m.x() <= o.wire_piece_max_m;
 }
 
 RunComparison::RunComparison(const MapStore& store, const RunComparisonOptions& options)
@@ -660,7 +669,7 @@ void RunComparison::KeepOwn(const StretchRange& range,
     // the corridor there has nothing of the reference to compare with; an object centred in
     // the overlap with the next or previous stretch is that stretch's.
     if (std::abs(c.offset_m) > options_.corridor_m || (c.chainage_m < range.from_m && !first) ||
-        (c.chainage_m >= range.to_m && !last))
+        (c.chainage_m >= range.to_m && !last) || CatenaryWirePiece(c, options_))
       continue;
     // What is gone cannot be in the way: only what is there now intrudes.
     c.intrudes_envelope = c.kind != ChangeKind::kRemoved && c.margin_m < 0.0;

@@ -1,7 +1,7 @@
 // Change detection of a stretch on scenes with known answers, each run made by casting the
 // LiDARs' rays into a scene of boxes on a ground plane from poses along the track: an added
-// box, a removed pole, a pole hidden behind a wagon (not observed, never removed), and an
-// unchanged scene seen from other poses (nothing).
+// box, a removed pole, a pole hidden behind a wagon (not observed, never removed), an
+// unchanged scene seen from other poses (nothing), and a lost wire (removed).
 #include <cmath>
 #include <limits>
 
@@ -118,6 +118,26 @@ TEST(ChangeDetection, AnUnchangedSceneSeenFromOtherPosesHasNoChange) {
   ChangeOptions bad;
   bad.seen_empty_share = 0.0;
   EXPECT_FALSE(bad.IsValid(&error));
+}
+
+/// A wire along the track 3 m up, 3 m to the left, sampled every 5 cm from `from` to `to` (x).
+void AddWire(RunStretch* run, double from, double to) {
+  for (double x = from; x <= to; x += 0.05) run->points.emplace_back(x, 3.0, 3.0);
+}
+
+/// A noise barrier behind the wire: rays through the wire's place hit it, so a run that has
+/// no wire there saw the place empty.
+const Box kBarrier = Make(20.0, 8.0, 0.0, 60.0, 8.5, 8.0);
+
+TEST(ChangeDetection, AWireTheLaterRunLostIsRemoved) {
+  RunStretch reference = Scan({kBuilding, kBarrier}, 0.0), later = Scan({kBuilding, kBarrier}, 1.0);
+  AddWire(&reference, 26.0, 34.0);
+  StretchSummary summary;
+  const std::vector<StretchChange> changes =
+      CompareStretch(reference, later, ChangeOptions(), &summary);
+  ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects";
+  EXPECT_EQ(changes[0].kind, StretchChange::Kind::kRemoved);
+  EXPECT_GT(changes[0].box.sizes().x(), 7.5);
 }
 
 }  // namespace

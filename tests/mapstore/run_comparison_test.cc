@@ -1,7 +1,8 @@
 // Two stored runs of one line compared end to end through the store: the corridor's submaps
 // and poses ingested twice, the later run 0.4 m off in UTM (another GNSS error) with a box
 // added beside the track; the comparison finds the box, on the left side, at its kilometre,
-// outside the structure gauge, and nothing else.
+// outside the structure gauge, and nothing else; and which pieces of the catenary's wires
+// are no change.
 #include <gtest/gtest.h>
 
 #include "mapstore/run_comparison.h"
@@ -107,6 +108,37 @@ TEST_F(RunComparisonTest, AnObjectStandingElsewhereHasMoved) {
   EXPECT_NEAR(c.chainage_m, 70.6, 0.6);  // where it stands now
   const Eigen::Vector3d before = test::CorridorStart() + Eigen::Vector3d(65.6, 3.0, 0.8);
   EXPECT_LT((c.moved_from_utm - before).head<2>().norm(), 0.3);
+}
+
+/// A piece of contact wire one run sampled: 0.8 m along the track, 0.2 m across and high,
+/// 6 m above the rails, 0.13 m right of the centre (the stagger).
+RunChange WirePiece() {
+  RunChange c;
+  c.kind = ChangeKind::kRemoved;
+  c.offset_m = -0.13;
+  c.size_m = Eigen::Vector3d(0.8, 0.2, 0.2);
+  c.height_above_rail_min_m = 5.93;
+  c.height_above_rail_max_m = 6.03;
+  return c;
+}
+
+TEST(CatenaryWirePiece, OnlyAShortThinPieceAlongTheTrackAtWireHeight) {
+  const RunComparisonOptions o;
+  EXPECT_TRUE(CatenaryWirePiece(WirePiece(), o));
+  RunChange added = WirePiece();
+  added.kind = ChangeKind::kAdded;
+  EXPECT_TRUE(CatenaryWirePiece(added, o));
+  // A cantilever's tube beside the mast, a dropper (upright), a thin bar on the track, a
+  // whole span of wire gone, a branch grown to the wire: all reported.
+  RunChange beside = WirePiece(), upright = WirePiece(), low = WirePiece(), span = WirePiece(),
+            branch = WirePiece();
+  beside.offset_m = -2.0;
+  upright.size_m = Eigen::Vector3d(0.2, 0.2, 1.2);
+  low.height_above_rail_min_m = 0.2;
+  span.size_m.x() = 40.0;
+  branch.kind = ChangeKind::kVegetation;
+  for (const RunChange& c : {beside, upright, low, span, branch})
+    EXPECT_FALSE(CatenaryWirePiece(c, o)) << c.offset_m << " m off, " << c.size_m.transpose();
 }
 
 }  // namespace
