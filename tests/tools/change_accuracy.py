@@ -61,21 +61,30 @@ def pose_chainage(server, run):
 
 
 def stretch_latencies(live, run, chainage, past_m=100.0):
-    """Per stretch announced for `run` while it streamed: seconds from the live pose 100 m
-    past the stretch's end to the change message that announced it."""
-    poses = [(t, m["sequence"]) for t, m in live.messages
+    """Per stretch announced for `run` while it streamed: seconds from the train being 100 m
+    past the stretch's end to the change message that announced it. When the train was at a
+    pose is the pose's stamp on the server's clock: the run is fed at the rate it was recorded,
+    so stamp and clock differ by a constant, taken as the smallest arrival-minus-stamp over the
+    run's poses (the pose that reached the server soonest after it was measured; a georeferenced
+    pose waits up to ~20 s for the GNSS graph's next node). The lags are therefore short by at
+    most that one pose's delay."""
+    poses = [(t, m["sequence"], m["stamp_ns"] * 1e-9) for t, m in live.messages
              if m["type"] == "pose" and m["run"] == run]
+    if not poses:
+        return []
+    clock = min(t - stamp for t, _, stamp in poses)
     done = [(t, m["detection"]["compared_to_m"]) for t, m in live.messages
             if m["type"] == "change" and m["run"] == run and m["detection"]["compared_to_m"]]
-    at = [(t, chainage[s]) for t, s in poses if s < len(chainage) and chainage[s] is not None]
+    at = sorted((stamp + clock, chainage[s]) for _, s, stamp in poses
+                if s < len(chainage) and chainage[s] is not None)
     out, reached = [], -1e9
     for t_done, to_m in done:
         if to_m <= reached:
             continue
         reached = to_m
-        ready = next((t for t, c in at if c >= to_m + past_m), None)
-        if ready is not None and ready <= t_done:
-            out.append(t_done - ready)
+        passed = next((t for t, c in at if c >= to_m + past_m), None)
+        if passed is not None and passed <= t_done:
+            out.append(t_done - passed)
     return out
 
 
