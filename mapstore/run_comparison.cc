@@ -364,6 +364,23 @@ RunChange Place(const StretchChange& c,
   return out;
 }
 
+/// Drops the pieces of the catenary's wires (CatenaryWirePiece), kept in the summary's rejected
+/// ones when it keeps them. `found` and `placed` pair by index.
+void DropWirePieces(const RunComparisonOptions& o,
+                    const std::vector<StretchChange>& found,
+                    std::vector<RunChange>* placed,
+                    StretchSummary* summary) {
+  std::vector<RunChange> kept;
+  for (size_t i = 0; i < placed->size(); ++i) {
+    if (!CatenaryWirePiece((*placed)[i], o)) {
+      kept.push_back(std::move((*placed)[i]));
+    } else if (o.change.keep_rejected) {
+      summary->rejected.emplace_back(found[i], "a piece of the catenary's wires");
+    }
+  }
+  *placed = std::move(kept);
+}
+
 /// Vegetation centred on its trunk, placed on the line again from there (a mast, tall with a
 /// wide top too, keeps the centre of its pole and cantilever).
 void CentreTrees(const Stretch& stretch,
@@ -653,6 +670,7 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
     placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
   MarkVegetation(stretch, parts, o, found, &placed);
   CentreTrees(stretch, o, found, &placed);
+  DropWirePieces(o, found, &placed, &out->summary);
   PairMoved(o, &placed);
   KeepOwn(range, std::move(placed), out);
   out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -669,7 +687,7 @@ void RunComparison::KeepOwn(const StretchRange& range,
     // the corridor there has nothing of the reference to compare with; an object centred in
     // the overlap with the next or previous stretch is that stretch's.
     if (std::abs(c.offset_m) > options_.corridor_m || (c.chainage_m < range.from_m && !first) ||
-        (c.chainage_m >= range.to_m && !last) || CatenaryWirePiece(c, options_))
+        (c.chainage_m >= range.to_m && !last))
       continue;
     // What is gone cannot be in the way: only what is there now intrudes.
     c.intrudes_envelope = c.kind != ChangeKind::kRemoved && c.margin_m < 0.0;
