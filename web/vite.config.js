@@ -13,11 +13,26 @@ const workerUrlInHtml = {
   },
 };
 
+// The stylesheet goes inline: a linked one holds back index.html's early scripts (the WebGL
+// context is made at the view's laid-out size) until it has arrived.
+const inlineStylesheet = {
+  name: 'raillomer-inline-css',
+  transformIndexHtml: {
+    order: 'post',
+    handler(html, ctx) {
+      return html.replace(/<link rel="stylesheet"[^>]*href="\/([^"]+\.css)"[^>]*>/g, (tag, file) => {
+        const css = ctx.bundle?.[file];
+        return css ? `<style>\n${String(css.source).trim()}\n</style>` : tag;
+      });
+    },
+  },
+};
+
 // The built viewer (dist/) is what raillomer-server serves at /: hashed files under /assets/,
 // the Draco decoder's wasm among them; nothing is fetched from elsewhere.
 export default defineConfig({
   base: '/',
-  plugins: [workerUrlInHtml],
+  plugins: [workerUrlInHtml, inlineStylesheet],
   resolve: {
     alias: {
       fs: new URL('./src/node-stub.js', import.meta.url).pathname,
