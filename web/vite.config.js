@@ -13,8 +13,9 @@ const workerUrlInHtml = {
   },
 };
 
-// The stylesheet goes inline: a linked one holds back index.html's early scripts (the WebGL
-// context is made at the view's laid-out size) until it has arrived.
+// The stylesheet goes inline (and is not emitted as a file of its own): a linked one holds back
+// index.html's early scripts (the WebGL context is made at the view's laid-out size) until it
+// has arrived.
 const inlineStylesheet = {
   name: 'raillomer-inline-css',
   transformIndexHtml: {
@@ -22,7 +23,9 @@ const inlineStylesheet = {
     handler(html, ctx) {
       return html.replace(/<link rel="stylesheet"[^>]*href="\/([^"]+\.css)"[^>]*>/g, (tag, file) => {
         const css = ctx.bundle?.[file];
-        return css ? `<style>\n${String(css.source).trim()}\n</style>` : tag;
+        if (!css) return tag;
+        delete ctx.bundle[file];
+        return `<style>\n${String(css.source).trim()}\n</style>`;
       });
     },
   },
