@@ -20,7 +20,7 @@ MIN_SIZE_M, MAX_OFFSET_M = 0.3, 15.0
 
 def stream_run(server, scenario, out, line, seed=None, extra=()):
     """raillomer-estimator --sim `scenario` streamed into `server` as a run of `line`; the
-    run's output folder (trajectory.tum, truth.tum)."""
+    run's output folder (truth.tum, submaps/)."""
     args = [os.path.join(harness.bin_dir(), "raillomer-estimator"), "--sim", scenario, "--quiet",
             "--no-keyframes", "--out", out, "--server", "http://127.0.0.1:%d" % server.port,
             "--token", server.token, "--line", line] + list(extra)
@@ -41,35 +41,59 @@ def truth_changes(scenario, out):
 
 
 def read_tum(path):
-    """[(t, x, y, z)] of a TUM file."""
-    rows = []
+    """{stamp (10 ms): ((x, y, z), (qx, qy, qz, qw))} of a TUM file."""
+    rows = {}
     with open(path) as f:
         for line in f:
             if line.strip() and not line.startswith("#"):
-                v = [float(x) for x in line.split()[:4]]
-                rows.append(tuple(v))
+                v = [float(x) for x in line.split()[:8]]
+                rows[round(v[0], 2)] = (v[1:4], v[4:8])
     return rows
 
 
-def map_offset(run_dir, at_utm, radius_m=40.0):
-    """Where the run's map puts a true UTM point, less the point: the mean of the estimated
-    poses' offsets from the truth at the same instants, over the poses within radius_m of it
-    (the map sits where the run's GNSS placed it)."""
+def submap_keyframes(run_dir):
+    """[(stamp (10 ms), (x, y, z), (qx, qy, qz, qw))]: the keyframe poses the run's submaps
+    carry in their headers, the poses its map's points were placed by."""
+    keyframes = []
+    for name in sorted(os.listdir(os.path.join(run_dir, "submaps"))):
+        with open(os.path.join(run_dir, "submaps", name), "rb") as f:
+            for raw in f:
+                if raw.startswith(b"DATA"):
+                    break
+                if raw.startswith(b"# raillomer keyframe "):
+                    v = [float(x) for x in raw.split()[3:11]]
+                    keyframes.append((round(v[0], 2), v[1:4], v[4:8]))
+    return keyframes
+
+
+def rotate(q, v):
+    """v rotated by the unit quaternion q = (x, y, z, w)."""
+    x, y, z, w = q
+    t = (2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0]))
+    return (v[0] + w * t[0] + y * t[2] - z * t[1], v[1] + w * t[1] + z * t[0] - x * t[2],
+            v[2] + w * t[2] + x * t[1] - y * t[0])
+
+
+def map_position(run_dir, at_utm, radius_m=40.0):
+    """Where the run's map puts a true UTM point: each submap keyframe within radius_m of it
+    places the point as its scans did (into the keyframe's true body frame, out by its
+    estimated pose); the mean of those places. The map sits where the run's GNSS placed it."""
     truth = read_tum(os.path.join(run_dir, "truth.tum"))
-    estimate = read_tum(os.path.join(run_dir, "trajectory.tum"))
-    times = [t[0] for t in truth]
-    offsets = []
-    j = 0
-    for t, x, y, z in estimate:
-        while j + 1 < len(times) and abs(times[j + 1] - t) <= abs(times[j] - t):
-            j += 1
-        tt = truth[j]
-        if abs(tt[0] - t) > 0.02 or math.hypot(tt[1] - at_utm[0], tt[2] - at_utm[1]) > radius_m:
+    places = []
+    for stamp, position, orientation in submap_keyframes(run_dir):
+        if stamp not in truth:
             continue
-        offsets.append((x - tt[1], y - tt[2], z - tt[3]))
-    if not offsets:
-        raise RuntimeError("no pose of %s within %.0f m of %s" % (run_dir, radius_m, at_utm))
-    return [sum(o[k] for o in offsets) / len(offsets) for k in range(3)]
+        true_position, true_orientation = truth[stamp]
+        if math.hypot(true_position[0] - at_utm[0], true_position[1] - at_utm[1]) > radius_m:
+            continue
+        inverse = (-true_orientation[0], -true_orientation[1], -true_orientation[2],
+                   true_orientation[3])
+        body = rotate(inverse, [at_utm[k] - true_position[k] for k in range(3)])
+        moved = rotate(orientation, body)
+        places.append([position[k] + moved[k] for k in range(3)])
+    if not places:
+        raise RuntimeError("no keyframe of %s within %.0f m of %s" % (run_dir, radius_m, at_utm))
+    return [sum(p[k] for p in places) / len(places) for k in range(3)]
 
 
 def in_scope(truth):
@@ -78,8 +102,7 @@ def in_scope(truth):
 
 def expected_centre(truth, reference_dir):
     """A true change's centre in the reference run's map."""
-    offset = map_offset(reference_dir, truth["centre_utm"])
-    return [truth["centre_utm"][k] + offset[k] for k in range(3)]
+    return map_position(reference_dir, truth["centre_utm"])
 
 
 def footprint_distance(truth, centre, at):
