@@ -178,7 +178,8 @@ int main(int argc, char** argv) {
     }
     while (!held.empty()) {
       const double t = Seconds(held.front().stamp_ns);
-      if (!flush && !fusion.Releases(t, newest_s, o.gnss_max_latency_s)) break;
+      if (!flush && !fusion.Releases(t, newest_s, o.gnss_prompt_latency_s, o.gnss_max_latency_s))
+        break;
       const Eigen::Isometry3d T = fusion.Publish(raillomer::eval::ToIsometry(held.front()), t);
       raillomer::api::StampedPose p;
       p.stamp_ns = held.front().stamp_ns;

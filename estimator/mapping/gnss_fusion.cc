@@ -198,6 +198,7 @@ Eigen::Vector2d GnssFusion::Fuse(const Pair& pair) {
     return Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
   }
   last_accept_distance_m_ = pair.distance_m;
+  if (accepted_.empty() || pair.t_s - accepted_.back().t_s > kFixGapS) fixes_since_s_ = pair.t_s;
   accepted_.push_back(pair);
   // Factors on a fixed grid of epochs (the first accepted fix of each period), so that the
   // graph does not depend on when the alignment happened or which fixes were outliers.
@@ -486,6 +487,23 @@ Eigen::Isometry3d GnssFusion::MapTarget(const Eigen::Isometry3d& T_odom_body, do
 
 bool GnssFusion::AlignmentOverdue(double held_s, double max_hold_s) const {
   return held_s >= (stats_.fixes == 0 ? std::min(30.0, max_hold_s) : max_hold_s);
+}
+
+bool GnssFusion::Releases(double t_s,
+                          double newest_s,
+                          double prompt_latency_s,
+                          double max_latency_s) const {
+  if (t_s <= settled_until_s()) return true;
+  const double waited = newest_s - t_s;
+  if (waited >= max_latency_s) return true;
+  if (prompt_latency_s <= 0.0 || waited < prompt_latency_s) return false;
+  // The graph keeps pace: a node at most a factor period and half a window before the pose
+  // (one per period, each half a window after its epoch), and fixes accepted without a gap
+  // from before the pose to the newest one. A pose carried from the newest node then moves by
+  // no more than the odometry drifts over a span when the next joins; a pose in an outage or
+  // a multipath patch waits, to be smoothed by the node after it.
+  return settled_until_s() >= t_s - options_.factor_period_s - 0.5 * options_.factor_window_s &&
+         !accepted_.empty() && fixes_since_s_ <= t_s && accepted_.back().t_s >= newest_s - kFixGapS;
 }
 
 double GnssFusion::settled_until_s() const {

@@ -134,11 +134,11 @@ class GnssFusion {
   /// while no usable fix has come at all), when the run should stay in the local frame.
   bool AlignmentOverdue(double held_s, double max_hold_s) const;
   /// Aligned: the pose at t_s may go out once the graph has a node after it (it is then smoothed
-  /// between two nodes) or once it has waited max_latency_s behind the newest pose (newest_s: a
-  /// GNSS outage; it is then extrapolated).
-  bool Releases(double t_s, double newest_s, double max_latency_s) const {
-    return t_s <= settled_until_s() || newest_s - t_s >= max_latency_s;
-  }
+  /// between two nodes); once it has waited prompt_latency_s behind the newest pose (newest_s)
+  /// while the graph keeps pace (settled, a recent node, fixes still accepted; 0: off); or once
+  /// it has waited max_latency_s (a GNSS outage). The latter two are carried from the newest
+  /// node.
+  bool Releases(double t_s, double newest_s, double prompt_latency_s, double max_latency_s) const;
   const GnssFusionStats& stats() const { return stats_; }
   /// The UTM zone in use (the rig's, or the first fix's standard zone).
   const geo::UtmZone& zone() const { return options_.zone; }
@@ -213,7 +213,10 @@ class GnssFusion {
   bool nodes_dropped_ = false;          ///< the graph has slid: the oldest node carries a prior
   double last_factor_period_ = -1e300;  ///< floor(t / factor_period_s) of the newest factor
   std::deque<Pair> accepted_;           ///< accepted fixes of the last factor_window_s
-  bool node_pending_ = false;           ///< a factor epoch waits for the fixes after it
+  /// Accepted fixes further apart than this are a gap (a 1 Hz receiver may miss one).
+  static constexpr double kFixGapS = 2.0;
+  double fixes_since_s_ = 0.0;  ///< the first accepted fix since the newest gap
+  bool node_pending_ = false;   ///< a factor epoch waits for the fixes after it
   Pair pending_epoch_{};
   double last_accept_distance_m_ = 0.0;
   std::vector<Eigen::Vector2d> rejected_innovations_;

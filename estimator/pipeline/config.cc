@@ -119,6 +119,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("vertical_drift_fraction", &o->gnss.vertical_drift_fraction);
     g.Read("align_distance_m", &o->gnss.alignment.min_extent_m);
     g.Read("max_hold_s", &o->gnss_max_hold_s);
+    g.Read("prompt_latency_s", &o->gnss_prompt_latency_s);
     g.Read("max_latency_s", &o->gnss_max_latency_s);
     g.Read("factor_window_s", &o->gnss.factor_window_s);
     g.Read("continuity_length_m", &o->gnss.continuity_length_m);
@@ -221,6 +222,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   if (!(gnss_max_hold_s >= 10.0)) return fail("gnss.max_hold_s must be >= 10 s");
   if (!(gnss_max_latency_s >= 0.0 && gnss_max_latency_s <= 600.0))
     return fail("gnss.max_latency_s must be in [0, 600] s");
+  if (!(gnss_prompt_latency_s >= 0.0 && gnss_prompt_latency_s <= 600.0))
+    return fail("gnss.prompt_latency_s must be in [0, 600] s");
   if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
     return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
   if (!(gnss.continuity_length_m >= 0.0) || !(gnss.continuity_max_step_m >= 0.0))
@@ -413,7 +416,8 @@ std::string EstimatorConfig::Describe() const {
     << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, odometry drift "
     << o.gnss.drift_fraction << " (height " << o.gnss.vertical_drift_fraction
     << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held up to "
-    << o.gnss_max_latency_s << " s for smoothing\n";
+    << o.gnss_prompt_latency_s << " s (" << o.gnss_max_latency_s
+    << " s through an outage) for smoothing\n";
   const SubmapOptions& m = o.submap;
   s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, points within ";
   if (m.max_range_m > 0.0) {

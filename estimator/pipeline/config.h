@@ -215,7 +215,10 @@ struct EstimatorOptions {
   double gnss_max_hold_s = 180.0;
   /// Once aligned, a pose is held until the GNSS graph has a node after it (about
   /// gnss.factor_period_s plus half gnss.factor_window_s), so that it comes out smoothed
-  /// between two nodes; through a GNSS outage at most this long, then it is extrapolated.
+  /// between two nodes; while nodes keep coming at most gnss_prompt_latency_s (0: no limit),
+  /// so that the map reaches the server while the train is near; through a GNSS outage at
+  /// most gnss_max_latency_s. Released early, it is carried from the newest node.
+  double gnss_prompt_latency_s = 3.0;
   double gnss_max_latency_s = 60.0;
 
   /// False with a message naming the bad field.

@@ -1,6 +1,7 @@
 // GNSS georeferencing on generated data with known answers.
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <random>
 
@@ -493,6 +494,61 @@ TEST(GnssFusion, MultipathJumpsLeaveTheTrajectoryAlone) {
   EXPECT_LT(worst, 0.5);
   EXPECT_LT(MaxError(jumpy.estimate, jumpy.truth), 1.0);
   EXPECT_LT(MaxError(jumpy.smoothed, jumpy.smoothed_truth), 0.5);
+}
+
+/// How long each pose of a straight run at 30 m/s (1 Hz fixes, none from 100 to 160 s) waits
+/// for GnssFusion::Releases with a prompt latency (the outage's limit, 120 s, never reached),
+/// and whether the graph had a node after it when it went out.
+struct ReleaseRun {
+  std::vector<double> stamp_s, waited_s;
+  std::vector<bool> smoothed;
+};
+
+ReleaseRun RunReleases(double prompt_latency_s) {
+  StraightTrack track;
+  ReleaseRun run;
+  std::deque<double> held;
+  for (int k = 0; k <= 2400; ++k) {  // 240 s at 10 Hz
+    const double t = 0.1 * k;
+    const int64_t stamp = static_cast<int64_t>(std::llround(t * 1e9));
+    Eigen::Isometry3d odom = Eigen::Isometry3d::Identity();
+    odom.translation().x() = track.speed * t;
+    if (k % 10 == 0 && (t < 100.0 || t >= 160.0))
+      track.fusion.AddFix(
+          FixAt(track.options.zone, track.origin + track.speed * t * track.ahead, stamp));
+    track.fusion.AddOdometry(stamp, odom);
+    held.push_back(t);
+    while (track.fusion.aligned() && !held.empty() &&
+           track.fusion.Releases(held.front(), t, prompt_latency_s, 120.0)) {
+      run.stamp_s.push_back(held.front());
+      run.waited_s.push_back(t - held.front());
+      run.smoothed.push_back(held.front() <= track.fusion.settled_until_s());
+      held.pop_front();
+    }
+  }
+  return run;
+}
+
+TEST(GnssFusion, WhileFixesKeepComingPosesGoOutPromptlyAndInAnOutageTheyWaitForANode) {
+  const ReleaseRun prompt = RunReleases(3.0), patient = RunReleases(0.0);
+  ASSERT_FALSE(prompt.stamp_s.empty());
+  ASSERT_FALSE(patient.stamp_s.empty());
+  double prompt_worst = 0.0, patient_worst = 0.0;
+  for (size_t i = 0; i < prompt.stamp_s.size(); ++i) {
+    const double t = prompt.stamp_s[i];
+    // Settled and fixes all round: out 3 s after it was measured.
+    if (t > 60.0 && t < 95.0) prompt_worst = std::max(prompt_worst, prompt.waited_s[i]);
+    // From the outage's start to its end: smoothed by the node after the outage.
+    if (t >= 99.5 && t < 160.0) {
+      EXPECT_TRUE(prompt.smoothed[i]) << "pose at " << t << " s";
+    }
+  }
+  for (size_t i = 0; i < patient.stamp_s.size(); ++i) {
+    if (patient.stamp_s[i] > 60.0 && patient.stamp_s[i] < 95.0)
+      patient_worst = std::max(patient_worst, patient.waited_s[i]);
+  }
+  EXPECT_NEAR(prompt_worst, 3.0, 0.15);
+  EXPECT_GT(patient_worst, 10.0);  // a node every 10 s, half a window after its epoch
 }
 
 TEST(GnssFusion, ThroughAnOutageThePathIsTheOdometrysFittedToBothEnds) {
