@@ -1,6 +1,7 @@
 #include "mapstore/run_comparison.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -364,20 +365,23 @@ RunChange Place(const StretchChange& c,
   return out;
 }
 
-/// Drops the pieces of the catenary's wires (CatenaryWirePiece), kept in the summary's rejected
-/// ones when it keeps them. `found` and `placed` pair by index.
+/// Drops the pieces of the catenary's wires (CatenaryWirePiece) from both `found` and
+/// `placed`, which pair by index; kept in the summary's rejected ones when it keeps them.
 void DropWirePieces(const RunComparisonOptions& o,
-                    const std::vector<StretchChange>& found,
+                    std::vector<StretchChange>* found,
                     std::vector<RunChange>* placed,
                     StretchSummary* summary) {
+  std::vector<StretchChange> found_kept;
   std::vector<RunChange> kept;
   for (size_t i = 0; i < placed->size(); ++i) {
     if (!CatenaryWirePiece((*placed)[i], o)) {
+      found_kept.push_back(std::move((*found)[i]));
       kept.push_back(std::move((*placed)[i]));
     } else if (o.change.keep_rejected) {
-      summary->rejected.emplace_back(found[i], "a piece of the catenary's wires");
+      summary->rejected.emplace_back(std::move((*found)[i]), "a piece of the catenary's wires");
     }
   }
+  *found = std::move(found_kept);
   *placed = std::move(kept);
 }
 
@@ -541,11 +545,14 @@ bool RunComparisonOptions::IsValid(std::string* error) const {
 }
 
 bool CatenaryWirePiece(const RunChange& c, const RunComparisonOptions& o) {
+  // A member in any direction: a wire along the track, a dropper or a bracket upright.
+  std::array<double, 3> sides = {c.size_m.x(), c.size_m.y(), c.size_m.z()};
+  std::sort(sides.begin(), sides.end());
   const double thin = o.change.thin_m + 1e-9;
   return (c.kind == ChangeKind::kAdded || c.kind == ChangeKind::kRemoved) &&
          std::abs(c.offset_m) <= o.wire_zone_half_width_m &&
-         c.height_above_rail_min_m >= o.wire_zone_above_rail_m && c.size_m.y() <= thin &&
-         c.size_m.z() <= thin && c.size_m.x() <= o.wire_piece_max_m;
+         c.height_above_rail_min_m >= o.wire_zone_above_rail_m && sides[1] <= thin &&
+         sides[2] <= o.wire_piece_max_m;
 }
 
 RunComparison::RunComparison(const MapStore& store, const RunComparisonOptions& options)
@@ -655,7 +662,7 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
   MoveLater(stretch, o, fit.T_fixed_moving, &parts);
   out->compared = true;
   out->T_reference_later = fit.T_fixed_moving;
-  const std::vector<StretchChange> found =
+  std::vector<StretchChange> found =
       CompareStretch(parts.reference, parts.later, o.change, &out->summary);
   const double drop = RailDrop(stretch, parts.reference.points);
   parts.rail_drop_m = std::isnan(drop) ? 0.0 : drop;
@@ -668,9 +675,11 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
   std::vector<RunChange> placed;
   for (const StretchChange& c : found)
     placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
+  // A thin member over the track is the catenary's before it is growth: a tunnel's crown
+  // beside a bracket reads as what growth comes out of.
+  DropWirePieces(o, &found, &placed, &out->summary);
   MarkVegetation(stretch, parts, o, found, &placed);
   CentreTrees(stretch, o, found, &placed);
-  DropWirePieces(o, found, &placed, &out->summary);
   PairMoved(o, &placed);
   KeepOwn(range, std::move(placed), out);
   out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -45,9 +45,10 @@ struct RunComparisonOptions {
   double trunk_m = 1.0;
   /// The catenary's wires run within wire_zone_half_width_m of the track centre (stagger
   /// included) and at least wire_zone_above_rail_m above the rails (RAIL_FACTS: contact wire
-  /// 5.33-6.5 m). A LiDAR hits a 1-cm wire only now and then, so each run maps a different
-  /// scatter of it: a thin piece there (across and height at most change.thin_m), running
-  /// along the track and at most wire_piece_max_m long, is no change (CatenaryWirePiece).
+  /// 5.33-6.5 m), hung on droppers and, in tunnels, on brackets from the crown. A LiDAR hits a
+  /// 1-cm wire or a 4-cm bracket only now and then, so each run maps a different scatter of it:
+  /// a thin piece there (two sides at most change.thin_m), along the track or upright and at
+  /// most wire_piece_max_m long, is no change (CatenaryWirePiece).
   double wire_zone_half_width_m = 0.6;
   double wire_zone_above_rail_m = 4.5;
   double wire_piece_max_m = 5.0;
@@ -123,8 +124,9 @@ struct RunComparisonSummary {
   size_t objects = 0, not_observed = 0;
 };
 
-/// Whether an added or removed change is a piece of the catenary's wires that one run happened
-/// to sample and the other did not (RunComparisonOptions::wire_zone_half_width_m).
+/// Whether an added or removed change is a piece of the catenary's wires, droppers or brackets
+/// that one run happened to sample and the other did not
+/// (RunComparisonOptions::wire_zone_half_width_m).
 bool CatenaryWirePiece(const RunChange& change, const RunComparisonOptions& o);
 
 /// A later run of a line compared with a reference run, stretch by stretch along the line's

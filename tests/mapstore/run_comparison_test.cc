@@ -122,22 +122,29 @@ RunChange WirePiece() {
   return c;
 }
 
-TEST(CatenaryWirePiece, OnlyAShortThinPieceAlongTheTrackAtWireHeight) {
+TEST(CatenaryWirePiece, OnlyAShortThinMemberAtWireHeightOverTheTrack) {
   const RunComparisonOptions o;
   EXPECT_TRUE(CatenaryWirePiece(WirePiece(), o));
   RunChange added = WirePiece();
   added.kind = ChangeKind::kAdded;
   EXPECT_TRUE(CatenaryWirePiece(added, o));
-  // A cantilever's tube beside the mast, a dropper (upright), a thin bar on the track, a
-  // whole span of wire gone, a branch grown to the wire: all reported.
-  RunChange beside = WirePiece(), upright = WirePiece(), low = WirePiece(), span = WirePiece(),
-            branch = WirePiece();
+  // A piece of a tunnel's bracket from the crown: 0.1 x 0.1 m, 0.9 m upright, 6.6 m up.
+  RunChange bracket = added;
+  bracket.offset_m = 0.1;
+  bracket.size_m = Eigen::Vector3d(0.1, 0.1, 0.9);
+  bracket.height_above_rail_min_m = 6.6;
+  bracket.height_above_rail_max_m = 7.5;
+  EXPECT_TRUE(CatenaryWirePiece(bracket, o));
+  // A cantilever's tube beside the mast, a thin bar on the track, a whole span of wire gone,
+  // a branch grown to the wire, something wide hung over the track: all reported.
+  RunChange beside = WirePiece(), low = WirePiece(), span = WirePiece(), branch = WirePiece(),
+            wide = WirePiece();
   beside.offset_m = -2.0;
-  upright.size_m = Eigen::Vector3d(0.2, 0.2, 1.2);
   low.height_above_rail_min_m = 0.2;
   span.size_m.x() = 40.0;
   branch.kind = ChangeKind::kVegetation;
-  for (const RunChange& c : {beside, upright, low, span, branch})
+  wide.size_m = Eigen::Vector3d(0.8, 0.5, 0.6);
+  for (const RunChange& c : {beside, low, span, branch, wide})
     EXPECT_FALSE(CatenaryWirePiece(c, o)) << c.offset_m << " m off, " << c.size_m.transpose();
 }
 
