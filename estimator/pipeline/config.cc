@@ -415,9 +415,9 @@ std::string EstimatorConfig::Describe() const {
     << o.gnss.factor_period_s << " s, sigma " << o.gnss.sigma_horizontal_m << " / "
     << o.gnss.sigma_vertical_m << " m, gate " << o.gnss.gate_m << " m, odometry drift "
     << o.gnss.drift_fraction << " (height " << o.gnss.vertical_drift_fraction
-    << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held up to "
-    << o.gnss_prompt_latency_s << " s (" << o.gnss_max_latency_s
-    << " s through an outage) for smoothing\n";
+    << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held "
+    << o.gnss_prompt_latency_s << " s while fixes keep coming, else for smoothing up to "
+    << o.gnss_max_latency_s << " s\n";
   const SubmapOptions& m = o.submap;
   s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, points within ";
   if (m.max_range_m > 0.0) {

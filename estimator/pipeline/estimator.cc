@@ -922,7 +922,10 @@ void Estimator::ReleaseHeld(bool flush) {
   while (!gnss_held_.empty()) {
     HeldOutput& h = gnss_held_.front();
     const double t = StampSeconds(h.frame.stamp_ns);
-    if (!flush && !gnss_->Releases(t, newest_s, config_.options.gnss_prompt_latency_s, config_.options.gnss_max_latency_s)) break;
+    if (!flush &&
+        !gnss_->Releases(
+            t, newest_s, config_.options.gnss_prompt_latency_s, config_.options.gnss_max_latency_s))
+      break;
     const Eigen::Isometry3d T_odom_body = h.frame.T_world_body;
     const Eigen::Isometry3d T_map_target = gnss_->MapTarget(T_odom_body, t);
     h.frame.T_world_body = gnss_->Publish(T_odom_body, t);
