@@ -9,18 +9,38 @@
 #include <octomap/OcTree.h>
 
 #include "mapstore/grid_cell.h"
+#include "mapstore/voxel_set.h"
 
 namespace raillomer::mapstore {
 namespace {
 
 using VoxelMap = std::unordered_set<GridCell, GridCellHash>;
 
-VoxelMap Voxels(const std::vector<Eigen::Vector3d>& points, double voxel_m) {
-  VoxelMap voxels;
-  voxels.reserve(points.size());
-  for (const Eigen::Vector3d& p : points) voxels.insert(CellOf(p, voxel_m));
-  return voxels;
-}
+/// The voxels a stretch's points occupy: the cells in the order of their first point, and
+/// their keys in an open-addressing set for the many lookups of the comparison.
+class Voxels {
+ public:
+  Voxels(const std::vector<Eigen::Vector3d>& points, double voxel_m) {
+    for (const Eigen::Vector3d& p : points) {
+      const GridCell c = CellOf(p, voxel_m);
+      if (keys_.Insert(Key(c))) cells_.push_back(c);
+    }
+  }
+  bool Has(const GridCell& c) const { return keys_.Contains(Key(c)); }
+  const std::vector<GridCell>& cells() const { return cells_; }
+
+ private:
+  /// 21 bits an axis: a stretch's local frame spans far less than 2^20 voxels every way.
+  static uint64_t Key(const GridCell& c) {
+    constexpr int64_t kHalf = int64_t{1} << 20;
+    constexpr uint64_t kMask = (uint64_t{1} << 21) - 1;
+    return (static_cast<uint64_t>(c.x + kHalf) & kMask) << 42 |
+           (static_cast<uint64_t>(c.y + kHalf) & kMask) << 21 |
+           (static_cast<uint64_t>(c.z + kHalf) & kMask);
+  }
+  VoxelSet keys_;
+  std::vector<GridCell> cells_;
+};
 
 /// The cell offsets whose centres lie within `radius_m` of a cell's centre.
 std::vector<GridCell> OffsetsWithin(double radius_m, double voxel_m) {
@@ -39,13 +59,13 @@ std::vector<GridCell> OffsetsWithin(double radius_m, double voxel_m) {
 }
 
 /// The voxels of `of` with no voxel of `in` within the offsets.
-std::vector<GridCell> Missing(const VoxelMap& of,
-                              const VoxelMap& in,
+std::vector<GridCell> Missing(const Voxels& of,
+                              const Voxels& in,
                               const std::vector<GridCell>& offsets) {
   std::vector<GridCell> missing;
-  for (const GridCell& c : of) {
+  for (const GridCell& c : of.cells()) {
     const bool near = std::any_of(
-        offsets.begin(), offsets.end(), [&](const GridCell& d) { return in.count(c + d) > 0; });
+        offsets.begin(), offsets.end(), [&](const GridCell& d) { return in.Has(c + d); });
     if (!near) missing.push_back(c);
   }
   return missing;
@@ -74,45 +94,36 @@ std::vector<std::vector<GridCell>> Clusters(const std::vector<GridCell>& cells,
   return clusters;
 }
 
-void Unique(std::vector<uint64_t>* keys) {
-  std::sort(keys->begin(), keys->end());
-  keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
-}
-
-/// A run's occupied voxels as an OctoMap: every other cell is unknown, which a ray crosses.
+/// A run's occupied voxels: OctoMap's key space and its ray traversal (Amanatides and Woo's, as
+/// in its castRay) over cells held in an open-addressing set, which a stretch fills and probes
+/// many times faster than the tree's nodes. Every other cell is unknown, which a ray crosses.
 class Occupancy {
  public:
-  Occupancy(const RunStretch& run, double occupancy_m) : run_(run), tree_(occupancy_m) {
+  Occupancy(const RunStretch& run, const ChangeOptions& o)
+      : run_(run),
+        keys_(o.occupancy_m),
+        tan_azimuth_(std::tan(o.fov_half_azimuth_deg * M_PI / 180.0)),
+        tan_elevation_(std::tan(o.fov_half_elevation_deg * M_PI / 180.0)),
+        min_range_sq_(o.min_range_m * o.min_range_m),
+        max_range_sq_(o.max_range_m * o.max_range_m) {
     for (const Eigen::Isometry3d& sensor : run.sensors) to_sensor_.push_back(sensor.inverse());
-    // Each point's cell and its 26 neighbours, each cell set once: keys packed into integers
-    // and sorted (far cheaper than a hash set of 27 entries per point).
-    const auto pack = [](uint64_t x, uint64_t y, uint64_t z) { return x << 32 | y << 16 | z; };
-    std::vector<uint64_t> own;
-    own.reserve(run.points.size());
+    // Each point's cell and its 26 neighbours.
+    VoxelSet own_cells;
+    std::vector<octomap::OcTreeKey> own;
     for (const Eigen::Vector3d& p : run.points) {
       octomap::OcTreeKey key;
-      if (tree_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key))
-        own.push_back(pack(key[0], key[1], key[2]));
+      if (keys_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key) &&
+          own_cells.Insert(Pack(key)))
+        own.push_back(key);
     }
-    Unique(&own);
-    std::vector<uint64_t> cells;
-    cells.reserve(27 * own.size());
-    for (uint64_t k : own) {
-      const uint64_t x = k >> 32, y = k >> 16 & 0xffff, z = k & 0xffff;
-      for (uint64_t dx = 0; dx <= 2; ++dx)
-        for (uint64_t dy = 0; dy <= 2; ++dy)
-          for (uint64_t dz = 0; dz <= 2; ++dz)
-            cells.push_back(
-                pack((x + dx - 1) & 0xffff, (y + dy - 1) & 0xffff, (z + dz - 1) & 0xffff));
-    }
-    Unique(&cells);
-    for (uint64_t k : cells)
-      tree_.updateNode(octomap::OcTreeKey(static_cast<octomap::key_type>(k >> 32),
-                                          static_cast<octomap::key_type>(k >> 16 & 0xffff),
-                                          static_cast<octomap::key_type>(k & 0xffff)),
-                       true,
-                       true);
-    tree_.updateInnerOccupancy();
+    occupied_.Reserve(8 * own.size());
+    for (const octomap::OcTreeKey& k : own)
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz)
+            occupied_.Insert(Pack(octomap::OcTreeKey(static_cast<octomap::key_type>(k[0] + dx),
+                                                     static_cast<octomap::key_type>(k[1] + dy),
+                                                     static_cast<octomap::key_type>(k[2] + dz))));
   }
 
   /// Whether this run saw `v` empty: a ray from one of its sensors that had `v` in view passed
@@ -122,20 +133,16 @@ class Occupancy {
     *reached = false;
     std::vector<size_t> in_view;
     for (size_t i = 0; i < run_.sensors.size(); ++i)
-      if (InView(to_sensor_[i], v, o)) in_view.push_back(i);
+      if (InView(to_sensor_[i], v)) in_view.push_back(i);
     const size_t n = std::min(o.sensors_sampled, in_view.size());
     for (size_t k = 0; k < n; ++k) {
       const Eigen::Vector3d origin = run_.sensors[in_view[k * in_view.size() / n]].translation();
       const Eigen::Vector3d ray = v - origin;
       const double range = ray.norm();
-      octomap::point3d end;
-      const bool hit = tree_.castRay(octomap::point3d(origin.x(), origin.y(), origin.z()),
-                                     octomap::point3d(ray.x(), ray.y(), ray.z()),
-                                     end,
-                                     true,
-                                     range + 30.0);
+      Eigen::Vector3d end;
+      const bool hit = FirstHit(origin, ray / range, range + 30.0, &end);
       if (!hit) continue;  // no return: a Livox reports nothing, so nothing is known
-      const double at = (Eigen::Vector3d(end.x(), end.y(), end.z()) - origin).norm();
+      const double at = (end - origin).norm();
       if (at < range - 2.5 * o.occupancy_m) continue;  // occluded before it
       if (at > range + o.beyond_m) {
         *reached = true;
@@ -150,22 +157,47 @@ class Occupancy {
   }
 
  private:
-  /// Whether `v` lies in the field of view of the sensor whose inverse pose is `to_sensor`.
-  static bool InView(const Eigen::Isometry3d& to_sensor,
-                     const Eigen::Vector3d& v,
-                     const ChangeOptions& o) {
+  static uint64_t Pack(const octomap::OcTreeKey& k) {
+    return static_cast<uint64_t>(k[0]) << 32 | static_cast<uint64_t>(k[1]) << 16 | k[2];
+  }
+
+  /// The centre of the first occupied cell on the ray from `origin` along the unit
+  /// `direction` within `max_range_m`; false if there is none (as OctoMap's castRay).
+  bool FirstHit(const Eigen::Vector3d& origin,
+                const Eigen::Vector3d& direction,
+                double max_range_m,
+                Eigen::Vector3d* end) const {
+    const Eigen::Vector3d last = origin + max_range_m * direction;
+    if (!keys_.computeRayKeys(octomap::point3d(origin.x(), origin.y(), origin.z()),
+                              octomap::point3d(last.x(), last.y(), last.z()),
+                              ray_))
+      return false;
+    for (const octomap::OcTreeKey& key : ray_) {
+      if (!occupied_.Contains(Pack(key))) continue;
+      const octomap::point3d c = keys_.keyToCoord(key);
+      *end = Eigen::Vector3d(c.x(), c.y(), c.z());
+      return true;
+    }
+    return false;
+  }
+
+  /// Whether `v` lies in the field of view of the sensor whose inverse pose is `to_sensor`:
+  /// its azimuth and elevation within the half angles, told by their tangents (x > 0).
+  bool InView(const Eigen::Isometry3d& to_sensor, const Eigen::Vector3d& v) const {
     const Eigen::Vector3d d = to_sensor * v;
-    const double range = d.norm();
-    if (d.x() <= 0.0 || range < o.min_range_m || range > o.max_range_m) return false;
-    const double azimuth = std::atan2(d.y(), d.x()) * 180.0 / M_PI;
-    const double elevation = std::atan2(d.z(), std::hypot(d.x(), d.y())) * 180.0 / M_PI;
-    return std::abs(azimuth) <= o.fov_half_azimuth_deg &&
-           std::abs(elevation) <= o.fov_half_elevation_deg;
+    const double range_sq = d.squaredNorm();
+    if (d.x() <= 0.0 || range_sq < min_range_sq_ || range_sq > max_range_sq_) return false;
+    return std::abs(d.y()) <= tan_azimuth_ * d.x() &&
+           std::abs(d.z()) <= tan_elevation_ * std::hypot(d.x(), d.y());
   }
 
   const RunStretch& run_;
   std::vector<Eigen::Isometry3d> to_sensor_;  ///< each sensor's pose inverted
-  octomap::OcTree tree_;
+  octomap::OcTree keys_;                      ///< the key space only: it holds no node
+  VoxelSet occupied_;                         ///< packed keys of the occupied cells
+  mutable octomap::KeyRay ray_;               ///< the cells of the ray being cast
+  double tan_azimuth_, tan_elevation_;        ///< of the field of view's half angles
+  double min_range_sq_, max_range_sq_;
 };
 
 /// The share of its reached samples an object needs seen empty: more of a thin one (two sides
@@ -224,6 +256,9 @@ bool ChangeOptions::IsValid(std::string* error) const {
            false;
   if (!(min_range_m >= 0.0 && max_range_m > min_range_m))
     return *error = "max_range_m must be above min_range_m", false;
+  if (!(fov_half_azimuth_deg > 0.0 && fov_half_azimuth_deg < 90.0 && fov_half_elevation_deg > 0.0 &&
+        fov_half_elevation_deg < 90.0))
+    return *error = "fov_half_azimuth_deg and fov_half_elevation_deg must be in (0, 90)", false;
   if (!(seen_empty_share > 0.0 && seen_empty_share <= 1.0 && thin_seen_empty_share > 0.0 &&
         thin_seen_empty_share <= 1.0))
     return *error = "seen_empty_share and thin_seen_empty_share must be in (0, 1]", false;
@@ -241,8 +276,8 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
                                           const ChangeOptions& o,
                                           StretchSummary* summary) {
   StretchSummary s;
-  const VoxelMap ref = Voxels(reference.points, o.voxel_m);
-  const VoxelMap now = Voxels(later.points, o.voxel_m);
+  const Voxels ref(reference.points, o.voxel_m);
+  const Voxels now(later.points, o.voxel_m);
   const std::vector<GridCell> near = OffsetsWithin(o.level_of_detection_m, o.voxel_m);
   const std::vector<GridCell> joined = OffsetsWithin(o.cluster_gap_m, o.voxel_m);
   const std::vector<GridCell> added = Missing(now, ref, near);
@@ -255,7 +290,7 @@ std::vector<StretchChange> CompareStretch(const RunStretch& reference,
                      StretchChange::Kind kind,
                      const RunStretch& other_run) {
     if (cells.empty()) return;
-    const Occupancy other(other_run, o.occupancy_m);
+    const Occupancy other(other_run, o);
     for (const std::vector<GridCell>& cluster : Clusters(cells, joined)) {
       StretchChange change;
       if (!Confirm(cluster, kind, other, o, &change)) {

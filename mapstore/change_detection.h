@@ -83,8 +83,9 @@ struct StretchSummary {
 
 /// Compares a stretch of a later run with the reference: voxels one has and the other has not
 /// within the level of detection, clustered into objects, each kept only where the other run's
-/// rays (OctoMap's castRay over its occupied voxels, from its sensor poses that had the place in
-/// view) passed through it: what a run could not see is not observed, never removed.
+/// rays (walked through its occupied voxels on OctoMap's key grid, from its sensor poses that
+/// had the place in view) passed through it: what a run could not see is not observed, never
+/// removed.
 std::vector<StretchChange> CompareStretch(const RunStretch& reference,
                                           const RunStretch& later,
                                           const ChangeOptions& options,

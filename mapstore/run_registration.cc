@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
@@ -166,6 +167,8 @@ bool RegistrationOptions::IsValid(std::string* error) const {
   if (max_moving_points < 100 || coarse_moving_points < 100)
     return *error = "max_moving_points and coarse_moving_points must be at least 100", false;
   if (!(kernel_floor_m > 0.0)) return *error = "kernel_floor_m must be positive", false;
+  if (!(coarse_converged_share >= 0.0 && coarse_converged_share < 1.0))
+    return *error = "coarse_converged_share must be in [0, 1)", false;
   return true;
 }
 
@@ -187,13 +190,11 @@ namespace {
 
 /// One stage of the registration at a correspondence distance, from `result`'s transform.
 void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
+                   Normals& normals,
                    const std::vector<Eigen::Vector3d>& moving,
                    double correspondence_m,
                    const RegistrationOptions& o,
                    RegistrationResult* result) {
-  RegistrationOptions stage = o;
-  stage.normal_radius_m = std::max(o.normal_radius_m, 2.5 * o.voxel_m);
-  Normals normals(fixed, stage);
   const Grid grid(fixed, std::max(2.0 * o.voxel_m, correspondence_m / 4.0));
   std::vector<Pair> pairs;
   std::vector<double> residuals;
@@ -268,7 +269,7 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
 
 /// At most `n` of the points, every k-th (the centroids come in hash order: spread over the
 /// cloud).
-std::vector<Eigen::Vector3d> EvenSample(std::vector<Eigen::Vector3d> points, size_t n) {
+std::vector<Eigen::Vector3d> EvenSample(const std::vector<Eigen::Vector3d>& points, size_t n) {
   if (points.size() <= n) return points;
   const double step = static_cast<double>(points.size()) / static_cast<double>(n);
   std::vector<Eigen::Vector3d> out;
@@ -286,16 +287,29 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_poin
   RegistrationResult result;
   result.T_fixed_moving = initial;
   double distance = std::max(o.initial_correspondence_m, o.max_correspondence_m);
+  // Stages on voxels of the same side (the last two, with the defaults) share the centroids
+  // and the fixed cloud's normals.
+  double voxel_m = 0.0;
+  std::vector<Eigen::Vector3d> fixed, moving_centroids;
+  std::unique_ptr<Normals> normals;
   while (true) {
     RegistrationOptions stage = o;
     stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
-    const std::vector<Eigen::Vector3d> fixed = VoxelCentroids(fixed_points, stage.voxel_m);
     const bool last = distance <= o.max_correspondence_m;
+    if (!last)
+      stage.converged_step_m = std::max(o.converged_step_m, o.coarse_converged_share * distance);
+    if (stage.voxel_m != voxel_m) {
+      voxel_m = stage.voxel_m;
+      fixed = VoxelCentroids(fixed_points, voxel_m);
+      moving_centroids = VoxelCentroids(moving_points, voxel_m);
+      RegistrationOptions normal = stage;
+      normal.normal_radius_m = std::max(o.normal_radius_m, 2.5 * voxel_m);
+      normals = std::make_unique<Normals>(fixed, normal);
+    }
     const std::vector<Eigen::Vector3d> moving =
-        EvenSample(VoxelCentroids(moving_points, stage.voxel_m),
-                   last ? o.max_moving_points : o.coarse_moving_points);
+        EvenSample(moving_centroids, last ? o.max_moving_points : o.coarse_moving_points);
     if (fixed.size() < 10 || moving.size() < 10) return result;
-    RegisterStage(fixed, moving, distance, stage, &result);
+    RegisterStage(fixed, *normals, moving, distance, stage, &result);
     if (last) break;
     distance = std::max(o.max_correspondence_m, 0.5 * distance);
   }

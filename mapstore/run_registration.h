@@ -33,6 +33,9 @@ struct RegistrationOptions {
   /// does not pull.
   double kernel_floor_m = 0.03;
   double converged_step_m = 0.0005;  ///< stop when a step moves the cloud less than this
+  /// The stages before the last stop sooner, when a step moves the cloud less than this share
+  /// of their correspondence distance: the next stage starts within its reach all the same.
+  double coarse_converged_share = 0.01;
   bool IsValid(std::string* error) const;
 };
 

@@ -22,6 +22,13 @@ class VoxelSet {
     ++size_;
     return true;
   }
+  bool Contains(uint64_t key) const {
+    if (slots_.empty()) return false;
+    const uint64_t stored = key + 1;
+    for (size_t i = Slot(stored); slots_[i] != 0; i = (i + 1) & (slots_.size() - 1))
+      if (slots_[i] == stored) return true;
+    return false;
+  }
   size_t size() const { return size_; }
   void Reserve(size_t n) {
     while (slots_.size() < 2 * n) Grow();
