@@ -17,11 +17,19 @@ live hub, the comparison's throughput (km per minute of the worker's time) and t
 residual on the rails.
 
   change_accuracy.py --build build [--lines demo,rich_low_station_a] [--out result.json] [--check]
+
+Every line's work folder (its store, simulator output and runs) is kept under a folder the first
+line of output names. `--rescore DIR` takes such a folder and has a server on a copy of each
+line's store compare its later runs again (POST .../changes?reference=1), scored the same way:
+a change to detection tried on every stored run in minutes instead of streaming them again (no
+stretch lags then; "final" is how long the recomputation took).
 """
 import argparse
+import glob
 import json
 import math
 import os
+import shutil
 import statistics
 import sys
 import tempfile
@@ -94,10 +102,17 @@ def run_case(server, live, line, scenario, seed, run_id, work, kind):
     change_truth.stream_run(server, scenario, out, line, seed=seed, extra=PACE)
     streamed = time.time() - t0
     found, lag = change_truth.wait_for_detection(server, run_id, timeout_s=1800)
-    d = found["detection"]
+    row = score_case(found, line, scenario, seed, run_id, work, kind)
+    row.update(stream_s=streamed, final_after_s=lag,
+               stretch_latency_s=stretch_latencies(live, run_id, pose_chainage(server, run_id)))
+    return row
+
+
+def score_case(found, line, scenario, seed, run_id, work, kind):
+    """A run's reported changes against the truth (changed) or as false alarms (repeat)."""
     row = {"line": line, "scenario": os.path.basename(scenario), "seed": seed, "run": run_id,
-           "kind": kind, "stream_s": streamed, "final_after_s": lag, "detection": d,
-           "reported": len(found["features"])}
+           "kind": kind, "detection": found["detection"], "reported": len(found["features"]),
+           "stretch_latency_s": []}
     in_scope = [f for f in found["features"]
                 if abs(f["properties"]["offset_m"]) <= change_truth.MAX_OFFSET_M
                 and max(f["properties"]["size_m"]) >= change_truth.MIN_SIZE_M]
@@ -111,15 +126,41 @@ def run_case(server, live, line, scenario, seed, run_id, work, kind):
                          "reported_intrudes": (r["report"]["properties"]["intrudes_envelope"]
                                                if r["report"] else None),
                          "centre_error_m": r["centre_error_m"]} for r in rows]
-        row["false"] = [{"kind": f["properties"]["kind"], "chainage_m": f["properties"]["chainage_m"],
-                         "offset_m": f["properties"]["offset_m"], "size_m": f["properties"]["size_m"]}
-                        for f in extra]
     else:
-        row["false"] = [{"kind": f["properties"]["kind"], "chainage_m": f["properties"]["chainage_m"],
-                         "offset_m": f["properties"]["offset_m"], "size_m": f["properties"]["size_m"]}
-                        for f in in_scope]
-    row["stretch_latency_s"] = stretch_latencies(live, run_id, pose_chainage(server, run_id))
+        extra = in_scope
+    row["false"] = [{"kind": f["properties"]["kind"], "chainage_m": f["properties"]["chainage_m"],
+                     "offset_m": f["properties"]["offset_m"], "size_m": f["properties"]["size_m"]}
+                    for f in extra]
     return row
+
+
+def rescore_line(work, line, scratch):
+    """The later runs stored in a kept line folder compared again by a server on a copy."""
+    data = os.path.join(scratch, os.path.basename(work))
+    shutil.copytree(os.path.join(work, "data"), data)
+    server = harness.Server(data=data)
+    # Run 1 is the reference, then the line's changed runs in order, then its repeat.
+    cases = [(s, seed, "changed") for s, seed in CHANGED.get(line, [])]
+    rows = []
+    try:
+        _, runs = server.json("GET", "/api/v1/runs")
+        for run_id in sorted(r["id"] for r in runs["runs"] if r["id"] != 1):
+            index = run_id - 2
+            scenario, seed, kind = cases[index] if index < len(cases) else (
+                line, REPEAT_SEED, "repeat")
+            t0 = time.time()
+            status, body = server.write("POST", "/api/v1/runs/%d/changes?reference=1" % run_id)
+            if status not in (200, 202):
+                raise RuntimeError("recompute run %d: %d %s" % (run_id, status, body))
+            found, _ = change_truth.wait_for_detection(server, run_id, timeout_s=1800)
+            row = score_case(found, line, scenario, seed, run_id, work, kind)
+            row["final_after_s"] = time.time() - t0
+            print(summary_line(row), flush=True)
+            rows.append(row)
+    finally:
+        server.stop()
+        shutil.rmtree(data, ignore_errors=True)
+    return rows
 
 
 def run_line(line, work_root, include_repeat):
@@ -193,12 +234,25 @@ def main():
     ap.add_argument("--no-repeats", action="store_true", help="changed runs only")
     ap.add_argument("--out", help="write every row and the totals as JSON here")
     ap.add_argument("--check", action="store_true", help="exit 1 unless the targets hold")
+    ap.add_argument("--rescore", metavar="DIR",
+                    help="compare the runs kept in an earlier run's folder again (its lines)")
     args = ap.parse_args()
     os.environ["RAILLOMER_BIN"] = os.path.join(args.build, "bin")
-    work_root = tempfile.mkdtemp(prefix="raillomer_change_accuracy_")
     rows = []
-    for line in args.lines.split(","):
-        rows += run_line(line, work_root, not args.no_repeats)
+    if args.rescore:
+        scratch = tempfile.mkdtemp(prefix="raillomer_change_rescore_")
+        for work in sorted(glob.glob(os.path.join(args.rescore, "*_*")), key=os.path.getmtime):
+            name = os.path.basename(work)
+            line = max((l for l in LINES + ["long_20km"] if name.startswith(l + "_")),
+                       key=len, default=None)
+            if line:
+                rows += rescore_line(work, line, scratch)
+        shutil.rmtree(scratch, ignore_errors=True)
+    else:
+        work_root = tempfile.mkdtemp(prefix="raillomer_change_accuracy_")
+        print("work folders: %s" % work_root, flush=True)
+        for line in args.lines.split(","):
+            rows += run_line(line, work_root, not args.no_repeats)
     t = totals(rows)
     print(json.dumps(t, indent=1))
     if args.out:
