@@ -6,7 +6,8 @@
 namespace raillomer::mapstore {
 
 /// A set of 64-bit voxel keys, open addressing with linear probing: a tile's occupied voxels.
-/// Several times faster than std::unordered_set on the ingest path (no node per key).
+/// Several times faster than std::unordered_set on the ingest path (no node per key). Keys
+/// are packed voxel coordinates, never 2^64 - 1.
 class VoxelSet {
  public:
   /// True if the key was not in the set (and now is).
