@@ -188,9 +188,10 @@ std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& 
 
 namespace {
 
-/// One stage of the registration at a correspondence distance, from `result`'s transform.
+/// One stage of the registration at a correspondence distance, from `result`'s transform;
+/// `normals` are the fixed cloud's, worked out as pairs ask for them.
 void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
-                   Normals& normals,
+                   Normals* normals,
                    const std::vector<Eigen::Vector3d>& moving,
                    double correspondence_m,
                    const RegistrationOptions& o,
@@ -206,7 +207,7 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
     for (const Eigen::Vector3d& m : moving) {
       const Eigen::Vector3d p = result->T_fixed_moving * m;
       size_t k = 0;
-      if (grid.Nearest(p, correspondence_m, &k)) pairs.push_back({p, fixed[k], normals[k]});
+      if (grid.Nearest(p, correspondence_m, &k)) pairs.push_back({p, fixed[k], (*normals)[k]});
     }
     result->pairs = pairs.size();
     if (pairs.size() < 6) return;
@@ -309,7 +310,7 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_poin
     const std::vector<Eigen::Vector3d> moving =
         EvenSample(moving_centroids, last ? o.max_moving_points : o.coarse_moving_points);
     if (fixed.size() < 10 || moving.size() < 10) return result;
-    RegisterStage(fixed, *normals, moving, distance, stage, &result);
+    RegisterStage(fixed, normals.get(), moving, distance, stage, &result);
     if (last) break;
     distance = std::max(o.max_correspondence_m, 0.5 * distance);
   }
