@@ -42,7 +42,9 @@ struct ChangeOptions {
   size_t voxels_sampled = 16;
   size_t voxels_per_sample = 50;
   size_t max_voxels_sampled = 64;
-  size_t sensors_sampled = 6;  ///< sensor poses tried per voxel, spread over those in view
+  /// Sensor poses tried per voxel, spread over those in view: enough that the share seen
+  /// empty does not hang on which few were picked.
+  size_t sensors_sampled = 12;
   /// An object is a change when the other run's rays reached at least min_seen_voxels of its
   /// sampled voxels and passed through this share of those they reached. A voxel no ray
   /// reached (occluded, beyond range, or towards the sky, where a LiDAR gets no return) is no
