@@ -248,6 +248,8 @@ def main():
             if line:
                 rows += rescore_line(work, line, scratch)
         shutil.rmtree(scratch, ignore_errors=True)
+        if not rows:
+            ap.error("--rescore: no kept line folder with later runs under %s" % args.rescore)
     else:
         work_root = tempfile.mkdtemp(prefix="raillomer_change_accuracy_")
         print("work folders: %s" % work_root, flush=True)
