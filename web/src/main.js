@@ -607,6 +607,7 @@ export class App {
       changes: this.changes.items.length,
       train: this.train.visible ? this.view.toUtm(this.train.position) : null,
       liveLatencyMs: this.layers.flatMap((l) => l.liveLatencyMs),
+      liveViewLatencyMs: this.layers.flatMap((l) => l.liveViewLatencyMs),
       errors: [...this.errors],
     };
   }

@@ -30,6 +30,10 @@ export class TileLayer {
     this.firstDrawnAt = null;
     this.announced = new Map(); // key@version -> server's sent_ns of a live tiles message
     this.liveLatencyMs = []; // from the server announcing a tile to drawing it
+    // The same from the later of the announcement and the view first wanting that version: a
+    // tile out of view (or at a level of detail not drawn) waits for the camera, not the viewer.
+    this.liveViewLatencyMs = [];
+    this.waiting = new Map(); // key@version -> when a frame first wanted it fetched
   }
 
   side(level) {
@@ -160,20 +164,41 @@ export class TileLayer {
     }
     for (const [key, a] of ancestors) if (!this.loaded.has(key)) this.fetchTile(a, key);
     const show = new Set();
+    const fetches = [];
     for (const t of this.wanted) {
       const key = keyOf(t.level, t.ix, t.iy);
       const have = this.loaded.get(key);
       if (have) show.add(key);
       if (!have || have.version !== t.version) {
-        this.fetchTile(t, key);
+        fetches.push({ t, key });
         if (!have) {
           const stand = this.loadedAncestor(t);
           if (stand) show.add(stand);
         }
       }
     }
+    this.fetchInTurn(fetches);
     this.setVisible(show);
     this.evict(budget);
+  }
+
+  /**
+   * Fetches in the order the tiles were first wanted, nearest first among those wanted in the
+   * same frame: while a train streams, the near tiles change with every submap, and taken
+   * nearest first every frame they could keep the few fetches in flight to themselves while a
+   * new version of a farther, coarser tile waits.
+   */
+  fetchInTurn(fetches) {
+    const now = performance.now();
+    const waiting = new Map();
+    for (const f of fetches) {
+      const id = `${f.key}@${f.t.version}`;
+      f.since = this.waiting.get(id) ?? now;
+      waiting.set(id, f.since);
+    }
+    this.waiting = waiting;
+    fetches.sort((a, b) => a.since - b.since); // stable: nearest first within a frame
+    for (const { t, key, since } of fetches) this.fetchTile(t, key, since);
   }
 
   ancestor(t, level) {
@@ -204,7 +229,9 @@ export class TileLayer {
       if (!this.visible.has(key)) this.group.add(tile.points);
       const sent = this.announced.get(`${key}@${tile.version}`);
       if (sent) {
-        this.liveLatencyMs.push(Date.now() - sent / 1e6);
+        const drawn = Date.now();
+        this.liveLatencyMs.push(drawn - sent / 1e6);
+        this.liveViewLatencyMs.push(drawn - Math.max(sent / 1e6, performance.timeOrigin + tile.wantedAt));
         this.announced.delete(`${key}@${tile.version}`);
       }
     }
@@ -216,7 +243,7 @@ export class TileLayer {
     this.stats.points = points;
   }
 
-  fetchTile(t, key) {
+  fetchTile(t, key, wantedAt = performance.now()) {
     if (this.inFlight.has(key) || this.inFlight.size >= MAX_IN_FLIGHT) return;
     const controller = new AbortController();
     this.inFlight.set(key, controller);
@@ -225,7 +252,7 @@ export class TileLayer {
     // costs no bytes.
     this.decoder
       .load(this.url(key), controller.signal)
-      .then((decoded) => this.store(t, key, decoded))
+      .then((decoded) => this.store(t, key, decoded, wantedAt))
       .catch((e) => {
         if (e.name === 'AbortError') return;
         this.stats.failed += 1;
@@ -256,7 +283,7 @@ export class TileLayer {
     points.matrixWorldNeedsUpdate = true;
   }
 
-  store(t, key, decoded) {
+  store(t, key, decoded, wantedAt) {
     const old = this.loaded.get(key);
     const points = tilePoints(decoded, this.material);
     this.place(points, t);
@@ -266,7 +293,7 @@ export class TileLayer {
       old.points.geometry.dispose();
       this.visible.delete(key);
     }
-    this.loaded.set(key, { info: t, points, version: t.version, used: performance.now() });
+    this.loaded.set(key, { info: t, points, version: t.version, used: performance.now(), wantedAt });
     this.stats.loaded += 1;
   }
 
