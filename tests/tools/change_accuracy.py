@@ -163,6 +163,20 @@ def rescore_line(work, line, scratch):
     return rows
 
 
+def rescore_folder(folder):
+    """Every kept line folder under `folder` (an earlier run's work folders) rescored."""
+    scratch = tempfile.mkdtemp(prefix="raillomer_change_rescore_")
+    rows = []
+    for work in sorted(glob.glob(os.path.join(folder, "*_*")), key=os.path.getmtime):
+        name = os.path.basename(work)
+        line = max((l for l in LINES + ["long_20km"] if name.startswith(l + "_")),
+                   key=len, default=None)
+        if line:
+            rows += rescore_line(work, line, scratch)
+    shutil.rmtree(scratch, ignore_errors=True)
+    return rows
+
+
 def run_line(line, work_root, include_repeat):
     work = tempfile.mkdtemp(prefix=line + "_", dir=work_root)
     server = harness.Server(data=os.path.join(work, "data"))
@@ -240,14 +254,7 @@ def main():
     os.environ["RAILLOMER_BIN"] = os.path.join(args.build, "bin")
     rows = []
     if args.rescore:
-        scratch = tempfile.mkdtemp(prefix="raillomer_change_rescore_")
-        for work in sorted(glob.glob(os.path.join(args.rescore, "*_*")), key=os.path.getmtime):
-            name = os.path.basename(work)
-            line = max((l for l in LINES + ["long_20km"] if name.startswith(l + "_")),
-                       key=len, default=None)
-            if line:
-                rows += rescore_line(work, line, scratch)
-        shutil.rmtree(scratch, ignore_errors=True)
+        rows = rescore_folder(args.rescore)
         if not rows:
             ap.error("--rescore: no kept line folder with later runs under %s" % args.rescore)
     else:
