@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <unordered_map>
 #include <unordered_set>
 
 #include <octomap/OcTree.h>
@@ -107,14 +108,16 @@ class Occupancy {
         min_range_sq_(o.min_range_m * o.min_range_m),
         max_range_sq_(o.max_range_m * o.max_range_m) {
     for (const Eigen::Isometry3d& sensor : run.sensors) to_sensor_.push_back(sensor.inverse());
-    // Each point's cell and its 26 neighbours.
-    VoxelSet own_cells;
+    // Each point's cell (with its highest point) and its 26 neighbours.
     std::vector<octomap::OcTreeKey> own;
     for (const Eigen::Vector3d& p : run.points) {
       octomap::OcTreeKey key;
-      if (keys_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key) &&
-          own_cells.Insert(Pack(key)))
+      if (!keys_.coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) continue;
+      const auto [cell, added] = top_.emplace(Pack(key), static_cast<float>(p.z()));
+      if (added)
         own.push_back(key);
+      else
+        cell->second = std::max(cell->second, static_cast<float>(p.z()));
     }
     occupied_.Reserve(8 * own.size());
     for (const octomap::OcTreeKey& k : own)
@@ -148,6 +151,13 @@ class Occupancy {
         *reached = true;
         return true;
       }
+      // A ray that struck only the grown shell of what lies below `v` (the ground under a low
+      // object) came through to it: if this run's points around `v` all lie more than the
+      // level of detection under the voxel's bottom, `v` was empty.
+      if (!StruckBefore(origin, range) && OnlyBelow(v, o.level_of_detection_m + 0.5 * o.voxel_m)) {
+        *reached = true;
+        return true;
+      }
       // A ray grazing down past `v` into the ground just behind it tells nothing of `v`
       // (an object standing low): only a hit level with it or above says it is there.
       if (end.z() < v.z() - 2.0 * o.occupancy_m) continue;
@@ -172,13 +182,48 @@ class Occupancy {
                               octomap::point3d(last.x(), last.y(), last.z()),
                               ray_))
       return false;
-    for (const octomap::OcTreeKey& key : ray_) {
-      if (!occupied_.Contains(Pack(key))) continue;
-      const octomap::point3d c = keys_.keyToCoord(key);
+    for (hit_ = ray_.begin(); hit_ != ray_.end(); ++hit_) {
+      if (!occupied_.Contains(Pack(*hit_))) continue;
+      const octomap::point3d c = keys_.keyToCoord(*hit_);
       *end = Eigen::Vector3d(c.x(), c.y(), c.z());
       return true;
     }
     return false;
+  }
+
+  /// Whether the ray of the last FirstHit met a cell holding a point of this run before
+  /// `range_m` from `origin` (a surface it struck, not just the shell grown around one).
+  bool StruckBefore(const Eigen::Vector3d& origin, double range_m) const {
+    const double limit_sq =
+        (range_m - 0.5 * keys_.getResolution()) * (range_m - 0.5 * keys_.getResolution());
+    for (auto key = hit_; key != ray_.end(); ++key) {
+      const octomap::point3d c = keys_.keyToCoord(*key);
+      if ((Eigen::Vector3d(c.x(), c.y(), c.z()) - origin).squaredNorm() >= limit_sq) break;
+      if (top_.count(Pack(*key))) return true;
+    }
+    return false;
+  }
+
+  /// Whether this run saw the ground right beneath `v` (a point in its column of cells, one
+  /// to three cells down) and nothing level with it: its points within a cell of `v`
+  /// horizontally, from three cells below to one above, all lie more than `below_m` under it.
+  /// Past the run's cut, where it has no points, their absence says nothing.
+  bool OnlyBelow(const Eigen::Vector3d& v, double below_m) const {
+    octomap::OcTreeKey k;
+    if (!keys_.coordToKeyChecked(octomap::point3d(v.x(), v.y(), v.z()), k)) return false;
+    bool beneath = false;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -3; dz <= 1; ++dz) {
+          const auto cell =
+              top_.find(Pack(octomap::OcTreeKey(static_cast<octomap::key_type>(k[0] + dx),
+                                                static_cast<octomap::key_type>(k[1] + dy),
+                                                static_cast<octomap::key_type>(k[2] + dz))));
+          if (cell == top_.end()) continue;
+          if (cell->second >= v.z() - below_m) return false;
+          beneath = beneath || (dx == 0 && dy == 0 && dz < 0);
+        }
+    return beneath;
   }
 
   /// Whether `v` lies in the field of view of the sensor whose inverse pose is `to_sensor`:
@@ -192,11 +237,13 @@ class Occupancy {
   }
 
   const RunStretch& run_;
-  std::vector<Eigen::Isometry3d> to_sensor_;  ///< each sensor's pose inverted
-  octomap::OcTree keys_;                      ///< the key space only: it holds no node
-  VoxelSet occupied_;                         ///< packed keys of the occupied cells
-  mutable octomap::KeyRay ray_;               ///< the cells of the ray being cast
-  double tan_azimuth_, tan_elevation_;        ///< of the field of view's half angles
+  std::vector<Eigen::Isometry3d> to_sensor_;     ///< each sensor's pose inverted
+  octomap::OcTree keys_;                         ///< the key space only: it holds no node
+  std::unordered_map<uint64_t, float> top_;      ///< cells holding points: their highest point
+  VoxelSet occupied_;                            ///< packed keys of those and of their neighbours
+  mutable octomap::KeyRay ray_;                  ///< the cells of the ray being cast
+  mutable octomap::KeyRay::const_iterator hit_;  ///< its first occupied cell
+  double tan_azimuth_, tan_elevation_;           ///< of the field of view's half angles
   double min_range_sq_, max_range_sq_;
 };
 

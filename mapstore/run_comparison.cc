@@ -311,6 +311,46 @@ double LevelOfDetection(const ChangeOptions& o, double registration_rms_m) {
                                    registration_rms_m * registration_rms_m));
 }
 
+/// The points of the run that has the change (the later run's for what was added, the
+/// reference's for what is gone) in its voxels: where it was measured, on the same footing as
+/// the rail heads the rail plane comes from (a voxel's centre lies up to half a voxel off).
+std::vector<Eigen::Vector3d> PointsOf(const StretchChange& c, const StretchParts& parts) {
+  const double voxel_m = ChangeOptions().voxel_m;
+  std::unordered_set<GridCell, GridCellHash> cells;
+  for (const Eigen::Vector3d& v : c.voxels) cells.insert(CellOf(v, voxel_m));
+  const std::vector<Eigen::Vector3d>& run =
+      c.kind == StretchChange::Kind::kAdded ? parts.later.points : parts.reference.points;
+  std::vector<Eigen::Vector3d> points;
+  for (const Eigen::Vector3d& p : run)
+    if (cells.count(CellOf(p, voxel_m))) points.push_back(p);
+  return points.empty() ? c.voxels : points;
+}
+
+/// The change's heights above the rail plane and its margins against the gauge and the
+/// vegetation rule, from its points.
+void CheckClearance(const std::vector<Eigen::Vector3d>& points,
+                    const Stretch& stretch,
+                    const StretchParts& parts,
+                    const StructureGauge& gauge,
+                    RunChange* out) {
+  out->margin_m = std::numeric_limits<double>::infinity();
+  out->vegetation_margin_m = std::numeric_limits<double>::infinity();
+  out->height_above_rail_min_m = std::numeric_limits<double>::infinity();
+  out->height_above_rail_max_m = -std::numeric_limits<double>::infinity();
+  for (const Eigen::Vector3d& q : points) {
+    const Eigen::Vector3d p = q + stretch.origin();
+    double o = 0.0, a = 0.0;
+    const TrackSample& s = stretch.Nearest(p, &o, &a);
+    const TrackSection section{
+        s.point.p.z() + parts.rail_drop_m, s.point.cant_m, s.curvature_per_m};
+    const SectionPoint at = ToSection(section, o, p.z());
+    out->margin_m = std::min(out->margin_m, gauge.Margin(section, at));
+    out->vegetation_margin_m = std::min(out->vegetation_margin_m, gauge.VegetationMargin(at));
+    out->height_above_rail_min_m = std::min(out->height_above_rail_min_m, at.height_m);
+    out->height_above_rail_max_m = std::max(out->height_above_rail_max_m, at.height_m);
+  }
+}
+
 /// A change of a stretch placed on the line and checked against the gauge and the vegetation
 /// rule.
 RunChange Place(const StretchChange& c,
@@ -331,22 +371,12 @@ RunChange Place(const StretchChange& c,
   const TrackSample& at = stretch.Nearest(out.centre_utm, &offset, &along);
   out.chainage_m = at.point.chainage_m + along;
   out.offset_m = offset;
-  out.margin_m = std::numeric_limits<double>::infinity();
-  out.vegetation_margin_m = std::numeric_limits<double>::infinity();
-  out.height_above_rail_min_m = std::numeric_limits<double>::infinity();
-  out.height_above_rail_max_m = -std::numeric_limits<double>::infinity();
+  CheckClearance(PointsOf(c, parts), stretch, parts, gauge, &out);
   Eigen::AlignedBox3d extent;  // along (from `at`), across, up
   for (const Eigen::Vector3d& v : c.voxels) {
     const Eigen::Vector3d p = v + stretch.origin();
     double o = 0.0, a = 0.0;
     const TrackSample& s = stretch.Nearest(p, &o, &a);
-    const TrackSection section{
-        s.point.p.z() + parts.rail_drop_m, s.point.cant_m, s.curvature_per_m};
-    const SectionPoint q = ToSection(section, o, p.z());
-    out.margin_m = std::min(out.margin_m, gauge.Margin(section, q));
-    out.vegetation_margin_m = std::min(out.vegetation_margin_m, gauge.VegetationMargin(q));
-    out.height_above_rail_min_m = std::min(out.height_above_rail_min_m, q.height_m);
-    out.height_above_rail_max_m = std::max(out.height_above_rail_max_m, q.height_m);
     extent.extend(Eigen::Vector3d(s.point.chainage_m + a - at.point.chainage_m, o, p.z()));
   }
   out.size_m = extent.sizes();

@@ -1,7 +1,8 @@
 // Change detection of a stretch on scenes with known answers, each run made by casting the
 // LiDARs' rays into a scene of boxes on a ground plane from poses along the track: an added
 // box, a removed pole, a pole hidden behind a wagon (not observed, never removed), an
-// unchanged scene seen from other poses (nothing), and a lost wire (removed).
+// unchanged scene seen from other poses (nothing), a lost wire (removed), and low boxes whose
+// place the reference saw only down to the ground or slab just under them (added).
 #include <cmath>
 #include <limits>
 
@@ -35,13 +36,13 @@ double Hit(const Box& b, const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
   return near;
 }
 
-/// A run through the scene: LiDAR poses every 2 m from `first_x` along x, 2 m above the
-/// ground, looking ahead; rays every 0.5 deg over the field of view, returns within 100 m.
-RunStretch Scan(const std::vector<Box>& scene, double first_x) {
+/// A run through the scene: LiDAR poses every 2 m from `first_x` along x, `height_m` above
+/// the ground, looking ahead; rays every 0.5 deg over the field of view, returns within 100 m.
+RunStretch Scan(const std::vector<Box>& scene, double first_x, double height_m = 2.0) {
   RunStretch run;
   for (double x = first_x; x <= 60.0; x += 2.0) {
     Eigen::Isometry3d sensor = Eigen::Isometry3d::Identity();
-    sensor.translation() = Eigen::Vector3d(x, 0.0, 2.0);
+    sensor.translation() = Eigen::Vector3d(x, 0.0, height_m);
     run.sensors.push_back(sensor);
     for (double az = -40.0; az <= 40.0; az += 0.5)
       for (double el = -25.0; el <= 10.0; el += 0.5) {
@@ -138,6 +139,44 @@ TEST(ChangeDetection, AWireTheLaterRunLostIsRemoved) {
   ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects";
   EXPECT_EQ(changes[0].kind, StretchChange::Kind::kRemoved);
   EXPECT_GT(changes[0].box.sizes().x(), 7.5);
+}
+
+/// A low object seen from a roof-high LiDAR: the reference's rays through where it stands end
+/// on the ground (or the slab) just behind or under it, nearer than ChangeOptions::beyond_m,
+/// and nothing of the reference is level with it there.
+void ExpectLowBoxFound(const std::vector<Box>& both, const Box& box) {
+  std::vector<Box> later = both;
+  later.push_back(box);
+  StretchSummary summary;
+  const std::vector<StretchChange> changes =
+      CompareStretch(Scan(both, 0.0, 4.0), Scan(later, 1.0, 4.0), ChangeOptions(), &summary);
+  ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects";
+  EXPECT_EQ(changes[0].kind, StretchChange::Kind::kAdded);
+  EXPECT_LT((changes[0].centre.head<2>() - box.center().head<2>()).norm(), 0.3);
+  EXPECT_GE(changes[0].seen_empty_share, 0.5);
+}
+
+TEST(ChangeDetection, LowObjectsInBothRunsAreNoChange) {
+  const std::vector<Box> scene = {kBuilding,
+                                  kPole,
+                                  Make(30.0, 3.5, 0.0, 40.0, 7.0, 0.7),
+                                  Make(33.0, 4.0, 0.0, 35.0, 5.0, 1.05),
+                                  Make(35.0, 1.8, 0.0, 35.4, 2.2, 0.5)};
+  StretchSummary summary;
+  const std::vector<StretchChange> changes =
+      CompareStretch(Scan(scene, 0.0, 4.0), Scan(scene, 1.0, 4.0), ChangeOptions(), &summary);
+  EXPECT_TRUE(changes.empty()) << changes.size() << " changes, the first at "
+                               << changes[0].centre.transpose();
+}
+
+TEST(ChangeDetection, ALowBoxOnTheGroundIsFound) {
+  ExpectLowBoxFound({kBuilding, kPole}, Make(35.0, 1.8, 0.0, 35.4, 2.2, 0.5));
+}
+
+TEST(ChangeDetection, ABoxStandingInASlabIsFoundOverIt) {
+  // A 0.7 m slab in both runs; the box stands 0.35 m above it.
+  ExpectLowBoxFound({kBuilding, kPole, Make(30.0, 3.5, 0.0, 40.0, 7.0, 0.7)},
+                    Make(33.0, 4.0, 0.0, 35.0, 5.0, 1.05));
 }
 
 }  // namespace
