@@ -151,10 +151,12 @@ class Occupancy {
         *reached = true;
         return true;
       }
-      // A ray that struck only the grown shell of what lies below `v` (the ground under a low
-      // object) came through to it: if this run's points around `v` all lie more than the
-      // level of detection under the voxel's bottom, `v` was empty.
-      if (!StruckBefore(origin, range) && OnlyBelow(v, o.level_of_detection_m + 0.5 * o.voxel_m)) {
+      // A ray coming down onto `v` that struck only the grown shell of what lies below it (the
+      // ground under a low object) came through to it: if this run's points around `v` all lie
+      // more than the level of detection under the voxel's bottom, `v` was empty. A ray rising
+      // to `v` (something hanging) meets what lies below it first: no evidence then.
+      if (ray.z() < 0.0 && !StruckBefore(origin, range) &&
+          OnlyBelow(v, o.level_of_detection_m + 0.5 * o.voxel_m)) {
         *reached = true;
         return true;
       }
