@@ -249,6 +249,7 @@ struct StretchParts {
   RunStretch reference, later;
   double rail_drop_m = 0.0;
   double lod_m = 0.0;
+  double voxel_m = 0.0;  ///< the comparison's voxel (ChangeOptions::voxel_m)
 };
 
 size_t PointsInBox(const std::vector<Eigen::Vector3d>& points, const Eigen::AlignedBox3d& box) {
@@ -315,14 +316,13 @@ double LevelOfDetection(const ChangeOptions& o, double registration_rms_m) {
 /// reference's for what is gone) in its voxels: where it was measured, on the same footing as
 /// the rail heads the rail plane comes from (a voxel's centre lies up to half a voxel off).
 std::vector<Eigen::Vector3d> PointsOf(const StretchChange& c, const StretchParts& parts) {
-  const double voxel_m = ChangeOptions().voxel_m;
   std::unordered_set<GridCell, GridCellHash> cells;
-  for (const Eigen::Vector3d& v : c.voxels) cells.insert(CellOf(v, voxel_m));
+  for (const Eigen::Vector3d& v : c.voxels) cells.insert(CellOf(v, parts.voxel_m));
   const std::vector<Eigen::Vector3d>& run =
       c.kind == StretchChange::Kind::kAdded ? parts.later.points : parts.reference.points;
   std::vector<Eigen::Vector3d> points;
   for (const Eigen::Vector3d& p : run)
-    if (cells.count(CellOf(p, voxel_m))) points.push_back(p);
+    if (cells.count(CellOf(p, parts.voxel_m))) points.push_back(p);
   return points.empty() ? c.voxels : points;
 }
 
@@ -380,7 +380,7 @@ RunChange Place(const StretchChange& c,
     extent.extend(Eigen::Vector3d(s.point.chainage_m + a - at.point.chainage_m, o, p.z()));
   }
   out.size_m = extent.sizes();
-  const double half = 0.5 * ChangeOptions().voxel_m;
+  const double half = 0.5 * parts.voxel_m;
   out.size_m.array() += 2.0 * half;
   for (const auto& [a, o] : {std::pair{extent.min().x() - half, extent.min().y() - half},
                              {extent.max().x() + half, extent.min().y() - half},
@@ -701,6 +701,7 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
           ? drop
           : RailResidual(stretch, parts.reference.points, parts.later.points, parts.rail_drop_m);
   parts.lod_m = LevelOfDetection(o.change, fit.rms_m);
+  parts.voxel_m = o.change.voxel_m;
   const StructureGauge gauge(o.clearance);
   std::vector<RunChange> placed;
   for (const StretchChange& c : found)
