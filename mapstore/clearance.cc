@@ -84,4 +84,20 @@ double StructureGauge::VegetationMargin(const SectionPoint& point) const {
   return (distance - options_.vegetation_allowance_m) - point.height_m;
 }
 
+void ClearanceTally::SecondLowest::Add(double v) {
+  if (v < lowest) {
+    second = lowest;
+    lowest = v;
+  } else if (v < second) {
+    second = v;
+  }
+}
+
+void ClearanceTally::Add(const TrackSection& section, const SectionPoint& point) {
+  margin_.Add(gauge_.Margin(section, point));
+  vegetation_margin_.Add(gauge_.VegetationMargin(point));
+  height_min_.Add(point.height_m);
+  height_max_negated_.Add(-point.height_m);
+}
+
 }  // namespace raillomer::mapstore

@@ -1,5 +1,6 @@
 #pragma once
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -67,6 +68,36 @@ class StructureGauge {
 
  private:
   ClearanceOptions options_;
+};
+
+/// A change's clearance from its points: its margins against the gauge and the vegetation rule
+/// and its heights above the rail plane. Each extreme is the one of the second most extreme
+/// point (of the only one, if it is alone): a single return a quantisation step or a mixed
+/// pixel beyond the rest does not put a change inside the gauge on its own.
+class ClearanceTally {
+ public:
+  explicit ClearanceTally(const StructureGauge& gauge) : gauge_(gauge) {}
+
+  void Add(const TrackSection& section, const SectionPoint& point);
+
+  double margin_m() const { return margin_.Get(); }
+  /// +infinity when no point lies in the vegetation zone.
+  double vegetation_margin_m() const { return vegetation_margin_.Get(); }
+  double height_min_m() const { return height_min_.Get(); }
+  double height_max_m() const { return -height_max_negated_.Get(); }
+
+ private:
+  /// The second lowest value added, or the lowest while there is one (+infinity: none).
+  struct SecondLowest {
+    double lowest = std::numeric_limits<double>::infinity();
+    double second = std::numeric_limits<double>::infinity();
+    void Add(double v);
+    double Get() const {
+      return second < std::numeric_limits<double>::infinity() ? second : lowest;
+    }
+  };
+  const StructureGauge& gauge_;
+  SecondLowest margin_, vegetation_margin_, height_min_, height_max_negated_;
 };
 
 }  // namespace raillomer::mapstore

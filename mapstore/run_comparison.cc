@@ -333,22 +333,19 @@ void CheckClearance(const std::vector<Eigen::Vector3d>& points,
                     const StretchParts& parts,
                     const StructureGauge& gauge,
                     RunChange* out) {
-  out->margin_m = std::numeric_limits<double>::infinity();
-  out->vegetation_margin_m = std::numeric_limits<double>::infinity();
-  out->height_above_rail_min_m = std::numeric_limits<double>::infinity();
-  out->height_above_rail_max_m = -std::numeric_limits<double>::infinity();
+  ClearanceTally tally(gauge);
   for (const Eigen::Vector3d& q : points) {
     const Eigen::Vector3d p = q + stretch.origin();
     double o = 0.0, a = 0.0;
     const TrackSample& s = stretch.Nearest(p, &o, &a);
     const TrackSection section{
         s.point.p.z() + parts.rail_drop_m, s.point.cant_m, s.curvature_per_m};
-    const SectionPoint at = ToSection(section, o, p.z());
-    out->margin_m = std::min(out->margin_m, gauge.Margin(section, at));
-    out->vegetation_margin_m = std::min(out->vegetation_margin_m, gauge.VegetationMargin(at));
-    out->height_above_rail_min_m = std::min(out->height_above_rail_min_m, at.height_m);
-    out->height_above_rail_max_m = std::max(out->height_above_rail_max_m, at.height_m);
+    tally.Add(section, ToSection(section, o, p.z()));
   }
+  out->margin_m = tally.margin_m();
+  out->vegetation_margin_m = tally.vegetation_margin_m();
+  out->height_above_rail_min_m = tally.height_min_m();
+  out->height_above_rail_max_m = tally.height_max_m();
 }
 
 /// A change of a stretch placed on the line and checked against the gauge and the vegetation

@@ -66,5 +66,34 @@ TEST(Clearance, VegetationMayNotBeTallerThanItsDistanceLessThreeMetres) {
   EXPECT_NE(error.find("3 corners"), std::string::npos);
 }
 
+TEST(Clearance, OneStrayPointDoesNotPutAChangeInsideTheGauge) {
+  const StructureGauge gauge{ClearanceOptions()};
+  const TrackSection straight{0.0, 0.0, 0.0};
+  // A box 2 m left whose top lies 2 mm below the rail plane (outside the gauge, which starts
+  // at it), measured on that top but for one return one 8-mm quantisation step higher.
+  ClearanceTally box(gauge);
+  for (int i = 0; i < 12; ++i) box.Add(straight, {1.8 + 0.04 * i, -0.002});
+  box.Add(straight, {1.9, -0.3});
+  box.Add(straight, {2.14, 0.006});
+  EXPECT_NEAR(box.margin_m(), 0.002, 1e-9);
+  EXPECT_NEAR(box.height_max_m(), -0.002, 1e-9);
+  EXPECT_NEAR(box.height_min_m(), -0.002, 1e-9);  // the second lowest: the top's
+  EXPECT_NEAR(box.vegetation_margin_m(), 1.84 - 3.0 + 0.002, 1e-9);
+  // Two returns inside are a change inside: the margin is the second deepest.
+  box.Add(straight, {2.0, 0.05});
+  EXPECT_NEAR(box.margin_m(), -0.006, 1e-9);
+  EXPECT_NEAR(box.height_max_m(), 0.006, 1e-9);
+  // A change of one point is measured by that point; of none, nothing is in the way.
+  ClearanceTally one(gauge);
+  one.Add(straight, {2.0, 0.05});
+  EXPECT_NEAR(one.margin_m(), -0.05, 1e-9);
+  EXPECT_NEAR(one.height_max_m(), 0.05, 1e-9);
+  EXPECT_TRUE(std::isinf(ClearanceTally(gauge).margin_m()));
+  // Beyond the vegetation zone, it says nothing of vegetation.
+  ClearanceTally far(gauge);
+  far.Add(straight, {7.0, 9.0});
+  EXPECT_TRUE(std::isinf(far.vegetation_margin_m()));
+}
+
 }  // namespace
 }  // namespace raillomer::mapstore
