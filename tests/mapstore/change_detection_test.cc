@@ -2,7 +2,8 @@
 // LiDARs' rays into a scene of boxes on a ground plane from poses along the track: an added
 // box, a removed pole, a pole hidden behind a wagon (not observed, never removed), an
 // unchanged scene seen from other poses (nothing), a lost wire (removed), and low boxes whose
-// place the reference saw only down to the ground or slab just under them (added).
+// place the reference saw only down to the ground or slab just under them (added), and what a
+// hanging bracket's other sampling left that only rising rays passed (not observed).
 #include <cmath>
 #include <limits>
 
@@ -37,17 +38,26 @@ double Hit(const Box& b, const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
 }
 
 /// A run through the scene: LiDAR poses every 2 m from `first_x` along x, `height_m` above
-/// the ground, looking ahead; rays every 0.5 deg over the field of view, returns within 100 m.
-RunStretch Scan(const std::vector<Box>& scene, double first_x, double height_m = 2.0) {
+/// the ground, looking ahead, tilted up by `pitch_deg`; rays every 0.5 deg over the field of
+/// view, returns within 100 m.
+RunStretch Scan(const std::vector<Box>& scene,
+                double first_x,
+                double height_m = 2.0,
+                double pitch_deg = 0.0) {
   RunStretch run;
+  const Eigen::Matrix3d tilt =
+      Eigen::AngleAxisd(-pitch_deg * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
   for (double x = first_x; x <= 60.0; x += 2.0) {
     Eigen::Isometry3d sensor = Eigen::Isometry3d::Identity();
     sensor.translation() = Eigen::Vector3d(x, 0.0, height_m);
+    sensor.linear() = tilt;
     run.sensors.push_back(sensor);
     for (double az = -40.0; az <= 40.0; az += 0.5)
       for (double el = -25.0; el <= 10.0; el += 0.5) {
         const double a = az * M_PI / 180.0, e = el * M_PI / 180.0;
-        const Eigen::Vector3d d(std::cos(e) * std::cos(a), std::cos(e) * std::sin(a), std::sin(e));
+        const Eigen::Vector3d d =
+            tilt *
+            Eigen::Vector3d(std::cos(e) * std::cos(a), std::cos(e) * std::sin(a), std::sin(e));
         const Eigen::Vector3d o = sensor.translation();
         double t = d.z() < 0.0 ? -o.z() / d.z() : std::numeric_limits<double>::infinity();
         for (const Box& b : scene) t = std::min(t, Hit(b, o, d));
@@ -177,6 +187,26 @@ TEST(ChangeDetection, ABoxStandingInASlabIsFoundOverIt) {
   // A 0.7 m slab in both runs; the box stands 0.35 m above it.
   ExpectLowBoxFound({kBuilding, kPole, Make(30.0, 3.5, 0.0, 40.0, 7.0, 0.7)},
                     Make(33.0, 4.0, 0.0, 35.0, 5.0, 1.05));
+}
+
+TEST(ChangeDetection, WhatOnlyRisingRaysPassedAboveAHangingBracketIsNotRemoved) {
+  // A bracket hanging 6.0-6.6 m up beside the track, nothing behind it, seen by a LiDAR
+  // tilted 30 deg up; the later run has its lower third only (sampled otherwise). The later
+  // run's rays rising to where the rest was pass just over that lower third and end in the
+  // cells grown around it, and nothing behind returns: they tell nothing of the place, which
+  // is not observed, not removed.
+  const Box bracket = Make(30.0, 1.0, 6.0, 30.6, 1.6, 6.6);
+  Box lower = bracket;
+  lower.max().z() = 6.2;
+  StretchSummary summary;
+  const std::vector<StretchChange> changes =
+      CompareStretch(Scan({kBuilding, bracket}, 0.0, 2.0, 30.0),
+                     Scan({kBuilding, lower}, 1.0, 2.0, 30.0),
+                     ChangeOptions(),
+                     &summary);
+  EXPECT_TRUE(changes.empty()) << changes.size() << " changes, the first at "
+                               << changes[0].centre.transpose();
+  EXPECT_GE(summary.not_observed, 1u);
 }
 
 }  // namespace
