@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -100,6 +101,8 @@ std::vector<std::vector<GridCell>> Clusters(const std::vector<GridCell>& cells,
 /// many times faster than the tree's nodes. Every other cell is unknown, which a ray crosses.
 class Occupancy {
  public:
+  enum class Hit { kNone, kBefore, kBeyond };
+
   Occupancy(const RunStretch& run, const ChangeOptions& o)
       : run_(run),
         keys_(o.occupancy_m),
@@ -143,10 +146,11 @@ class Occupancy {
       const Eigen::Vector3d ray = v - origin;
       const double range = ray.norm();
       Eigen::Vector3d end;
-      const bool hit = FirstHit(origin, ray / range, range + 30.0, &end);
-      if (!hit) continue;  // no return: a Livox reports nothing, so nothing is known
+      const Eigen::Vector3d last = origin + (range + 30.0) * (ray / range);
+      // No return: a Livox reports nothing, so nothing is known. Or occluded before `v`.
+      if (Cast(origin, ray / range, range - 2.5 * o.occupancy_m, last, &end) != Hit::kBeyond)
+        continue;
       const double at = (end - origin).norm();
-      if (at < range - 2.5 * o.occupancy_m) continue;  // occluded before it
       if (at > range + o.beyond_m) {
         *reached = true;
         return true;
@@ -155,8 +159,8 @@ class Occupancy {
       // ground under a low object) came through to it: if this run's points around `v` all lie
       // more than the level of detection under the voxel's bottom, `v` was empty. A ray rising
       // to `v` (something hanging) meets what lies below it first: no evidence then.
-      if (ray.z() < 0.0 && !StruckBefore(origin, range) &&
-          OnlyBelow(v, o.level_of_detection_m + 0.5 * o.voxel_m)) {
+      if (ray.z() < 0.0 && OnlyBelow(v, o.level_of_detection_m + 0.5 * o.voxel_m) &&
+          !StruckBefore(origin, last, range)) {
         *reached = true;
         return true;
       }
@@ -173,37 +177,98 @@ class Occupancy {
     return static_cast<uint64_t>(k[0]) << 32 | static_cast<uint64_t>(k[1]) << 16 | k[2];
   }
 
-  /// The centre of the first occupied cell on the ray from `origin` along the unit
-  /// `direction` within `max_range_m`; false if there is none (as OctoMap's castRay).
-  bool FirstHit(const Eigen::Vector3d& origin,
-                const Eigen::Vector3d& direction,
-                double max_range_m,
-                Eigen::Vector3d* end) const {
-    const Eigen::Vector3d last = origin + max_range_m * direction;
-    if (!keys_.computeRayKeys(octomap::point3d(origin.x(), origin.y(), origin.z()),
-                              octomap::point3d(last.x(), last.y(), last.z()),
-                              ray_))
+  /// Visits the cells on the segment from `origin` to `end`, from the origin's up to the one
+  /// before the end's, until `visit` returns true; false if the segment leaves the key space.
+  /// Amanatides and Woo's traversal as OctoMap's computeRayKeys does it, to the same cells,
+  /// but cell by cell: most rays stop at their first occupied cell, long before the end.
+  template <typename Visit>
+  bool Walk(const octomap::point3d& origin, const octomap::point3d& end, Visit visit) const {
+    octomap::OcTreeKey key, key_end;
+    if (!keys_.coordToKeyChecked(origin, key) || !keys_.coordToKeyChecked(end, key_end))
       return false;
-    for (hit_ = ray_.begin(); hit_ != ray_.end(); ++hit_) {
-      if (!occupied_.Contains(Pack(*hit_))) continue;
-      const octomap::point3d c = keys_.keyToCoord(*hit_);
-      *end = Eigen::Vector3d(c.x(), c.y(), c.z());
-      return true;
+    if (key == key_end || visit(key)) return true;
+    octomap::point3d direction = end - origin;
+    const float length = static_cast<float>(direction.norm());
+    direction /= length;
+    int step[3];
+    double t_max[3], t_delta[3];
+    for (int i = 0; i < 3; ++i) {
+      step[i] = direction(i) > 0.0f ? 1 : (direction(i) < 0.0f ? -1 : 0);
+      if (step[i] == 0) {
+        t_max[i] = t_delta[i] = std::numeric_limits<double>::max();
+        continue;
+      }
+      const double border =
+          keys_.keyToCoord(key[i]) + static_cast<float>(step[i] * keys_.getResolution() * 0.5);
+      t_max[i] = (border - origin(i)) / direction(i);
+      t_delta[i] = keys_.getResolution() / std::fabs(direction(i));
     }
-    return false;
+    while (true) {
+      const int dim =
+          t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
+      key[dim] = static_cast<octomap::key_type>(key[dim] + step[dim]);
+      t_max[dim] += t_delta[dim];
+      if (key == key_end || std::min({t_max[0], t_max[1], t_max[2]}) > length) return true;
+      if (visit(key)) return true;
+    }
   }
 
-  /// Whether the ray of the last FirstHit met a cell holding a point of this run before
+  /// Where the ray from `origin` along the unit `direction` to `last` first meets an occupied
+  /// cell: none, a cell whose centre lies nearer than `before_m` (occluded), or `end`, the
+  /// centre of the first beyond. As OctoMap's castRay, but an occluded ray is mostly blocked
+  /// near its target: the ray is walked back from just past `before_m` to the origin first,
+  /// and on from there only if nothing blocked it.
+  Hit Cast(const Eigen::Vector3d& origin,
+           const Eigen::Vector3d& direction,
+           double before_m,
+           const Eigen::Vector3d& last,
+           Eigen::Vector3d* end) const {
+    const octomap::point3d sensor(origin.x(), origin.y(), origin.z());
+    const Eigen::Vector3d past = origin + (before_m + keys_.getResolution()) * direction;
+    const octomap::point3d split(past.x(), past.y(), past.z());
+    const double before_sq = before_m * before_m;
+    Hit hit = Hit::kNone;
+    auto occupied = [&](const octomap::OcTreeKey& key) {
+      if (!occupied_.Contains(Pack(key))) return false;
+      const octomap::point3d c = keys_.keyToCoord(key);
+      const Eigen::Vector3d centre(c.x(), c.y(), c.z());
+      if ((centre - origin).squaredNorm() < before_sq) return (hit = Hit::kBefore), true;
+      *end = centre;
+      hit = Hit::kBeyond;
+      return false;  // walking back: a cell nearer the origin may be hit first
+    };
+    octomap::OcTreeKey own;
+    if (!Walk(split, sensor, occupied) || !keys_.coordToKeyChecked(sensor, own)) return Hit::kNone;
+    if (hit != Hit::kBefore)
+      occupied(own);  // the sensor's own cell, which the walk back leaves out
+    if (hit != Hit::kNone) return hit;
+    Walk(split, octomap::point3d(last.x(), last.y(), last.z()), [&](const octomap::OcTreeKey& key) {
+      if (!occupied_.Contains(Pack(key))) return false;
+      const octomap::point3d c = keys_.keyToCoord(key);
+      *end = Eigen::Vector3d(c.x(), c.y(), c.z());
+      hit = Hit::kBeyond;
+      return true;
+    });
+    return hit;
+  }
+
+  /// Whether the ray from `origin` to `last` meets a cell holding a point of this run before
   /// `range_m` from `origin` (a surface it struck, not just the shell grown around one).
-  bool StruckBefore(const Eigen::Vector3d& origin, double range_m) const {
+  bool StruckBefore(const Eigen::Vector3d& origin,
+                    const Eigen::Vector3d& last,
+                    double range_m) const {
     const double limit_sq =
         (range_m - 0.5 * keys_.getResolution()) * (range_m - 0.5 * keys_.getResolution());
-    for (auto key = hit_; key != ray_.end(); ++key) {
-      const octomap::point3d c = keys_.keyToCoord(*key);
-      if ((Eigen::Vector3d(c.x(), c.y(), c.z()) - origin).squaredNorm() >= limit_sq) break;
-      if (top_.count(Pack(*key))) return true;
-    }
-    return false;
+    bool struck = false;
+    Walk(octomap::point3d(origin.x(), origin.y(), origin.z()),
+         octomap::point3d(last.x(), last.y(), last.z()),
+         [&](const octomap::OcTreeKey& key) {
+           const octomap::point3d c = keys_.keyToCoord(key);
+           if ((Eigen::Vector3d(c.x(), c.y(), c.z()) - origin).squaredNorm() >= limit_sq)
+             return true;
+           return struck = top_.count(Pack(key)) > 0;
+         });
+    return struck;
   }
 
   /// Whether this run saw the ground right beneath `v` (a point in its column of cells, one
@@ -239,13 +304,11 @@ class Occupancy {
   }
 
   const RunStretch& run_;
-  std::vector<Eigen::Isometry3d> to_sensor_;     ///< each sensor's pose inverted
-  octomap::OcTree keys_;                         ///< the key space only: it holds no node
-  std::unordered_map<uint64_t, float> top_;      ///< cells holding points: their highest point
-  VoxelSet occupied_;                            ///< packed keys of those and of their neighbours
-  mutable octomap::KeyRay ray_;                  ///< the cells of the ray being cast
-  mutable octomap::KeyRay::const_iterator hit_;  ///< its first occupied cell
-  double tan_azimuth_, tan_elevation_;           ///< of the field of view's half angles
+  std::vector<Eigen::Isometry3d> to_sensor_;  ///< each sensor's pose inverted
+  octomap::OcTree keys_;                      ///< the key space only: it holds no node
+  std::unordered_map<uint64_t, float> top_;   ///< cells holding points: their highest point
+  VoxelSet occupied_;                         ///< packed keys of those and of their neighbours
+  double tan_azimuth_, tan_elevation_;        ///< of the field of view's half angles
   double min_range_sq_, max_range_sq_;
 };
 
