@@ -17,7 +17,7 @@ namespace {
 /// cell is found by arithmetic rather than hashing: the registration asks millions of times.
 class Grid {
  public:
-  Grid(const std::vector<Eigen::Vector3d>& points, double side) : points_(points), side_(side) {
+  Grid(const std::vector<Eigen::Vector3d>& points, double side) : side_(side) {
     if (points.empty()) return;
     std::vector<GridCell> cells(points.size());
     min_ = max_ = CellOf(points[0], side);
@@ -35,9 +35,13 @@ class Grid {
     for (const GridCell& c : cells) ++start_[Index(c) + 1];
     for (size_t k = 1; k < start_.size(); ++k) start_[k] += start_[k - 1];
     order_.resize(points.size());
+    sorted_.resize(points.size());
     std::vector<uint32_t> next(start_.begin(), start_.end() - 1);
-    for (size_t i = 0; i < points.size(); ++i)
-      order_[next[Index(cells[i])]++] = static_cast<uint32_t>(i);
+    for (size_t i = 0; i < points.size(); ++i) {
+      const uint32_t j = next[Index(cells[i])]++;
+      order_[j] = static_cast<uint32_t>(i);
+      sorted_[j] = points[i];
+    }
   }
 
   /// The indices of the points within `radius` (at most the grid's side) of `p`.
@@ -47,8 +51,8 @@ class Grid {
     for (int64_t dx = -1; dx <= 1; ++dx)
       for (int64_t dy = -1; dy <= 1; ++dy)
         for (int64_t dz = -1; dz <= 1; ++dz)
-          ForCell({c.x + dx, c.y + dy, c.z + dz}, [&](size_t i) {
-            if ((points_[i] - p).squaredNorm() <= radius * radius) out->push_back(i);
+          ForCell({c.x + dx, c.y + dy, c.z + dz}, [&](const Eigen::Vector3d& q, size_t i) {
+            if ((q - p).squaredNorm() <= radius * radius) out->push_back(i);
           });
   }
 
@@ -58,22 +62,27 @@ class Grid {
     const GridCell c = CellOf(p, side_);
     double best = radius * radius;
     bool found = false;
+    auto keep = [&](const Eigen::Vector3d& q, size_t i) {
+      const double d = (q - p).squaredNorm();
+      if (d <= best) {
+        best = d;
+        *index = i;
+        found = true;
+      }
+    };
     const int64_t shells = static_cast<int64_t>(std::ceil(radius / side_));
     for (int64_t k = 0; k <= shells; ++k) {
-      // Every point of shell k + 1 and beyond lies at least k sides away.
-      for (int64_t dx = -k; dx <= k; ++dx)
-        for (int64_t dy = -k; dy <= k; ++dy)
-          for (int64_t dz = -k; dz <= k; ++dz) {
-            if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != k) continue;
-            ForCell({c.x + dx, c.y + dy, c.z + dz}, [&](size_t i) {
-              const double d = (points_[i] - p).squaredNorm();
-              if (d <= best) {
-                best = d;
-                *index = i;
-                found = true;
-              }
-            });
+      // Shell k by rows along x: whole rows on its faces across y and z, else the two ends.
+      for (int64_t dz = -k; dz <= k; ++dz)
+        for (int64_t dy = -k; dy <= k; ++dy) {
+          if (std::max(std::abs(dy), std::abs(dz)) == k) {
+            ForRow(c.x - k, c.x + k, c.y + dy, c.z + dz, keep);
+          } else {
+            ForRow(c.x - k, c.x - k, c.y + dy, c.z + dz, keep);
+            ForRow(c.x + k, c.x + k, c.y + dy, c.z + dz, keep);
           }
+        }
+      // Every point of shell k + 1 and beyond lies at least k sides away.
       if (found && best <= static_cast<double>(k * k) * side_ * side_) break;
     }
     return found;
@@ -86,19 +95,26 @@ class Grid {
 
   template <typename Fn>
   void ForCell(const GridCell& c, Fn fn) const {
-    if (start_.empty() || c.x < min_.x || c.y < min_.y || c.z < min_.z || c.x > max_.x ||
-        c.y > max_.y || c.z > max_.z)
-      return;
-    const size_t k = Index(c);
-    for (uint32_t j = start_[k]; j < start_[k + 1]; ++j) fn(order_[j]);
+    ForRow(c.x, c.x, c.y, c.z, fn);
   }
 
-  const std::vector<Eigen::Vector3d>& points_;
+  /// Calls `fn` on the points of the cells x0..x1 of row (y, z), which lie one after another.
+  template <typename Fn>
+  void ForRow(int64_t x0, int64_t x1, int64_t y, int64_t z, Fn fn) const {
+    if (start_.empty() || y < min_.y || z < min_.z || y > max_.y || z > max_.z) return;
+    x0 = std::max(x0, min_.x);
+    x1 = std::min(x1, max_.x);
+    if (x0 > x1) return;
+    const uint32_t end = start_[Index({x1, y, z}) + 1];
+    for (uint32_t j = start_[Index({x0, y, z})]; j < end; ++j) fn(sorted_[j], order_[j]);
+  }
+
   double side_;
   GridCell min_, max_;
   int64_t nx_ = 0, ny_ = 0;
   std::vector<uint32_t> start_;  ///< each cell's first entry in order_, and one past the last
   std::vector<uint32_t> order_;  ///< point indices, cell by cell
+  std::vector<Eigen::Vector3d> sorted_;  ///< the points in that order
 };
 
 /// Each fixed point's surface normal where its neighbourhood is a plane (zero elsewhere),
