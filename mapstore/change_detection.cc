@@ -23,6 +23,7 @@ using VoxelMap = std::unordered_set<GridCell, GridCellHash>;
 class Voxels {
  public:
   Voxels(const std::vector<Eigen::Vector3d>& points, double voxel_m) {
+    keys_.Reserve(points.size());  // the store's points are already a voxel apart
     for (const Eigen::Vector3d& p : points) {
       const GridCell c = CellOf(p, voxel_m);
       if (keys_.Insert(Key(c))) cells_.push_back(c);

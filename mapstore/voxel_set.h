@@ -13,7 +13,7 @@ class VoxelSet {
  public:
   /// True if the key was not in the set (and now is).
   bool Insert(uint64_t key) {
-    if (2 * (size_ + 1) > slots_.size()) Grow();
+    if (2 * (size_ + 1) > slots_.size()) Rehash(slots_.empty() ? 1024 : 2 * slots_.size());
     const uint64_t stored = key + 1;  // 0 marks an empty slot
     size_t i = Slot(stored);
     while (slots_[i] != 0) {
@@ -32,8 +32,11 @@ class VoxelSet {
     return false;
   }
   size_t size() const { return size_; }
+  /// Room for `n` keys without rehashing: one table of the final size at once.
   void Reserve(size_t n) {
-    while (slots_.size() < 2 * n) Grow();
+    size_t capacity = slots_.empty() ? 1024 : slots_.size();
+    while (capacity < 2 * n) capacity *= 2;
+    if (capacity > slots_.size()) Rehash(capacity);
   }
 
  private:
@@ -41,10 +44,10 @@ class VoxelSet {
     // Fibonacci hashing spreads the packed axis bits over the table.
     return static_cast<size_t>((stored * 0x9E3779B97F4A7C15ull) >> shift_);
   }
-  void Grow() {
+  /// Moves the keys to a table of `capacity` slots, a power of two.
+  void Rehash(size_t capacity) {
     std::vector<uint64_t> old;
     old.swap(slots_);
-    const size_t capacity = old.empty() ? 1024 : 2 * old.size();
     slots_.assign(capacity, 0);
     shift_ = 64;
     for (size_t c = capacity; c > 1; c >>= 1) --shift_;
