@@ -233,7 +233,10 @@ class Occupancy {
       if (!occupied_.Contains(Pack(key))) return false;
       const octomap::point3d c = keys_.keyToCoord(key);
       const Eigen::Vector3d centre(c.x(), c.y(), c.z());
-      if ((centre - origin).squaredNorm() < before_sq) return (hit = Hit::kBefore), true;
+      if ((centre - origin).squaredNorm() < before_sq) {
+        hit = Hit::kBefore;
+        return true;
+      }
       *end = centre;
       hit = Hit::kBeyond;
       return false;  // walking back: a cell nearer the origin may be hit first
