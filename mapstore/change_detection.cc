@@ -178,6 +178,18 @@ class Occupancy {
     return static_cast<uint64_t>(k[0]) << 32 | static_cast<uint64_t>(k[1]) << 16 | k[2];
   }
 
+  Eigen::Vector3d Centre(const octomap::OcTreeKey& key) const {
+    const octomap::point3d c = keys_.keyToCoord(key);
+    return {c.x(), c.y(), c.z()};
+  }
+
+  /// Whether the cell is occupied (a point's or grown around one), and then its centre.
+  bool Occupied(const octomap::OcTreeKey& key, Eigen::Vector3d* centre) const {
+    if (!occupied_.Contains(Pack(key))) return false;
+    *centre = Centre(key);
+    return true;
+  }
+
   /// Visits the cells on the segment from `origin` to `end`, from the origin's up to the one
   /// before the end's, until `visit` returns true; false if the segment leaves the key space.
   /// Amanatides and Woo's traversal as OctoMap's computeRayKeys does it, to the same cells,
@@ -230,9 +242,8 @@ class Occupancy {
     const double before_sq = before_m * before_m;
     Hit hit = Hit::kNone;
     auto occupied = [&](const octomap::OcTreeKey& key) {
-      if (!occupied_.Contains(Pack(key))) return false;
-      const octomap::point3d c = keys_.keyToCoord(key);
-      const Eigen::Vector3d centre(c.x(), c.y(), c.z());
+      Eigen::Vector3d centre;
+      if (!Occupied(key, &centre)) return false;
       if ((centre - origin).squaredNorm() < before_sq) {
         hit = Hit::kBefore;
         return true;
@@ -247,9 +258,7 @@ class Occupancy {
       occupied(own);  // the sensor's own cell, which the walk back leaves out
     if (hit != Hit::kNone) return hit;
     Walk(split, octomap::point3d(last.x(), last.y(), last.z()), [&](const octomap::OcTreeKey& key) {
-      if (!occupied_.Contains(Pack(key))) return false;
-      const octomap::point3d c = keys_.keyToCoord(key);
-      *end = Eigen::Vector3d(c.x(), c.y(), c.z());
+      if (!Occupied(key, end)) return false;
       hit = Hit::kBeyond;
       return true;
     });
@@ -267,9 +276,7 @@ class Occupancy {
     Walk(octomap::point3d(origin.x(), origin.y(), origin.z()),
          octomap::point3d(last.x(), last.y(), last.z()),
          [&](const octomap::OcTreeKey& key) {
-           const octomap::point3d c = keys_.keyToCoord(key);
-           if ((Eigen::Vector3d(c.x(), c.y(), c.z()) - origin).squaredNorm() >= limit_sq)
-             return true;
+           if ((Centre(key) - origin).squaredNorm() >= limit_sq) return true;
            return struck = top_.count(Pack(key)) > 0;
          });
     return struck;
