@@ -34,7 +34,8 @@ std::vector<fs::path> Pending(const std::string& dir) {
     const std::string kind = name.size() > 13 ? name.substr(13) : "";
     if (e.is_regular_file() && name.size() > 13 && name[12] == '.' &&
         std::all_of(name.begin(), name.begin() + 12, ::isdigit) &&
-        (kind == "poses.json" || kind == "submap.pcd" || kind == "finish.json"))
+        (kind == "poses.json" || kind == "submap.pcd" || kind == "finish.json" ||
+         kind == "provisional_poses.json" || kind == "provisional_submap.pcd"))
       files.push_back(e.path());
   }
   std::sort(files.begin(), files.end());
@@ -137,10 +138,12 @@ void IngestClient::WriteMessage(const std::string& kind, const std::string& byte
   wake_.notify_all();
 }
 
-void IngestClient::FlushPosesLocked() {
-  if (poses_.empty()) return;
+namespace {
+
+/// A pose batch's body ({"poses": [...]}).
+std::string PoseBatch(const std::vector<StreamPose>& poses) {
   json list = json::array();
-  for (const StreamPose& p : poses_) {
+  for (const StreamPose& p : poses) {
     list.push_back({{"sequence", p.sequence},
                     {"stamp_ns", p.stamp_ns},
                     {"georeferenced", p.georeferenced},
@@ -148,8 +151,35 @@ void IngestClient::FlushPosesLocked() {
                     {"p", {p.p.x(), p.p.y(), p.p.z()}},
                     {"q", {p.q.x(), p.q.y(), p.q.z(), p.q.w()}}});
   }
+  return json{{"poses", list}}.dump();
+}
+
+}  // namespace
+
+void IngestClient::FlushPosesLocked() {
+  if (poses_.empty()) return;
+  WriteMessage("poses.json", PoseBatch(poses_));
   poses_.clear();
-  WriteMessage("poses.json", json{{"poses", list}}.dump());
+}
+
+void IngestClient::FlushProvisionalPosesLocked() {
+  if (provisional_poses_.empty()) return;
+  WriteMessage("provisional_poses.json", PoseBatch(provisional_poses_));
+  provisional_poses_.clear();
+}
+
+void IngestClient::OnProvisionalPose(const StreamPose& pose) {
+  std::lock_guard<std::mutex> lock(mu_);
+  provisional_poses_.push_back(pose);
+  if (provisional_poses_.size() >= std::max<size_t>(1, options_.poses_per_batch))
+    FlushProvisionalPosesLocked();
+}
+
+void IngestClient::OnProvisionalSubmap(const Submap& submap) {
+  const std::string bytes = EncodeSubmapPcd(submap);
+  std::lock_guard<std::mutex> lock(mu_);
+  FlushProvisionalPosesLocked();  // the poses before it go first
+  WriteMessage("provisional_submap.pcd", bytes);
 }
 
 void IngestClient::OnPose(const StreamPose& pose) {
@@ -277,6 +307,11 @@ bool IngestClient::SendOne(const std::string& path,
     target = run + "/poses";
   } else if (kind == "submap.pcd") {
     target = run + "/submaps";
+    content_type = "application/octet-stream";
+  } else if (kind == "provisional_poses.json") {
+    target = run + "/provisional/poses";
+  } else if (kind == "provisional_submap.pcd") {
+    target = run + "/provisional/submaps";
     content_type = "application/octet-stream";
   } else if (kind == "finish.json") {
     target = run + "/finish";

@@ -47,6 +47,10 @@ class IngestClient : public StreamSink {
   bool Start(std::string* error);
   void OnPose(const StreamPose& pose) override;
   void OnSubmap(const Submap& submap) override;
+  /// Provisional output goes through the outbox in order with the rest, to the server's
+  /// provisional routes; a refusal (the run finished meanwhile) is logged like any other.
+  void OnProvisionalPose(const StreamPose& pose) override;
+  void OnProvisionalSubmap(const Submap& submap) override;
   /// Sends what is left and finishes the run on the server, waiting up to `wait_s`; false if
   /// the backlog did not drain (it stays in the outbox for a later start).
   bool Finish(double wait_s, std::string* error);
@@ -78,6 +82,7 @@ class IngestClient : public StreamSink {
   bool EnsureRun(std::string* error);
   void WriteMessage(const std::string& name, const std::string& bytes);
   void FlushPosesLocked();
+  void FlushProvisionalPosesLocked();
   void SenderLoop();
   bool SendOne(const std::string& name,
                const std::string& bytes,
@@ -92,7 +97,7 @@ class IngestClient : public StreamSink {
   IngestClientOptions options_;
   mutable std::mutex mu_;
   std::condition_variable wake_;
-  std::vector<StreamPose> poses_;
+  std::vector<StreamPose> poses_, provisional_poses_;
   uint64_t next_file_ = 0;  ///< outbox order
   bool stopping_ = false;
   bool finishing_ = false;

@@ -45,6 +45,11 @@ class StreamSink {
   virtual ~StreamSink() = default;
   virtual void OnPose(const StreamPose& pose) = 0;
   virtual void OnSubmap(const Submap& submap) = 0;
+  /// Output ahead of the final one where the GNSS fusion holds poses back (a run's start, an
+  /// outage): where they lie for now, replaced by the final poses and submaps as they come.
+  /// Ignored unless a sink has a use for it.
+  virtual void OnProvisionalPose(const StreamPose&) {}
+  virtual void OnProvisionalSubmap(const Submap&) {}
 };
 
 /// A submap as a binary PCD file (fields x y z intensity, float offsets from the origin), with

@@ -248,6 +248,12 @@ int main(int argc, char** argv) {
       if (map) map->Add(s);
       if (ingest) ingest->OnSubmap(s);
     }
+    void OnProvisionalPose(const api::StreamPose& p) override {
+      if (ingest) ingest->OnProvisionalPose(p);
+    }
+    void OnProvisionalSubmap(const api::Submap& s) override {
+      if (ingest) ingest->OnProvisionalSubmap(s);
+    }
   } stream;
   stream.writer = &writer;
   stream.map = map.get();

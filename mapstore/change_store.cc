@@ -72,7 +72,8 @@ void ReadProperties(const std::string& text, RunChange* c) {
 
 constexpr const char* kChangeColumns =
     "id, run_id, reference_run, stretch, line, kind, chainage_m, offset_m, utm_zone, x, y, z, "
-    "properties, intrudes, status, note, IFNULL(closed_by_run, 0), created_ns, updated_ns";
+    "properties, intrudes, status, note, IFNULL(closed_by_run, 0), created_ns, updated_ns, "
+    "provisional";
 
 StoredChange ChangeOf(const Statement& q) {
   StoredChange s;
@@ -93,6 +94,7 @@ StoredChange ChangeOf(const Statement& q) {
   s.closed_by_run = q.Int(16);
   s.created_ns = q.Int(17);
   s.updated_ns = q.Int(18);
+  s.provisional = q.Int(19) != 0;
   return s;
 }
 
@@ -158,7 +160,8 @@ Result ChangeStore::DetectionLocked(int64_t run, DetectionState* out) const {
               "(SELECT MAX(to_m) FROM change_stretches s WHERE s.run_id = d.run_id), "
               "(SELECT IFNULL(SUM(seconds), 0) FROM change_stretches s WHERE s.run_id = d.run_id), "
               "(SELECT AVG(rail_rms_m * rail_rms_m) FROM change_stretches s "
-              " WHERE s.run_id = d.run_id AND compared AND rail_rms_m IS NOT NULL) "
+              " WHERE s.run_id = d.run_id AND compared AND rail_rms_m IS NOT NULL), "
+              "(SELECT count(*) FROM change_stretches s WHERE s.run_id = d.run_id AND provisional) "
               "FROM change_detection d WHERE d.run_id = ?");
   q.Bind(1, run);
   if (!q.Step()) {
@@ -179,6 +182,7 @@ Result ChangeStore::DetectionLocked(int64_t run, DetectionState* out) const {
   out->seconds = q.Double(10);
   out->rail_rms_m =
       q.IsNull(11) ? std::numeric_limits<double>::quiet_NaN() : std::sqrt(q.Double(11));
+  out->stretches_provisional = static_cast<int>(q.Int(12));
   return {};
 }
 
@@ -204,12 +208,18 @@ Result ChangeStore::Detections(std::vector<DetectionState>* out) const {
   return {};
 }
 
-Result ChangeStore::StoredStretches(int64_t run, std::set<int>* out) const {
+Result ChangeStore::StoredStretches(int64_t run,
+                                    std::set<int>* out,
+                                    std::set<int>* provisional) const {
   std::lock_guard<std::mutex> lock(mu_);
   out->clear();
-  Statement q(*db_, "SELECT stretch FROM change_stretches WHERE run_id = ?");
+  if (provisional) provisional->clear();
+  Statement q(*db_, "SELECT stretch, provisional FROM change_stretches WHERE run_id = ?");
   q.Bind(1, run);
-  while (q.Step()) out->insert(static_cast<int>(q.Int(0)));
+  while (q.Step()) {
+    out->insert(static_cast<int>(q.Int(0)));
+    if (provisional && q.Int(1) != 0) provisional->insert(static_cast<int>(q.Int(0)));
+  }
   if (!q.error().empty()) return DbError("cannot list stretches", q.error());
   return {};
 }
@@ -218,10 +228,12 @@ Result ChangeStore::SaveStretch(int64_t run,
                                 int64_t reference,
                                 const StretchOutcome& o,
                                 std::vector<StoredChange>* stored,
-                                std::vector<StoredChange>* closed) {
+                                std::vector<StoredChange>* closed,
+                                std::vector<StoredChange>* withdrawn) {
   std::lock_guard<std::mutex> lock(mu_);
   stored->clear();
   closed->clear();
+  std::vector<StoredChange> provisional;
   Transaction t(*db_);
   if (!t.ok()) return DbError("cannot begin", db_->Message());
   DetectionState state;
@@ -229,36 +241,104 @@ Result ChangeStore::SaveStretch(int64_t run,
   if (!r) return r;
   if (state.reference_run != reference)
     return Fail(Outcome::kConflict, "the run is now compared with another reference");
-  Statement seen(*db_, "SELECT 1 FROM change_stretches WHERE run_id = ? AND stretch = ?");
-  if (seen.Bind(1, run).Bind(2, o.range.index).Step()) return {Outcome::kDuplicate, ""};
-  std::string line;
+  Statement seen(*db_, "SELECT provisional FROM change_stretches WHERE run_id = ? AND stretch = ?");
+  if (seen.Bind(1, run).Bind(2, o.range.index).Step()) {
+    if (seen.Int(0) == 0 || o.provisional) return {Outcome::kDuplicate, ""};
+    r = TakeProvisionalLocked(run, o.range.index, &provisional);
+    if (!r) return r;
+  }
+  StoredChange base;
+  base.run_id = run;
+  base.reference_run = reference;
   {
     Statement q(*db_, "SELECT line FROM runs WHERE id = ?");
     if (!q.Bind(1, run).Step()) return DbError("cannot read the run", q.error());
-    line = q.Text(0);
+    base.line = q.Text(0);
   }
-  const int64_t now = NowNs();
-  r = InsertStretchLocked(run, reference, o, now);
-  for (size_t i = 0; r && i < o.changes.size(); ++i) {
-    StoredChange c;
-    c.run_id = run;
-    c.reference_run = reference;
-    c.line = line;
-    c.change = o.changes[i];
-    c.change.stretch = o.range.index;
-    c.created_ns = c.updated_ns = now;
-    r = InsertChangeLocked(&c);
-    stored->push_back(std::move(c));
+  base.created_ns = base.updated_ns = NowNs();
+  r = InsertStretchLocked(run, reference, o, base.created_ns);
+  if (r) r = StoreChangesLocked(base, o, &provisional, stored);
+  Statement drop(*db_, "DELETE FROM changes WHERE id = ?");
+  for (const StoredChange& gone : provisional) {
+    drop.Reset();
+    if (r && !drop.Bind(1, gone.id).Run()) r = DbError("cannot withdraw a change", drop.error());
   }
+  if (r && !o.provisional) r = CloseFixedLocked(run, o.range, *stored, closed);
   if (!r) return r;
-  r = CloseFixedLocked(run, o.range, *stored, closed);
-  if (!r) return r;
+  const int64_t now = base.created_ns;
   Statement touch(*db_,
                   "UPDATE change_detection SET status = 'running', updated_ns = ? "
                   "WHERE run_id = ? AND status = 'pending'");
   std::string error;
   if (!touch.Bind(1, now).Bind(2, run).Run() || !t.Commit(&error))
     return DbError("cannot commit the stretch", touch.error() + error);
+  if (withdrawn) *withdrawn = std::move(provisional);
+  return {};
+}
+
+Result ChangeStore::TakeProvisionalLocked(int64_t run,
+                                          int stretch,
+                                          std::vector<StoredChange>* provisional) {
+  Result r = ListWhere(
+      "run_id = ? AND stretch = ?",
+      [&](Statement& q) { q.Bind(1, run).Bind(2, stretch); },
+      provisional);
+  if (!r) return r;
+  Statement drop(*db_, "DELETE FROM change_stretches WHERE run_id = ? AND stretch = ?");
+  if (!drop.Bind(1, run).Bind(2, stretch).Run())
+    return DbError("cannot replace a provisional stretch", drop.error());
+  return {};
+}
+
+Result ChangeStore::StoreChangesLocked(const StoredChange& base,
+                                       const StretchOutcome& o,
+                                       std::vector<StoredChange>* provisional,
+                                       std::vector<StoredChange>* stored) {
+  for (const RunChange& found : o.changes) {
+    StoredChange c = base;
+    c.change = found;
+    c.change.stretch = o.range.index;
+    c.provisional = o.provisional;
+    auto same = std::find_if(provisional->begin(), provisional->end(), [&](const StoredChange& p) {
+      return p.change.kind == found.kind &&
+             (p.change.centre_utm - found.centre_utm).head<2>().norm() < 2.0;
+    });
+    Result r;
+    if (same != provisional->end()) {
+      c.id = same->id;
+      c.status = same->status;
+      c.note = same->note;
+      c.created_ns = same->created_ns;
+      provisional->erase(same);
+      r = UpdateChangeLocked(c);
+    } else {
+      r = InsertChangeLocked(&c);
+    }
+    if (!r) return r;
+    stored->push_back(std::move(c));
+  }
+  return {};
+}
+
+Result ChangeStore::UpdateChangeLocked(const StoredChange& s) {
+  const RunChange& c = s.change;
+  Statement set(*db_,
+                "UPDATE changes SET chainage_m = ?, offset_m = ?, x = ?, y = ?, z = ?, "
+                "properties = ?, intrudes = ?, size_max_m = ?, provisional = ?, updated_ns = ? "
+                "WHERE id = ?");
+  if (!set.Bind(1, c.chainage_m)
+           .Bind(2, c.offset_m)
+           .Bind(3, c.centre_utm.x())
+           .Bind(4, c.centre_utm.y())
+           .Bind(5, c.centre_utm.z())
+           .Bind(6, PropertiesOf(c))
+           .Bind(7, c.intrudes_envelope ? 1 : 0)
+           .Bind(8, c.size_m.maxCoeff())
+           .Bind(9, s.provisional ? 1 : 0)
+           .Bind(10, s.updated_ns)
+           .Bind(11, s.id)
+           .Run())
+    return DbError("cannot store a change again", set.error());
   return {};
 }
 
@@ -268,8 +348,8 @@ Result ChangeStore::InsertStretchLocked(int64_t run,
                                         int64_t now) {
   Statement add(*db_,
                 "INSERT INTO change_stretches (run_id, stretch, reference_run, from_m, to_m, "
-                "compared, rms_m, rail_rms_m, transform, seconds, done_ns) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                "compared, rms_m, rail_rms_m, transform, seconds, done_ns, provisional) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   add.Bind(1, run)
       .Bind(2, o.range.index)
       .Bind(3, reference)
@@ -281,17 +361,22 @@ Result ChangeStore::InsertStretchLocked(int64_t run,
     add.BindNull(8);
   else
     add.Bind(8, o.rail_rms_m);
-  if (!add.Bind(9, TransformText(o)).Bind(10, o.seconds).Bind(11, now).Run())
+  if (!add.Bind(9, TransformText(o))
+           .Bind(10, o.seconds)
+           .Bind(11, now)
+           .Bind(12, o.provisional ? 1 : 0)
+           .Run())
     return DbError("cannot store the stretch", add.error());
   return {};
 }
 
 Result ChangeStore::InsertChangeLocked(StoredChange* s) {
   const RunChange& c = s->change;
-  Statement add(*db_,
-                "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
-                "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
-                "updated_ns) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  Statement add(
+      *db_,
+      "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
+      "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
+      "updated_ns, provisional) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   if (!add.Bind(1, s->run_id)
            .Bind(2, s->reference_run)
            .Bind(3, c.stretch)
@@ -308,6 +393,7 @@ Result ChangeStore::InsertChangeLocked(StoredChange* s) {
            .Bind(14, c.size_m.maxCoeff())
            .Bind(15, s->created_ns)
            .Bind(16, s->updated_ns)
+           .Bind(17, s->provisional ? 1 : 0)
            .Run())
     return DbError("cannot store a change", add.error());
   s->id = db_->LastInsertId();

@@ -30,6 +30,8 @@ struct StoredChange {
   std::string status = "new", note;
   int64_t closed_by_run = 0;  ///< the run that no longer saw it (status `closed`)
   int64_t created_ns = 0, updated_ns = 0;
+  /// Found on the run's provisional output: its stretch is compared again on the final one.
+  bool provisional = false;
 };
 
 /// A run's comparison with its reference: requested, running (stretches stored as they are
@@ -38,6 +40,7 @@ struct DetectionState {
   int64_t run_id = 0, reference_run = 0;
   std::string status, error;
   int stretches_done = 0, stretches_compared = 0;
+  int stretches_provisional = 0;    ///< of stretches_done, compared on provisional output
   double km = 0.0;                  ///< compared
   double registration_rms_m = 0.0;  ///< over the compared stretches
   /// The rail heads' height differences over the compared stretches (NaN: rails not seen).
@@ -82,17 +85,24 @@ class ChangeStore {
   Result Request(int64_t run, int64_t reference, bool restart, DetectionState* out);
   Result Detection(int64_t run, DetectionState* out) const;  ///< kNotFound if never requested
   Result Detections(std::vector<DetectionState>* out) const;
-  Result StoredStretches(int64_t run, std::set<int>* out) const;
+  /// The run's stored stretches; `provisional` (if given) gets those compared on provisional
+  /// output.
+  Result StoredStretches(int64_t run,
+                         std::set<int>* out,
+                         std::set<int>* provisional = nullptr) const;
   /// Stores a compared (or skipped) stretch with its changes; `stored` gets them with their
-  /// ids. A stretch already stored is a kDuplicate (nothing stored); a detection requested
-  /// meanwhile against another reference a kConflict. Changes of earlier runs of the line
-  /// marked `fixed` in the stretch and not seen again within 2 m are closed (`closed` gets
-  /// them).
+  /// ids. A stretch already stored is a kDuplicate (nothing stored), unless it was stored
+  /// provisional and this outcome is not: then the outcome replaces it. A change of the same
+  /// kind within 2 m keeps its id, status and note; the provisional changes not found again
+  /// are deleted (`withdrawn` gets them). A detection requested meanwhile against another
+  /// reference is a kConflict. A final outcome closes changes of earlier runs of the line
+  /// marked `fixed` in the stretch and not seen again within 2 m (`closed` gets them).
   Result SaveStretch(int64_t run,
                      int64_t reference,
                      const StretchOutcome& outcome,
                      std::vector<StoredChange>* stored,
-                     std::vector<StoredChange>* closed);
+                     std::vector<StoredChange>* closed,
+                     std::vector<StoredChange>* withdrawn = nullptr);
   Result SetStatus(int64_t run, const std::string& status, const std::string& error);
 
   Result List(int64_t run, const ChangeFilter& filter, std::vector<StoredChange>* out) const;
@@ -117,6 +127,16 @@ class ChangeStore {
                              int64_t now);
   /// Inserts a change (its run, reference, line and stamps set); its id is set.
   Result InsertChangeLocked(StoredChange* change);
+  /// Stores what detection measured of a change again, under its id.
+  Result UpdateChangeLocked(const StoredChange& change);
+  /// Deletes a provisional stretch; `provisional` gets its changes.
+  Result TakeProvisionalLocked(int64_t run, int stretch, std::vector<StoredChange>* provisional);
+  /// Stores each change of the outcome: as an update of a provisional one of its kind within
+  /// 2 m (which leaves `provisional`), else as a new one.
+  Result StoreChangesLocked(const StoredChange& base,
+                            const StretchOutcome& outcome,
+                            std::vector<StoredChange>* provisional,
+                            std::vector<StoredChange>* stored);
   Result CloseFixedLocked(int64_t run,
                           const StretchRange& range,
                           const std::vector<StoredChange>& seen,

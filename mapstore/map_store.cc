@@ -969,7 +969,7 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
     }
     if (existing.Text(0) == hash) {
       ++stats_.submaps_duplicate;
-      if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0};
+      if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0, s.last_stamp_ns};
       return {Outcome::kDuplicate,
               "submap " + std::to_string(s.sequence) + " of run " + std::to_string(run_id) +
                   " was stored before"};
@@ -1094,6 +1094,7 @@ MapStore::HotTile* MapStore::Hot(int64_t run_id,
 void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receipt) {
   const TileGrid& grid = options_.grid;
   receipt->points = s.points.size();
+  receipt->last_stamp_ns = s.last_stamp_ns;
   ++touch_;
   // The levels' voxels nest (tile origins lie on the coarsest voxel's lattice), so a point
   // whose voxel was taken at one level finds its coarser voxels taken too: only the points

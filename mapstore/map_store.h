@@ -131,6 +131,7 @@ struct IngestReceipt {
   uint64_t points = 0;           ///< the submap's points
   uint64_t points_new = 0;       ///< ... that filled a level-0 voxel no earlier point had
   uint64_t points_off_grid = 0;  ///< ... beyond a tile's height range, left out
+  int64_t last_stamp_ns = 0;     ///< the submap's last keyframe stamp
 };
 
 /// Tiles written by a flush, for live notices.

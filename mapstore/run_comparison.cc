@@ -257,10 +257,12 @@ size_t PointsInBox(const std::vector<Eigen::Vector3d>& points, const Eigen::Alig
       points.begin(), points.end(), [&](const Eigen::Vector3d& p) { return box.contains(p); }));
 }
 
-/// A run's map and poses, for loading its part of a stretch.
+/// A run's map and poses, for loading its part of a stretch: its final output and, if given,
+/// its provisional output.
 struct RunSource {
   int64_t id = 0;
   const std::vector<api::StreamPose>* poses = nullptr;
+  const ProvisionalRun* provisional = nullptr;
 };
 
 /// Each run's points and sensors around a stretch. Both reach overlap_m past the stretch's
@@ -279,10 +281,17 @@ Result LoadParts(const MapStore& store,
   parts->reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
   r = PointsIn(store, later.id, stretch.Box(reach + kShiftRoomM), &utm);
   if (!r) return r;
+  if (later.provisional)
+    ProvisionalPointsIn(*later.provisional, stretch.Box(reach + kShiftRoomM), &utm);
   parts->later.points = stretch.Local(utm, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
   const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
   parts->reference.sensors = SensorsIn(*reference.poses, seen_from, stretch.origin());
   parts->later.sensors = SensorsIn(*later.poses, seen_from, stretch.origin());
+  if (later.provisional) {
+    const std::vector<Eigen::Isometry3d> more =
+        SensorsIn(later.provisional->poses, seen_from, stretch.origin());
+    parts->later.sensors.insert(parts->later.sensors.end(), more.begin(), more.end());
+  }
   return {};
 }
 
@@ -589,7 +598,8 @@ Result RunComparison::Prepare(const MapStore& store,
                               int64_t reference_run,
                               int64_t later_run,
                               const RunComparisonOptions& o,
-                              std::unique_ptr<RunComparison>* out) {
+                              std::unique_ptr<RunComparison>* out,
+                              const ProvisionalRun* provisional) {
   std::string error;
   if (!o.IsValid(&error)) return Fail(Outcome::kInvalid, error);
   if (reference_run == later_run)
@@ -634,6 +644,18 @@ Result RunComparison::Prepare(const MapStore& store,
                 "run " + std::to_string(later_run) + " has no pose on line '" + c->line_.name +
                     "''s centreline: it does not overlap the reference");
   }
+  if (provisional && provisional->utm_zone == c->reference_.utm_zone &&
+      (c->later_.utm_zone.empty() || c->later_.utm_zone == provisional->utm_zone)) {
+    c->provisional_ = *provisional;
+    if (ChainageRange(store,
+                      later_run,
+                      c->provisional_.poses,
+                      &first,
+                      &c->provisional_reach_m_,
+                      &c->provisional_chainage_m_) &&
+        (c->provisional_reach_m_ < ref_first || first > ref_last))
+      c->provisional_reach_m_ = -std::numeric_limits<double>::infinity();
+  }
   const double start = c->line_.chainage_offset_m, end = start + c->line_.length_m;
   for (int i = 0; start + i * o.stretch_m < end; ++i) {
     StretchRange s{i, start + i * o.stretch_m, std::min(start + (i + 1) * o.stretch_m, end)};
@@ -645,19 +667,27 @@ Result RunComparison::Prepare(const MapStore& store,
   return {};
 }
 
-double RunComparison::ReachUntil(int64_t stamp_ns) const {
+double RunComparison::ReachUntil(int64_t stamp_ns, bool provisional) const {
   double reach = -std::numeric_limits<double>::infinity();
-  for (size_t i = 0; i < later_chainage_m_.size(); ++i)
-    if (later_poses_[i].stamp_ns <= stamp_ns && !std::isnan(later_chainage_m_[i]))
-      reach = std::max(reach, later_chainage_m_[i]);
+  auto extend = [&](const std::vector<api::StreamPose>& poses,
+                    const std::vector<double>& chainage) {
+    for (size_t i = 0; i < chainage.size(); ++i)
+      if (poses[i].stamp_ns <= stamp_ns && !std::isnan(chainage[i]))
+        reach = std::max(reach, chainage[i]);
+  };
+  extend(later_poses_, later_chainage_m_);
+  if (provisional) extend(provisional_.poses, provisional_chainage_m_);
   return reach;
 }
 
-Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) const {
+Result RunComparison::Compare(const StretchRange& range,
+                              StretchOutcome* out,
+                              bool provisional) const {
   const auto t0 = std::chrono::steady_clock::now();
   const RunComparisonOptions& o = options_;
   *out = StretchOutcome();
   out->range = range;
+  out->provisional = provisional;
   TrackSegment segment;
   if (!store_.Segment(line_.name, range.from_m, range.to_m, &segment) ||
       segment.samples.size() < 2) {
@@ -667,8 +697,12 @@ Result RunComparison::Compare(const StretchRange& range, StretchOutcome* out) co
   const Stretch stretch(std::move(segment.samples));
   out->origin = stretch.origin();
   StretchParts parts;
-  const Result r = LoadParts(
-      store_, stretch, o, {reference_.id, &reference_poses_}, {later_.id, &later_poses_}, &parts);
+  const Result r = LoadParts(store_,
+                             stretch,
+                             o,
+                             {reference_.id, &reference_poses_},
+                             {later_.id, &later_poses_, provisional ? &provisional_ : nullptr},
+                             &parts);
   if (!r) return r;
   if (parts.reference.points.size() < 1000 || parts.later.points.size() < 1000) {
     out->skipped = "fewer than 1000 points of a run there";

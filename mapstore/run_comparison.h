@@ -1,5 +1,6 @@
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -12,6 +13,7 @@
 #include "mapstore/change_detection.h"
 #include "mapstore/clearance.h"
 #include "mapstore/map_store.h"
+#include "mapstore/provisional_map.h"
 #include "mapstore/run_registration.h"
 
 namespace raillomer::mapstore {
@@ -113,6 +115,9 @@ struct StretchOutcome {
   StretchSummary summary;
   std::vector<RunChange> changes;
   double seconds = 0.0;
+  /// Compared on the later run's provisional output too: compared again once its final
+  /// output holds the stretch.
+  bool provisional = false;
 };
 
 /// What a comparison did, stretch by stretch.
@@ -138,25 +143,34 @@ class RunComparison {
  public:
   /// Checks the runs (one line, one zone, the reference finished, the runs overlapping where
   /// the later has poses) and reads their poses; kInvalid / kNotFound / kConflict naming why.
+  /// `provisional` (if given) is the later run's provisional output (ProvisionalMap), which
+  /// stretches its final output does not hold yet can be compared on; ignored in another zone.
   static Result Prepare(const MapStore& store,
                         int64_t reference_run,
                         int64_t later_run,
                         const RunComparisonOptions& options,
-                        std::unique_ptr<RunComparison>* out);
+                        std::unique_ptr<RunComparison>* out,
+                        const ProvisionalRun* provisional = nullptr);
 
   /// The stretches within the options' range.
   const std::vector<StretchRange>& stretches() const { return stretches_; }
   /// How far along the line (chainage) the later run's poses reach; -infinity with none.
-  double later_reach_m() const { return later_reach_m_; }
+  /// With `provisional`, its provisional poses count too.
+  double later_reach_m(bool provisional = false) const {
+    return provisional ? std::max(later_reach_m_, provisional_reach_m_) : later_reach_m_;
+  }
   /// How far along the line its poses up to `stamp_ns` reach (the last submap's end: what
   /// the map holds); -infinity with none.
-  double ReachUntil(int64_t stamp_ns) const;
+  double ReachUntil(int64_t stamp_ns, bool provisional = false) const;
+  /// The last stamp of the provisional output's submaps; 0 with none.
+  int64_t provisional_mapped_until() const { return provisional_.MappedUntil(); }
   const LineInfo& line() const { return line_; }
   const RunInfo& reference() const { return reference_; }
   const RunInfo& later() const { return later_; }
 
-  /// Compares one stretch.
-  Result Compare(const StretchRange& range, StretchOutcome* out) const;
+  /// Compares one stretch; with `provisional`, on the later run's provisional output as well
+  /// as its final one (the outcome says so).
+  Result Compare(const StretchRange& range, StretchOutcome* out, bool provisional = false) const;
 
  private:
   RunComparison(const MapStore& store, const RunComparisonOptions& options);
@@ -170,8 +184,11 @@ class RunComparison {
   LineInfo line_;
   std::vector<api::StreamPose> reference_poses_, later_poses_;
   std::vector<double> later_chainage_m_;  ///< each later pose's, NaN off the line
+  ProvisionalRun provisional_;
+  std::vector<double> provisional_chainage_m_;  ///< each provisional pose's, NaN off the line
   std::vector<StretchRange> stretches_;
   double later_reach_m_ = 0.0;
+  double provisional_reach_m_ = -std::numeric_limits<double>::infinity();
 };
 
 /// Compares every stretch of a later run with a reference run (RunComparison) and collects

@@ -167,6 +167,12 @@ CREATE TABLE changes (
 CREATE INDEX changes_by_run ON changes (run_id, chainage_m);
 CREATE INDEX changes_by_line ON changes (line, status);
 )sql",
+      // 6: stretches compared on a live run's provisional output, and their changes, until
+      // the stretch is compared again on the final output.
+      R"sql(
+ALTER TABLE change_stretches ADD COLUMN provisional INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE changes ADD COLUMN provisional INTEGER NOT NULL DEFAULT 0;
+)sql",
   };
   return migrations;
 }

@@ -61,6 +61,7 @@ json ChangeFeature(const mapstore::StoredChange& s) {
       {"points", {{"reference", c.points_reference}, {"run", c.points_later}}},
       {"stretch", c.stretch},
       {"status", s.status},
+      {"provisional", s.provisional},
       {"note", s.note},
       {"closed_by_run", Run(s.closed_by_run)},
       {"created_ns", s.created_ns},
@@ -80,6 +81,7 @@ json DetectionJson(const mapstore::DetectionState& d, const std::string& reason)
             {"rail_residual_m", Finite(d.rail_rms_m)},
             {"stretches_done", d.stretches_done},
             {"stretches_compared", d.stretches_compared},
+            {"stretches_provisional", d.stretches_provisional},
             {"km_compared", d.km},
             {"compared_to_m", Finite(d.compared_to_m)},
             {"seconds", d.seconds}};

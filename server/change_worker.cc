@@ -19,9 +19,14 @@ using mapstore::Result;
 
 ChangeWorker::ChangeWorker(mapstore::MapStore* store,
                            mapstore::ChangeStore* changes,
+                           mapstore::ProvisionalMap* provisional,
                            ChangeWorkerOptions options,
                            Announce announce)
-    : store_(store), changes_(changes), options_(std::move(options)), announce_(announce) {}
+    : store_(store),
+      changes_(changes),
+      provisional_(provisional),
+      options_(std::move(options)),
+      announce_(announce) {}
 
 ChangeWorker::~ChangeWorker() { Stop(); }
 
@@ -125,26 +130,52 @@ void ChangeWorker::Pass() {
 bool ChangeWorker::Ready(const mapstore::RunInfo& run,
                          const mapstore::RunComparison& comparison,
                          const std::set<int>& stored,
-                         std::vector<mapstore::StretchRange>* ready) const {
+                         const std::set<int>& provisional,
+                         std::vector<Job>* ready,
+                         std::vector<Job>* again) const {
   // A live run's stretch waits for the train to be past it and for its map (the stored
-  // submaps, which trail the poses) to hold all its LiDARs saw of it.
+  // submaps, which trail the poses) to hold all its LiDARs saw of it: in its final output, or
+  // failing that in its provisional output.
   const bool finished = run.status == "finished";
   int64_t mapped_ns = 0;
   if (!finished && !changes_->MappedUntil(run.id, &mapped_ns)) return false;
-  const double infinity = std::numeric_limits<double>::infinity();
-  const double train = finished ? infinity : comparison.later_reach_m();
-  const double mapped = finished ? infinity : comparison.ReachUntil(mapped_ns);
+  auto holds = [&](const mapstore::StretchRange& range, bool with_provisional) {
+    if (finished) return true;
+    const int64_t until =
+        with_provisional ? std::max(mapped_ns, comparison.provisional_mapped_until()) : mapped_ns;
+    return comparison.later_reach_m(with_provisional) >= range.to_m + options_.past_m &&
+           comparison.ReachUntil(until, with_provisional) >= range.to_m + options_.mapped_past_m;
+  };
   ready->clear();
+  again->clear();
+  bool waiting = false;
   for (const mapstore::StretchRange& range : comparison.stretches()) {
-    if (stored.count(range.index)) continue;
-    if (train < range.to_m + options_.past_m || mapped < range.to_m + options_.mapped_past_m) break;
-    ready->push_back(range);
+    const bool final = holds(range, false);
+    if (stored.count(range.index)) {
+      if (provisional.count(range.index) && final) again->push_back({range, false});
+      continue;
+    }
+    if (waiting) continue;
+    if (final || holds(range, true))
+      ready->push_back({range, !final});
+    else
+      waiting = true;  // in order: the next stretch cannot be further along
   }
   return true;
 }
 
+Result ChangeWorker::PrepareComparison(const mapstore::RunInfo& run,
+                                       int64_t reference,
+                                       std::unique_ptr<mapstore::RunComparison>* out) const {
+  mapstore::ProvisionalRun provisional;
+  const bool live = run.status != "finished";
+  const bool have = provisional_ && live && provisional_->Get(run.id, &provisional);
+  return mapstore::RunComparison::Prepare(
+      *store_, reference, run.id, options_.comparison, out, have ? &provisional : nullptr);
+}
+
 void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
-                                     const std::vector<mapstore::StretchRange>& batch,
+                                     const std::vector<Job>& batch,
                                      std::vector<mapstore::StretchOutcome>* outcomes,
                                      std::vector<Result>* results) {
   outcomes->assign(batch.size(), mapstore::StretchOutcome());
@@ -153,9 +184,9 @@ void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
   for (size_t i = 1; i < batch.size(); ++i)
     workers.emplace_back([&, i] {
       LowerPriority();
-      (*results)[i] = comparison.Compare(batch[i], &(*outcomes)[i]);
+      (*results)[i] = comparison.Compare(batch[i].range, &(*outcomes)[i], batch[i].provisional);
     });
-  (*results)[0] = comparison.Compare(batch[0], &(*outcomes)[0]);
+  (*results)[0] = comparison.Compare(batch[0].range, &(*outcomes)[0], batch[0].provisional);
   for (std::thread& t : workers) t.join();
 }
 
@@ -168,8 +199,8 @@ bool ChangeWorker::Store(int64_t run,
                          int64_t reference,
                          Result r,
                          const mapstore::StretchOutcome& outcome) {
-  std::vector<mapstore::StoredChange> found, closed;
-  if (r) r = changes_->SaveStretch(run, reference, outcome, &found, &closed);
+  std::vector<mapstore::StoredChange> found, closed, withdrawn;
+  if (r) r = changes_->SaveStretch(run, reference, outcome, &found, &closed, &withdrawn);
   if (!r) {
     std::fprintf(stderr,
                  "raillomer-server: change detection of run %lld, stretch %d: %s\n",
@@ -181,41 +212,50 @@ bool ChangeWorker::Store(int64_t run,
   if (r.outcome == Outcome::kDuplicate) return true;
   ++stretches_compared_;
   DetectionState now;
-  if (changes_->Detection(run, &now)) announce_(found, closed, now);
+  if (changes_->Detection(run, &now)) announce_(found, closed, withdrawn, now);
   return true;
 }
 
 void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& state) {
   std::unique_ptr<mapstore::RunComparison> comparison;
-  Result r = mapstore::RunComparison::Prepare(
-      *store_, state.reference_run, run.id, options_.comparison, &comparison);
+  Result r = PrepareComparison(run, state.reference_run, &comparison);
   if (!r) {
     // A reference still live may finish; anything else will not mend itself.
     if (r.outcome != Outcome::kConflict) changes_->SetStatus(run.id, "failed", r.message);
     return;
   }
-  std::set<int> stored;
-  if (!changes_->StoredStretches(run.id, &stored)) return;
-  const bool finished = run.status == "finished";
-  std::vector<mapstore::StretchRange> ready;
-  if (!Ready(run, *comparison, stored, &ready)) return;
-  if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
+  std::set<int> stored, provisional;
+  if (!changes_->StoredStretches(run.id, &stored, &provisional)) return;
+  std::vector<Job> ready, again;
+  if (!Ready(run, *comparison, stored, provisional, &ready, &again)) return;
+  // New stretches first; of those compared again, one batch a pass, so that new ones keep
+  // their turn.
   const size_t threads = static_cast<size_t>(std::max(1, options_.threads));
+  if (again.size() > threads) again.resize(threads);
+  ready.insert(ready.end(), again.begin(), again.end());
+  if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
   for (size_t first = 0; first < ready.size() && !stopping(); first += threads) {
-    const std::vector<mapstore::StretchRange> batch(
-        ready.begin() + first, ready.begin() + std::min(ready.size(), first + threads));
+    const std::vector<Job> batch(ready.begin() + first,
+                                 ready.begin() + std::min(ready.size(), first + threads));
     std::vector<mapstore::StretchOutcome> outcomes;
     std::vector<Result> results;
     CompareSideBySide(*comparison, batch, &outcomes, &results);
     for (size_t i = 0; i < batch.size(); ++i) {
       if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return;
-      stored.insert(batch[i].index);
+      stored.insert(batch[i].range.index);
+      if (batch[i].provisional)
+        provisional.insert(batch[i].range.index);
+      else
+        provisional.erase(batch[i].range.index);
     }
   }
-  if (finished && stored.size() >= comparison->stretches().size()) {
+  const bool finished = run.status == "finished";
+  if (finished && provisional.empty() && stored.size() >= comparison->stretches().size()) {
     changes_->SetStatus(run.id, "done", "");
     DetectionState now;
-    if (changes_->Detection(run.id, &now)) announce_({}, {}, now);
+    if (changes_->Detection(run.id, &now)) announce_({}, {}, {}, now);
+  } else if (finished && !provisional.empty()) {
+    Notify();  // the provisional stretches left, on the next pass
   }
 }
 

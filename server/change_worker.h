@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -11,6 +12,7 @@
 
 #include "mapstore/change_store.h"
 #include "mapstore/map_store.h"
+#include "mapstore/provisional_map.h"
 
 namespace raillomer::server {
 
@@ -29,19 +31,25 @@ struct ChangeWorkerOptions {
 
 /// Compares every run of a line with the line's reference run (or the one an operator chose)
 /// on a background thread, stretch by stretch as the run's tiles arrive: a stretch of a live
-/// run once the train is past it, the rest when the run finishes. Each stretch's changes are
-/// stored at once (ChangeStore) and handed to `announce`; a restarted server resumes where the
-/// stored stretches end.
+/// run once the train is past it, the rest when the run finishes. Where the run's final output
+/// does not hold a stretch yet but its provisional output (ProvisionalMap) does, the stretch
+/// is compared on that, and again once the final output holds it; stretches not compared yet
+/// come first. Each stretch's changes are stored at once (ChangeStore) and handed to
+/// `announce`; a restarted server resumes where the stored stretches end.
 class ChangeWorker {
  public:
-  /// Called on the worker's thread with each stretch's new changes, changes of earlier runs
-  /// it closed, and the run's detection state after it.
+  /// Called on the worker's thread with each stretch's changes (new, or found again when a
+  /// provisional stretch is compared on the final output), changes of earlier runs it closed,
+  /// provisional changes not found again, and the run's detection state after it.
   using Announce = std::function<void(const std::vector<mapstore::StoredChange>& found,
                                       const std::vector<mapstore::StoredChange>& closed,
+                                      const std::vector<mapstore::StoredChange>& withdrawn,
                                       const mapstore::DetectionState& state)>;
 
+  /// `provisional` (may be null) holds the live runs' provisional output.
   ChangeWorker(mapstore::MapStore* store,
                mapstore::ChangeStore* changes,
+               mapstore::ProvisionalMap* provisional,
                ChangeWorkerOptions options,
                Announce announce);
   ~ChangeWorker();
@@ -74,15 +82,27 @@ class ChangeWorker {
   /// Compares the stretches of `state.run_id` that are ready; marks it done when the run
   /// finished and every stretch is stored.
   void Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state);
-  /// The run's stretches not stored yet that can be compared now, in order; false if the
-  /// store could not say.
+  /// A stretch to compare, on provisional output or not.
+  struct Job {
+    mapstore::StretchRange range;
+    bool provisional = false;
+  };
+  /// The run's stretches that can be compared now: `ready` those not stored yet, in order
+  /// (on provisional output where the final does not hold them yet), `again` those stored
+  /// provisional that the final output now holds; false if the store could not say.
   bool Ready(const mapstore::RunInfo& run,
              const mapstore::RunComparison& comparison,
              const std::set<int>& stored,
-             std::vector<mapstore::StretchRange>* ready) const;
+             const std::set<int>& provisional,
+             std::vector<Job>* ready,
+             std::vector<Job>* again) const;
+  /// The comparison of `run` with `reference`, on its provisional output too while it is live.
+  mapstore::Result PrepareComparison(const mapstore::RunInfo& run,
+                                     int64_t reference,
+                                     std::unique_ptr<mapstore::RunComparison>* out) const;
   /// Compares a batch of stretches on a thread each (the first on this one).
   static void CompareSideBySide(const mapstore::RunComparison& comparison,
-                                const std::vector<mapstore::StretchRange>& batch,
+                                const std::vector<Job>& batch,
                                 std::vector<mapstore::StretchOutcome>* outcomes,
                                 std::vector<mapstore::Result>* results);
   /// Stores a compared stretch and announces its changes; false (logged) on an error.
@@ -96,6 +116,7 @@ class ChangeWorker {
 
   mapstore::MapStore* store_;
   mapstore::ChangeStore* changes_;
+  mapstore::ProvisionalMap* provisional_;
   ChangeWorkerOptions options_;
   Announce announce_;
   std::mutex mu_;

@@ -187,6 +187,7 @@ class Api {
     const mapstore::Result r = store_.FinishRun(id, end_ns, &info);
     if (!r) return SendResult(res, r);
     if (r.outcome == mapstore::Outcome::kOk) hub_.PublishRun(info);
+    c_.provisional->Drop(id);
     if (c_.change_worker) c_.change_worker->Notify();
     SendJson(res, RunJson(info));
   }
@@ -197,6 +198,7 @@ class Api {
     mapstore::IngestReceipt receipt;
     const mapstore::Result r = store_.IngestSubmap(id, req.body, &receipt);
     if (!r) return SendResult(res, r);
+    c_.provisional->PruneMap(id, receipt.last_stamp_ns);  // the final map holds it now
     res.status = r.outcome == mapstore::Outcome::kDuplicate ? 200 : 201;
     SendJson(res,
              {{"duplicate", r.outcome == mapstore::Outcome::kDuplicate},
@@ -205,30 +207,47 @@ class Api {
               {"points_off_grid", receipt.points_off_grid}});
   }
 
-  void IngestPoses(const HttpRequest& req, HttpResponse& res) {
-    int64_t id = 0;
-    if (!PathId(req, res, &id)) return;
+  /// A batch of poses ({"poses": [...]}); false with the response set if it is not one.
+  bool ParsePoseBatch(const HttpRequest& req,
+                      HttpResponse& res,
+                      std::vector<api::StreamPose>* out) {
     json body;
-    if (!ParseObject(req, res, &body)) return;
-    if (!body.contains("poses") || !body["poses"].is_array())
-      return res.SetError(400, "invalid", "the body needs \"poses\": [...]");
-    if (body["poses"].size() > c_.config->max_poses_per_batch)
-      return res.SetError(
-          413,
-          "too_large",
-          "a batch holds at most " + std::to_string(c_.config->max_poses_per_batch) +
-              " poses (max_poses_per_batch); this one has " + std::to_string(body["poses"].size()));
-    std::vector<api::StreamPose> poses;
+    if (!ParseObject(req, res, &body)) return false;
+    if (!body.contains("poses") || !body["poses"].is_array()) {
+      res.SetError(400, "invalid", "the body needs \"poses\": [...]");
+      return false;
+    }
+    if (body["poses"].size() > c_.config->max_poses_per_batch) {
+      res.SetError(413,
+                   "too_large",
+                   "a batch holds at most " + std::to_string(c_.config->max_poses_per_batch) +
+                       " poses (max_poses_per_batch); this one has " +
+                       std::to_string(body["poses"].size()));
+      return false;
+    }
     std::string error;
     for (const auto& p : body["poses"]) {
       api::StreamPose pose;
-      if (!ParsePose(p, &pose, &error)) return res.SetError(400, "invalid", error);
-      poses.push_back(pose);
+      if (!ParsePose(p, &pose, &error)) {
+        res.SetError(400, "invalid", error);
+        return false;
+      }
+      out->push_back(pose);
     }
+    return true;
+  }
+
+  void IngestPoses(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    std::vector<api::StreamPose> poses;
+    if (!PathId(req, res, &id) || !ParsePoseBatch(req, res, &poses)) return;
     int stored = 0;
     std::vector<bool> added;
     const mapstore::Result r = store_.IngestPoses(id, poses, &stored, &added);
     if (!r) return SendResult(res, r);
+    int64_t newest_ns = 0;
+    for (const api::StreamPose& p : poses) newest_ns = std::max(newest_ns, p.stamp_ns);
+    c_.provisional->PrunePoses(id, newest_ns);
     // Live: exactly the poses this batch added, in sequence order (a re-sent batch publishes
     // nothing).
     std::vector<const api::StreamPose*> live;
@@ -239,6 +258,44 @@ class Api {
     });
     for (const api::StreamPose* p : live) hub_.PublishPose(id, *p);
     SendJson(res, {{"stored", stored}, {"received", poses.size()}});
+  }
+
+  /// Provisional poses and submaps (mapstore::ProvisionalMap): held in memory for change
+  /// detection until the run's final output replaces them.
+  void ProvisionalPoses(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    std::vector<api::StreamPose> poses;
+    mapstore::RunInfo info;
+    if (!PathId(req, res, &id) || !ParsePoseBatch(req, res, &poses)) return;
+    mapstore::Result r = store_.GetRun(id, &info);
+    int added = 0;
+    if (r) r = c_.provisional->AddPoses(info, poses, &added);
+    if (!r) return SendResult(res, r);
+    if (c_.change_worker) c_.change_worker->Notify();
+    SendJson(res, {{"held", added}, {"received", poses.size()}});
+  }
+
+  void ProvisionalSubmap(const HttpRequest& req, HttpResponse& res) {
+    int64_t id = 0;
+    if (!PathId(req, res, &id)) return;
+    api::Submap submap;
+    std::string error;
+    if (!api::DecodeSubmapPcd(req.body, &submap, &error))
+      return res.SetError(400, "invalid", "not a submap: " + error);
+    if (submap.points.size() > store_.options().max_points_per_submap)
+      return res.SetError(413,
+                          "too_large",
+                          "a submap holds at most " +
+                              std::to_string(store_.options().max_points_per_submap) + " points");
+    mapstore::RunInfo info;
+    mapstore::Result r = store_.GetRun(id, &info);
+    if (r) r = c_.provisional->AddSubmap(info, submap);
+    if (!r) return SendResult(res, r);
+    if (c_.change_worker) c_.change_worker->Notify();
+    res.status = r.outcome == mapstore::Outcome::kDuplicate ? 200 : 201;
+    SendJson(res,
+             {{"duplicate", r.outcome == mapstore::Outcome::kDuplicate},
+              {"points", submap.points.size()}});
   }
 
   void TileIndex(const HttpRequest& req, HttpResponse& res) {
@@ -637,6 +694,18 @@ std::vector<HttpRoute> ApiRoutes(const ApiContext& context) {
             &Api::IngestSubmap,
             submap_body),
       route("POST", "/api/v1/runs/{run}/poses", "ingest.poses", W, &Api::IngestPoses, json_body),
+      route("POST",
+            "/api/v1/runs/{run}/provisional/poses",
+            "ingest.provisional_poses",
+            W,
+            &Api::ProvisionalPoses,
+            json_body),
+      route("POST",
+            "/api/v1/runs/{run}/provisional/submaps",
+            "ingest.provisional_submap",
+            W,
+            &Api::ProvisionalSubmap,
+            submap_body),
       route("GET", "/api/v1/runs/{run}/tiles", "tiles.index", R, &Api::TileIndex),
       tile,
       route("GET", "/api/v1/runs/{run}/trajectory", "trajectory", R, &Api::Trajectory),

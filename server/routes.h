@@ -23,6 +23,7 @@ struct ApiContext {
   TileCache* tiles = nullptr;
   mapstore::ChangeStore* changes = nullptr;
   ChangeWorker* change_worker = nullptr;
+  mapstore::ProvisionalMap* provisional = nullptr;  ///< live runs' provisional output
   std::function<HttpFrontStats()> front_stats;
 };
 

@@ -52,6 +52,7 @@ class Server::Impl {
     context.tiles = &tiles_;
     context.changes = changes_.get();
     context.change_worker = worker_.get();
+    context.provisional = &provisional_;
     context.front_stats = [this] { return http_->stats(); };
     HttpFront::Hooks hooks;
     hooks.authorize = [this](const std::string& token, Access access) {
@@ -85,28 +86,36 @@ class Server::Impl {
   bool StartChanges(std::string* error) {
     changes_ = mapstore::ChangeStore::Open(store_->IndexPath(), error);
     if (!changes_) return false;
-    worker_ = std::make_unique<ChangeWorker>(
-        store_.get(),
-        changes_.get(),
-        config_.changes,
-        [this](const std::vector<mapstore::StoredChange>& found,
-               const std::vector<mapstore::StoredChange>& closed,
-               const mapstore::DetectionState& state) { AnnounceChanges(found, closed, state); });
+    worker_ =
+        std::make_unique<ChangeWorker>(store_.get(),
+                                       changes_.get(),
+                                       &provisional_,
+                                       config_.changes,
+                                       [this](const std::vector<mapstore::StoredChange>& found,
+                                              const std::vector<mapstore::StoredChange>& closed,
+                                              const std::vector<mapstore::StoredChange>& withdrawn,
+                                              const mapstore::DetectionState& state) {
+                                         AnnounceChanges(found, closed, withdrawn, state);
+                                       });
     worker_->Start();
     return true;
   }
 
   void AnnounceChanges(const std::vector<mapstore::StoredChange>& found,
                        const std::vector<mapstore::StoredChange>& closed,
+                       const std::vector<mapstore::StoredChange>& withdrawn,
                        const mapstore::DetectionState& state) {
-    nlohmann::json features = nlohmann::json::array(), closing = nlohmann::json::array();
+    nlohmann::json features = nlohmann::json::array(), closing = nlohmann::json::array(),
+                   gone = nlohmann::json::array();
     for (const mapstore::StoredChange& c : found) features.push_back(ChangeFeature(c));
     for (const mapstore::StoredChange& c : closed) closing.push_back(ChangeFeature(c));
+    for (const mapstore::StoredChange& c : withdrawn) gone.push_back(c.id);
     hub_->PublishMessage(state.run_id,
                          nlohmann::json{{"type", "change"},
                                         {"run", state.run_id},
                                         {"changes", features},
                                         {"closed", closing},
+                                        {"withdrawn", gone},
                                         {"detection", DetectionJson(state, "")},
                                         {"sent_ns", api::NowNs()}}
                              .dump());
@@ -146,6 +155,7 @@ class Server::Impl {
   std::string token_path_;
   std::unique_ptr<mapstore::MapStore> store_;
   std::unique_ptr<mapstore::ChangeStore> changes_;
+  mapstore::ProvisionalMap provisional_;
   std::unique_ptr<ChangeWorker> worker_;
   std::unique_ptr<LiveHub> hub_;
   std::unique_ptr<HttpFront> http_;

@@ -121,6 +121,7 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("max_hold_s", &o->gnss_max_hold_s);
     g.Read("prompt_latency_s", &o->gnss_prompt_latency_s);
     g.Read("max_latency_s", &o->gnss_max_latency_s);
+    g.Read("provisional_after_s", &o->gnss_provisional_after_s);
     g.Read("factor_window_s", &o->gnss.factor_window_s);
     g.Read("continuity_length_m", &o->gnss.continuity_length_m);
     g.Read("continuity_max_step_m", &o->gnss.continuity_max_step_m);
@@ -224,6 +225,8 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("gnss.max_latency_s must be in [0, 600] s");
   if (!(gnss_prompt_latency_s >= 0.0 && gnss_prompt_latency_s <= 600.0))
     return fail("gnss.prompt_latency_s must be in [0, 600] s");
+  if (!(gnss_provisional_after_s >= 0.0 && gnss_provisional_after_s <= 600.0))
+    return fail("gnss.provisional_after_s must be in [0, 600] s");
   if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
     return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
   if (!(gnss.continuity_length_m >= 0.0) || !(gnss.continuity_max_step_m >= 0.0))
@@ -417,7 +420,10 @@ std::string EstimatorConfig::Describe() const {
     << o.gnss.drift_fraction << " (height " << o.gnss.vertical_drift_fraction
     << ") of the path, aligned after " << o.gnss.alignment.min_extent_m << " m, poses held "
     << o.gnss_prompt_latency_s << " s while fixes keep coming, else for smoothing up to "
-    << o.gnss_max_latency_s << " s\n";
+    << o.gnss_max_latency_s << " s, provisional output after "
+    << (o.gnss_provisional_after_s > 0.0 ? std::to_string(o.gnss_provisional_after_s) + " s"
+                                         : std::string("(off)"))
+    << "\n";
   const SubmapOptions& m = o.submap;
   s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, points within ";
   if (m.max_range_m > 0.0) {

@@ -220,6 +220,12 @@ struct EstimatorOptions {
   /// most gnss_max_latency_s. Released early, it is carried from the newest node.
   double gnss_prompt_latency_s = 3.0;
   double gnss_max_latency_s = 60.0;
+  /// A pose (and its keyframe's points) still held this long after it was measured goes to
+  /// the stream as provisional output, placed by the fusion as it stands (the newest node
+  /// carried by the odometry), so that the server can compare the stretch before the final
+  /// output comes: at a run's start before the GNSS graph settles, and through an outage.
+  /// 0: none.
+  double gnss_provisional_after_s = 3.0;
 
   /// False with a message naming the bad field.
   bool IsValid(std::string* error) const;

@@ -152,6 +152,9 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
       s.sequence = s.index;
       sinks_.stream->OnSubmap(s);
     });
+    provisional_submaps_ = std::make_unique<ProvisionalSubmaps>(config.options.submap.keyframes,
+                                                                config.options.submap.voxel_m,
+                                                                config.options.submap.max_range_m);
   }
   // The preintegration keeps an interpolated step's noise at one IMU sample period.
   config_.rig.noise.imu_period_s = 1.0 / config_.rig.imu_rate_hz;
@@ -941,6 +944,37 @@ void Estimator::ReleaseHeld(bool flush) {
     }
     Output(h.frame, std::move(h.keyframe));
     gnss_held_.pop_front();
+  }
+  if (!flush) SendProvisional(newest_s);
+}
+
+void Estimator::SendProvisional(double newest_s) {
+  const double after_s = config_.options.gnss_provisional_after_s;
+  if (!sinks_.stream || after_s <= 0.0) return;
+  if (gnss_held_.empty() || !gnss_held_.front().provisional)
+    provisional_submaps_->Flush();  // the final output caught up: what was gathered is final
+  const Eigen::Vector3d origin = gnss_->origin_utm();
+  const std::string zone = gnss_->zone().Name();
+  for (HeldOutput& h : gnss_held_) {
+    const double t = StampSeconds(h.frame.stamp_ns);
+    if (newest_s - t < after_s) break;
+    if (h.provisional) continue;
+    h.provisional = true;
+    Eigen::Isometry3d T_utm_body = gnss_->ToEnu(h.frame.T_world_body, t);
+    T_utm_body.translation() += origin;
+    api::StreamPose pose;
+    pose.stamp_ns = h.frame.stamp_ns;
+    pose.georeferenced = true;
+    pose.utm_zone = zone;
+    pose.p = T_utm_body.translation();
+    pose.q = Eigen::Quaterniond(T_utm_body.linear()).normalized();
+    std::optional<api::Submap> submap;
+    if (h.keyframe)
+      submap = provisional_submaps_->Add(
+          h.keyframe->stamp_ns, T_utm_body, zone, h.keyframe->points_body, h.keyframe->intensities);
+    std::lock_guard<std::mutex> lock(stream_mutex_);
+    sinks_.stream->OnProvisionalPose(pose);
+    if (submap) sinks_.stream->OnProvisionalSubmap(*submap);
   }
 }
 

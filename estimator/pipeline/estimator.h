@@ -15,6 +15,7 @@
 #include "estimator/features/height_descriptor.h"
 #include "estimator/io/sensor_messages.h"
 #include "estimator/mapping/gnss_fusion.h"
+#include "estimator/mapping/provisional_submaps.h"
 #include "estimator/mapping/submap_builder.h"
 #include "estimator/pipeline/config.h"
 #include "estimator/pipeline/inertial_buffer.h"
@@ -217,7 +218,11 @@ class Estimator {
   struct HeldOutput {
     FrameResult frame;
     std::optional<Keyframe> keyframe;
+    bool provisional = false;  ///< sent as provisional output
   };
+  /// Sends the held poses and keyframes that have waited gnss_provisional_after_s behind the
+  /// newest (`newest_s`) as provisional output.
+  void SendProvisional(double newest_s);
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
   /// Serialises the stream sink's calls: poses from here, submaps from the submap worker.
   std::mutex stream_mutex_;
@@ -225,7 +230,8 @@ class Estimator {
   /// orders follow from the data alone, so a rerun on the same input numbers every message as
   /// the first run did, and the ingest client can resume without a duplicate.
   uint64_t pose_sequence_ = 0;
-  std::unique_ptr<SubmapWorker> submaps_;  ///< with a stream sink only
+  std::unique_ptr<SubmapWorker> submaps_;                    ///< with a stream sink only
+  std::unique_ptr<ProvisionalSubmaps> provisional_submaps_;  ///< with a stream sink only
   std::deque<HeldOutput> gnss_held_;
   bool gnss_gave_up_ = false;
   std::map<std::string, uint64_t> warning_counts_;

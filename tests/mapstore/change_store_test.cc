@@ -169,5 +169,86 @@ TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {
   EXPECT_EQ(changes_->Update(123456, "new", std::nullopt, &now).outcome, Outcome::kNotFound);
 }
 
+TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalOne) {
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed, withdrawn;
+  const Eigen::Vector3d elsewhere = at_ + Eigen::Vector3d(30.0, 0.0, 0.0);
+  StretchOutcome early = Stretch(0,
+                                 {Change(ChangeKind::kAdded, 12.0, at_, true),
+                                  Change(ChangeKind::kRemoved, 40.0, elsewhere, false)});
+  early.provisional = true;
+  ASSERT_TRUE(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn));
+  ASSERT_EQ(stored.size(), 2u);
+  EXPECT_TRUE(stored[0].provisional);
+  const int64_t kept_id = stored[0].id, gone_id = stored[1].id;
+  StoredChange confirmed;
+  ASSERT_TRUE(changes_->Update(kept_id, "confirmed", std::string("seen from the cab"), &confirmed));
+  std::set<int> done, provisional;
+  ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
+  EXPECT_EQ(done, std::set<int>({0}));
+  EXPECT_EQ(provisional, std::set<int>({0}));
+  DetectionState state;
+  ASSERT_TRUE(changes_->Detection(2, &state));
+  EXPECT_EQ(state.stretches_provisional, 1);
+  // Provisional again: nothing changes.
+  EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
+            Outcome::kDuplicate);
+
+  // The final output: the added object 0.4 m from where it was, the removed one not found, a
+  // new one.
+  StretchOutcome final_outcome =
+      Stretch(0,
+              {Change(ChangeKind::kAdded, 12.4, at_ + Eigen::Vector3d(0.4, 0.0, 0.0), true),
+               Change(ChangeKind::kAdded, 60.0, at_ + Eigen::Vector3d(50.0, 0.0, 0.0), false)});
+  final_outcome.registration_rms_m = 0.015;
+  ASSERT_TRUE(changes_->SaveStretch(2, 1, final_outcome, &stored, &closed, &withdrawn));
+  ASSERT_EQ(stored.size(), 2u);
+  EXPECT_EQ(stored[0].id, kept_id);
+  EXPECT_EQ(stored[0].status, "confirmed");
+  EXPECT_FALSE(stored[0].provisional);
+  EXPECT_NE(stored[1].id, gone_id);
+  ASSERT_EQ(withdrawn.size(), 1u);
+  EXPECT_EQ(withdrawn[0].id, gone_id);
+
+  std::vector<StoredChange> listed;
+  ASSERT_TRUE(changes_->List(2, ChangeFilter(), &listed));
+  ASSERT_EQ(listed.size(), 2u);
+  StoredChange now;
+  ASSERT_TRUE(changes_->Get(kept_id, &now));
+  EXPECT_EQ(now.note, "seen from the cab");
+  EXPECT_EQ(now.status, "confirmed");
+  EXPECT_FALSE(now.provisional);
+  EXPECT_NEAR(now.change.chainage_m, 12.4, 1e-9);
+  EXPECT_EQ(changes_->Get(gone_id, &now).outcome, Outcome::kNotFound);
+  ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
+  EXPECT_TRUE(provisional.empty());
+  ASSERT_TRUE(changes_->Detection(2, &state));
+  EXPECT_EQ(state.stretches_done, 1);
+  EXPECT_EQ(state.stretches_provisional, 0);
+  EXPECT_NEAR(state.registration_rms_m, 0.015, 1e-9);
+  // Final once: a provisional or final outcome after it changes nothing.
+  EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
+            Outcome::kDuplicate);
+  EXPECT_EQ(changes_->SaveStretch(2, 1, final_outcome, &stored, &closed, &withdrawn).outcome,
+            Outcome::kDuplicate);
+}
+
+TEST_F(ChangeStoreTest, OnlyAFinalStretchClosesAFixedChange) {
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed, withdrawn;
+  ASSERT_TRUE(changes_->SaveStretch(
+      2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)}), &stored, &closed));
+  StoredChange updated;
+  ASSERT_TRUE(changes_->Update(stored[0].id, "fixed", std::nullopt, &updated));
+  ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
+  StretchOutcome early = Stretch(0, {});
+  early.provisional = true;
+  ASSERT_TRUE(changes_->SaveStretch(3, 1, early, &stored, &closed, &withdrawn));
+  EXPECT_TRUE(closed.empty());
+  ASSERT_TRUE(changes_->SaveStretch(3, 1, Stretch(0, {}), &stored, &closed, &withdrawn));
+  ASSERT_EQ(closed.size(), 1u);
+  EXPECT_EQ(closed[0].id, updated.id);
+}
+
 }  // namespace
 }  // namespace raillomer::mapstore

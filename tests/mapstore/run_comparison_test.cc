@@ -46,6 +46,46 @@ int64_t IngestRun(MapStore& store,
   return run.id;
 }
 
+/// A live run of the corridor whose final output (submaps and poses) ends 60 m along; the rest,
+/// with `extra` points in submap 3, only provisional.
+int64_t IngestHalfRun(MapStore& store,
+                      const Eigen::Vector3d& shift,
+                      const std::vector<Eigen::Vector3f>& extra,
+                      ProvisionalRun* provisional) {
+  RunInfo run;
+  EXPECT_TRUE(store.CreateRun({"Corridor", "RLM-1", 1'600'000'000'000'000'000}, &run));
+  provisional->utm_zone = "50N";
+  for (uint32_t i = 0; i < 6; ++i) {
+    api::Submap s = test::CorridorSubmap(i);
+    s.origin += shift;
+    if (i < 3) {
+      EXPECT_TRUE(store.IngestSubmap(run.id, api::EncodeSubmapPcd(s), nullptr));
+      continue;
+    }
+    auto piece = std::make_shared<ProvisionalPiece>();
+    piece->origin = s.origin;
+    piece->points = s.points;
+    if (i == 3) piece->points.insert(piece->points.end(), extra.begin(), extra.end());
+    piece->first_stamp_ns = s.first_stamp_ns;
+    piece->last_stamp_ns = s.last_stamp_ns;
+    provisional->pieces.push_back(piece);
+  }
+  std::vector<api::StreamPose> poses;
+  for (int k = 0; k <= 140; ++k) {
+    api::StreamPose p;
+    p.sequence = static_cast<uint64_t>(k);
+    p.stamp_ns = 1'600'000'000'000'000'000 + int64_t{k} * 100'000'000;
+    p.georeferenced = true;
+    p.utm_zone = "50N";
+    p.p = test::CorridorStart() + shift + Eigen::Vector3d(k, 0.0, 2.0);
+    (k <= 60 ? poses : provisional->poses).push_back(p);
+  }
+  int stored = 0;
+  EXPECT_TRUE(store.IngestPoses(run.id, poses, &stored));
+  EXPECT_TRUE(store.Flush());  // the tiles as received so far, as the worker reads them
+  return run.id;
+}
+
 /// The points a LiDAR leaves of a 1.2 x 0.8 x 1.6 m box on the ground, its corner at
 /// (x0, y0) (submap frame, decimetres), on the 0.1 m grid: its shell.
 std::vector<Eigen::Vector3f> Box(int x0, int y0) {
@@ -108,6 +148,37 @@ TEST_F(RunComparisonTest, AnObjectStandingElsewhereHasMoved) {
   EXPECT_NEAR(c.chainage_m, 70.6, 0.6);  // where it stands now
   const Eigen::Vector3d before = test::CorridorStart() + Eigen::Vector3d(65.6, 3.0, 0.8);
   EXPECT_LT((c.moved_from_utm - before).head<2>().norm(), 0.3);
+}
+
+TEST_F(RunComparisonTest, AStretchIsComparedOnProvisionalOutputAheadOfTheFinal) {
+  MapStore* store = store_.get();
+  const int64_t reference = IngestRun(*store, Eigen::Vector3d::Zero(), {});
+  ProvisionalRun provisional;
+  const int64_t later =
+      IngestHalfRun(*store, Eigen::Vector3d(0.0, -0.4, 0.1), Box(150, 26), &provisional);
+  std::unique_ptr<RunComparison> comparison;
+  ASSERT_TRUE(RunComparison::Prepare(
+      *store, reference, later, RunComparisonOptions(), &comparison, &provisional));
+  EXPECT_NEAR(comparison->later_reach_m(false), 60.0, 1.0);
+  EXPECT_NEAR(comparison->later_reach_m(true), 140.0, 1.0);
+  EXPECT_EQ(comparison->provisional_mapped_until(), provisional.pieces.back()->last_stamp_ns);
+  const StretchRange first = comparison->stretches().at(0);  // 0-80 m: the box at 75 m
+  StretchOutcome on_final, on_provisional;
+  ASSERT_TRUE(comparison->Compare(first, &on_final, false));
+  ASSERT_TRUE(comparison->Compare(first, &on_provisional, true));
+  EXPECT_FALSE(on_final.provisional);
+  ASSERT_TRUE(on_final.compared) << on_final.skipped;
+  EXPECT_TRUE(on_final.changes.empty());  // the final map ends before the box
+  EXPECT_TRUE(on_provisional.provisional);
+  ASSERT_TRUE(on_provisional.compared) << on_provisional.skipped;
+  ASSERT_EQ(on_provisional.changes.size(), 1u);
+  EXPECT_EQ(on_provisional.changes[0].kind, ChangeKind::kAdded);
+  EXPECT_NEAR(on_provisional.changes[0].chainage_m, 75.6, 0.6);
+  // Provisional output in another zone than the reference's is not used.
+  provisional.utm_zone = "51N";
+  ASSERT_TRUE(RunComparison::Prepare(
+      *store, reference, later, RunComparisonOptions(), &comparison, &provisional));
+  EXPECT_NEAR(comparison->later_reach_m(true), 60.0, 1.0);
 }
 
 /// A piece of contact wire one run sampled: 0.8 m along the track, 0.2 m across and high,

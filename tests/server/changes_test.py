@@ -59,7 +59,11 @@ FIX = {}
 
 def setUpModule():
     FIX["dir"] = tempfile.mkdtemp(prefix="raillomer_changes_py_")
-    FIX["server"] = harness.Server(data=os.path.join(FIX["dir"], "data"))
+    # A stretch is compared once the train is 40 m past it (100 m by default), so that the
+    # short demo line's first stretch is compared on the estimator's provisional output, before
+    # its GNSS graph settles 150 m in.
+    FIX["server"] = harness.Server(data=os.path.join(FIX["dir"], "data"),
+                                   config="changes:\n  past_m: 40\n")
     FIX["reference_dir"] = change_truth.stream_run(
         FIX["server"], "demo", os.path.join(FIX["dir"], "run1"), "Demo")
     FIX["live"] = change_truth.Live(FIX["server"].ws_port)
@@ -111,14 +115,62 @@ class ChangeDetection(unittest.TestCase):
     def test_changes_are_announced_live_as_the_train_passes(self):
         messages = [(t, m) for t, m in FIX["live"].messages
                     if m["type"] == "change" and m["run"] == 2]
-        announced = [f["id"] for _, m in messages for f in m["changes"]]
-        self.assertEqual(sorted(announced), sorted(f["id"] for f in self.found["features"]))
+        announced = {f["id"] for _, m in messages for f in m["changes"]}
+        withdrawn = {i for _, m in messages for i in m["withdrawn"]}
+        self.assertEqual(sorted(announced - withdrawn),
+                         sorted(f["id"] for f in self.found["features"]))
         # Stretch by stretch: each announcement reaches further along the line, the last says
         # the run's report is final.
         reached = [m["detection"]["compared_to_m"] for _, m in messages]
         self.assertGreaterEqual(len(set(reached)), 3)
         self.assertEqual(reached, sorted(reached))
         self.assertEqual(messages[-1][1]["detection"]["status"], "done")
+
+    def test_provisional_changes_end_confirmed_or_withdrawn(self):
+        # Stretches compared on the estimator's provisional output (before its GNSS graph
+        # settles) are compared again on the final output: the last word on every change
+        # announced is final, or it was withdrawn.
+        last, withdrawn, ahead = {}, set(), 0
+        for _, m in FIX["live"].messages:
+            if m["type"] != "change" or m["run"] != 2:
+                continue
+            ahead = max(ahead, m["detection"]["stretches_provisional"])
+            for f in m["changes"]:
+                last[f["id"]] = f["properties"]["provisional"]
+            withdrawn |= set(m["withdrawn"])
+        self.assertGreater(ahead, 0, "no stretch was compared on provisional output")
+        final = {f["id"] for f in self.found["features"]}
+        self.assertEqual(set(last) - withdrawn, final)
+        self.assertFalse([i for i in final if last[i]], "still provisional when announced last")
+        self.assertEqual(self.found["detection"]["stretches_provisional"], 0)
+        self.assertFalse([f for f in self.found["features"] if f["properties"]["provisional"]])
+
+    def test_bad_provisional_output_is_refused(self):
+        pose = {"sequence": 0, "stamp_ns": 1, "georeferenced": True, "utm_zone": "50N",
+                "p": [500000.0, 4000000.0, 10.0], "q": [0, 0, 0, 1]}
+        status, body = self.server.write("POST", "/api/v1/runs/2/provisional/poses",
+                                         {"poses": [pose]})
+        self.assertEqual(status, 409, body)  # run 2 is finished
+        self.assertIn("finished", body["error"]["message"])
+        run = self.server.create_run(line="Provisional line")
+        status, body = self.server.write("POST", "/api/v1/runs/%d/provisional/poses" % run,
+                                         {"poses": [dict(pose, georeferenced=False)]})
+        self.assertEqual(status, 400, body)
+        self.assertIn("georeferenced", body["error"]["message"])
+        status, body = self.server.write("POST", "/api/v1/runs/%d/provisional/poses" % run,
+                                         {"poses": [pose]})
+        self.assertEqual((status, body["held"]), (200, 1), body)
+        status, body = self.server.write("POST", "/api/v1/runs/%d/provisional/poses" % run,
+                                         {"poses": [dict(pose, stamp_ns=2, utm_zone="51N")]})
+        self.assertEqual(status, 400, body)
+        self.assertIn("50N", body["error"]["message"])
+        status, _, data = self.server.request("POST", "/api/v1/runs/%d/provisional/submaps" % run,
+                                              b"not a submap", self.server.token)
+        self.assertEqual(status, 400, data)
+        self.assertIn(b"not a submap", data)
+        # Nothing of it reaches the run's stored poses or map.
+        _, info = self.server.json("GET", "/api/v1/runs/%d" % run)
+        self.assertEqual((info["poses"], info["submaps"]), (0, 0), info)
 
     def test_features_are_geojson_with_the_documented_properties(self):
         for f in self.found["features"]:

@@ -96,6 +96,19 @@ def stretch_latencies(live, run, chainage, past_m=100.0):
     return out
 
 
+def provisional_changes(live, run):
+    """Changes the live hub announced for `run` from its provisional output, and how many of
+    those a comparison on the final output withdrew (it found nothing of their kind within
+    2 m)."""
+    announced, withdrawn = set(), set()
+    for _, m in live.messages:
+        if m["type"] != "change" or m["run"] != run:
+            continue
+        announced |= {f["id"] for f in m["changes"] if f["properties"].get("provisional")}
+        withdrawn |= set(m.get("withdrawn", []))
+    return {"announced": len(announced), "withdrawn": len(withdrawn & announced)}
+
+
 def run_case(server, live, line, scenario, seed, run_id, work, kind):
     out = os.path.join(work, "run%d" % run_id)
     t0 = time.time()
@@ -104,7 +117,8 @@ def run_case(server, live, line, scenario, seed, run_id, work, kind):
     found, lag = change_truth.wait_for_detection(server, run_id, timeout_s=1800)
     row = score_case(found, line, scenario, seed, run_id, work, kind)
     row.update(stream_s=streamed, final_after_s=lag,
-               stretch_latency_s=stretch_latencies(live, run_id, pose_chainage(server, run_id)))
+               stretch_latency_s=stretch_latencies(live, run_id, pose_chainage(server, run_id)),
+               provisional=provisional_changes(live, run_id))
     return row
 
 
@@ -236,6 +250,10 @@ def totals(rows):
         "final_after_max_s": max(r["final_after_s"] for r in rows),
         "stretch_latency_max_s": max(latencies) if latencies else None,
         "stretch_latency_p50_s": statistics.median(latencies) if latencies else None,
+        "stretches_timed": len(latencies),
+        "stretches_within_10_s": sum(x <= 10.0 for x in latencies),
+        "provisional_changes": sum(r.get("provisional", {}).get("announced", 0) for r in rows),
+        "provisional_withdrawn": sum(r.get("provisional", {}).get("withdrawn", 0) for r in rows),
         "km_per_min": km / (seconds / 60.0) if seconds else None,
         "rail_residual_max_m": max(rails) if rails else None,
     }

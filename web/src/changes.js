@@ -49,6 +49,13 @@ export class ChangesPanel {
 
   onLive(message) {
     for (const f of [...message.changes, ...message.closed]) this.upsert(f.properties);
+    // Found on the estimator's provisional output and not again on its final output.
+    const withdrawn = new Set(message.withdrawn ?? []);
+    this.items = this.items.filter((c) => !withdrawn.has(c.id));
+    if (this.selected && withdrawn.has(this.selected.id)) {
+      this.selected = null;
+      $('change-detail').hidden = true;
+    }
     this.detection = message.detection;
     this.render();
   }
@@ -92,7 +99,8 @@ export class ChangesPanel {
         `${formatKm(c.chainage_m / 1000)} ${escapeHtml(c.side)} ${fmt(Math.abs(c.offset_m), 1)} m` +
         ` · ${fmt(Math.max(...c.size_m), 1)} m` +
         (c.intrudes_envelope ? ' · <b>in gauge</b>' : '') +
-        ` · <i>${escapeHtml(c.status)}</i>`;
+        ` · <i>${escapeHtml(c.status)}</i>` +
+        (c.provisional ? ' · <i title="found on provisional output; checked again on the final map">provisional</i>' : '');
       li.onclick = () => this.select(c.id, true);
       list.appendChild(li);
     }
