@@ -364,6 +364,11 @@ void IngestClient::SenderLoop() {
       if (!lost.empty()) warn(lost);
     }
     std::vector<fs::path> files = Pending(options_.outbox_dir);
+    // Provisional output is worth something only while it is new: it goes ahead of a backlog
+    // of final output (which the server prunes it by, whatever the order).
+    std::stable_partition(files.begin(), files.end(), [](const fs::path& f) {
+      return KindOf(f).rfind("provisional_", 0) == 0;
+    });
     if (files.empty()) {
       std::unique_lock<std::mutex> lock(mu_);
       if (stopping_) return;

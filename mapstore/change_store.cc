@@ -105,6 +105,21 @@ std::string TransformText(const StretchOutcome& o) {
   return json{{"origin", Vec(o.origin)}, {"T", m}}.dump();
 }
 
+/// Binds what detection measured of a change, from `first` on: chainage, offset, the centre's
+/// x, y, z, the other properties, intrusion, largest size, provisional.
+Statement& BindMeasured(Statement& q, int first, const StoredChange& s) {
+  const RunChange& c = s.change;
+  return q.Bind(first, c.chainage_m)
+      .Bind(first + 1, c.offset_m)
+      .Bind(first + 2, c.centre_utm.x())
+      .Bind(first + 3, c.centre_utm.y())
+      .Bind(first + 4, c.centre_utm.z())
+      .Bind(first + 5, PropertiesOf(c))
+      .Bind(first + 6, c.intrudes_envelope ? 1 : 0)
+      .Bind(first + 7, c.size_m.maxCoeff())
+      .Bind(first + 8, s.provisional ? 1 : 0);
+}
+
 }  // namespace
 
 bool IsChangeStatus(const std::string& status, bool settable_only) {
@@ -321,23 +336,11 @@ Result ChangeStore::StoreChangesLocked(const StoredChange& base,
 }
 
 Result ChangeStore::UpdateChangeLocked(const StoredChange& s) {
-  const RunChange& c = s.change;
   Statement set(*db_,
                 "UPDATE changes SET chainage_m = ?, offset_m = ?, x = ?, y = ?, z = ?, "
                 "properties = ?, intrudes = ?, size_max_m = ?, provisional = ?, updated_ns = ? "
                 "WHERE id = ?");
-  if (!set.Bind(1, c.chainage_m)
-           .Bind(2, c.offset_m)
-           .Bind(3, c.centre_utm.x())
-           .Bind(4, c.centre_utm.y())
-           .Bind(5, c.centre_utm.z())
-           .Bind(6, PropertiesOf(c))
-           .Bind(7, c.intrudes_envelope ? 1 : 0)
-           .Bind(8, c.size_m.maxCoeff())
-           .Bind(9, s.provisional ? 1 : 0)
-           .Bind(10, s.updated_ns)
-           .Bind(11, s.id)
-           .Run())
+  if (!BindMeasured(set, 1, s).Bind(10, s.updated_ns).Bind(11, s.id).Run())
     return DbError("cannot store a change again", set.error());
   return {};
 }
@@ -371,29 +374,21 @@ Result ChangeStore::InsertStretchLocked(int64_t run,
 }
 
 Result ChangeStore::InsertChangeLocked(StoredChange* s) {
-  const RunChange& c = s->change;
-  Statement add(
-      *db_,
-      "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, "
-      "offset_m, utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, "
-      "updated_ns, provisional) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  if (!add.Bind(1, s->run_id)
-           .Bind(2, s->reference_run)
-           .Bind(3, c.stretch)
-           .Bind(4, s->line)
-           .Bind(5, ToString(c.kind))
-           .Bind(6, c.chainage_m)
-           .Bind(7, c.offset_m)
-           .Bind(8, c.utm_zone)
-           .Bind(9, c.centre_utm.x())
-           .Bind(10, c.centre_utm.y())
-           .Bind(11, c.centre_utm.z())
-           .Bind(12, PropertiesOf(c))
-           .Bind(13, c.intrudes_envelope ? 1 : 0)
-           .Bind(14, c.size_m.maxCoeff())
-           .Bind(15, s->created_ns)
-           .Bind(16, s->updated_ns)
-           .Bind(17, s->provisional ? 1 : 0)
+  Statement add(*db_,
+                "INSERT INTO changes (run_id, reference_run, stretch, line, kind, utm_zone, "
+                "chainage_m, offset_m, x, y, z, properties, intrudes, size_max_m, provisional, "
+                "created_ns, updated_ns) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!BindMeasured(add.Bind(1, s->run_id)
+                        .Bind(2, s->reference_run)
+                        .Bind(3, s->change.stretch)
+                        .Bind(4, s->line)
+                        .Bind(5, ToString(s->change.kind))
+                        .Bind(6, s->change.utm_zone),
+                    7,
+                    *s)
+           .Bind(16, s->created_ns)
+           .Bind(17, s->updated_ns)
            .Run())
     return DbError("cannot store a change", add.error());
   s->id = db_->LastInsertId();

@@ -743,6 +743,14 @@ Result RunComparison::Compare(const StretchRange& range,
   MarkVegetation(stretch, parts, o, found, &placed);
   CentreTrees(stretch, o, found, &placed);
   PairMoved(o, &placed);
+  if (provisional) {
+    // Provisional output can lack points the final map will have (a LiDAR's gap, a piece not
+    // sent yet), so what it does not show is not told gone: removals wait for the final map.
+    placed.erase(std::remove_if(placed.begin(),
+                                placed.end(),
+                                [](const RunChange& c) { return c.kind == ChangeKind::kRemoved; }),
+                 placed.end());
+  }
   KeepOwn(range, std::move(placed), out);
   out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {};

@@ -100,7 +100,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
   std::string out =
       "id,run,reference_run,kind,chainage_m,offset_m,side,easting,northing,height,utm_zone,"
       "lon,lat,along_m,across_m,height_m,height_above_rail_min_m,height_above_rail_max_m,"
-      "intrudes_envelope,margin_m,lod_m,confidence,status,note\n";
+      "intrudes_envelope,margin_m,lod_m,confidence,provisional,status,note\n";
   for (const mapstore::StoredChange& s : changes) {
     const mapstore::RunChange& c = s.change;
     json lon_lat = {nullptr, nullptr};
@@ -112,7 +112,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
     std::snprintf(row,
                   sizeof(row),
                   "%lld,%lld,%lld,%s,%.2f,%.2f,%s,%.3f,%.3f,%.3f,%s,%s,%s,%.2f,%.2f,%.2f,%.2f,%.2f,"
-                  "%s,%.2f,%.3f,%.2f,%s,",
+                  "%s,%.2f,%.3f,%.2f,%s,%s,",
                   static_cast<long long>(s.id),
                   static_cast<long long>(s.run_id),
                   static_cast<long long>(s.reference_run),
@@ -135,6 +135,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
                   c.margin_m,
                   c.lod_m,
                   c.confidence,
+                  s.provisional ? "true" : "false",
                   s.status.c_str());
     out += row + note + "\n";
   }

@@ -90,6 +90,11 @@ std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::Sto
   return html + "</table>\n";
 }
 
+/// The status, and whether the change still waits for the final output's comparison.
+std::string StatusText(const mapstore::StoredChange& s) {
+  return Escape(s.status) + (s.provisional ? " (provisional)" : "");
+}
+
 std::string Overview(const std::vector<mapstore::StoredChange>& c) {
   std::string html =
       "<table>\n<tr><th>#</th><th>Kind</th><th>Kilometre</th><th>Side</th><th>Offset m</th>"
@@ -103,7 +108,7 @@ std::string Overview(const std::vector<mapstore::StoredChange>& c) {
             "</td><td>" + (x.offset_m >= 0.0 ? "left" : "right") + "</td><td>" +
             Fixed(std::abs(x.offset_m), 2) + "</td><td>" + Fixed(x.size_m.x(), 1) + " &times; " +
             Fixed(x.size_m.y(), 1) + " &times; " + Fixed(x.size_m.z(), 1) + "</td><td>" +
-            Fixed(x.margin_m, 2) + "</td><td>" + Escape(s.status) + "</td></tr>\n";
+            Fixed(x.margin_m, 2) + "</td><td>" + StatusText(s) + "</td></tr>\n";
   }
   return html + "</table>\n";
 }
@@ -124,7 +129,7 @@ std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s
           Fixed(x.height_above_rail_min_m, 1) + " to " + Fixed(x.height_above_rail_max_m, 1) +
           " m above the rails. UTM " + Escape(x.utm_zone) + " " + Fixed(x.centre_utm.x(), 1) +
           " E, " + Fixed(x.centre_utm.y(), 1) + " N. Confidence " + Fixed(x.confidence, 2) +
-          ", level of detection " + Fixed(x.lod_m, 2) + " m. Status: " + Escape(s.status) +
+          ", level of detection " + Fixed(x.lod_m, 2) + " m. Status: " + StatusText(s) +
           (s.note.empty() ? "" : " (" + Escape(s.note) + ")") + ". <a href=\"" +
           Escape(in.viewer_url) + "?run=" + std::to_string(s.run_id) +
           "&amp;change=" + std::to_string(s.id) + "\">Open in the viewer</a></p>\n";

@@ -8,16 +8,16 @@ namespace raillomer {
 ProvisionalSubmaps::ProvisionalSubmaps(int keyframes, double voxel_m, double max_range_m)
     : keyframes_(std::max(1, keyframes)), voxel_m_(voxel_m), max_range_m_(max_range_m) {}
 
-std::optional<api::Submap> ProvisionalSubmaps::Add(int64_t stamp_ns,
-                                                   const Eigen::Isometry3d& T_utm_body,
-                                                   const std::string& zone,
-                                                   const std::vector<Eigen::Vector3f>& points_body,
-                                                   const std::vector<float>& intensities) {
-  if (!open_.keyframes.empty() && open_.utm_zone != zone) {
-    std::optional<api::Submap> done = Flush();  // never two zones in one submap
-    std::optional<api::Submap> next = Add(stamp_ns, T_utm_body, zone, points_body, intensities);
-    return done ? done : next;
-  }
+std::vector<api::Submap> ProvisionalSubmaps::Add(int64_t stamp_ns,
+                                                 const Eigen::Isometry3d& T_utm_body,
+                                                 const std::string& zone,
+                                                 const std::vector<Eigen::Vector3f>& points_body,
+                                                 const std::vector<float>& intensities) {
+  std::vector<api::Submap> done;
+  // One zone and one stretch of time a submap.
+  if (!open_.keyframes.empty() &&
+      (open_.utm_zone != zone || (stamp_ns - open_.last_stamp_ns) * 1e-9 > kMaxGapS))
+    done.push_back(*Flush());
   if (open_.keyframes.empty()) {
     open_.georeferenced = true;
     open_.utm_zone = zone;
@@ -48,8 +48,8 @@ std::optional<api::Submap> ProvisionalSubmaps::Add(int64_t stamp_ns,
     open_.points.push_back(p.cast<float>());
     open_.intensities.push_back(i < intensities.size() ? intensities[i] : 0.0f);
   }
-  if (static_cast<int>(open_.keyframes.size()) < keyframes_) return std::nullopt;
-  return Flush();
+  if (static_cast<int>(open_.keyframes.size()) >= keyframes_) done.push_back(*Flush());
+  return done;
 }
 
 std::optional<api::Submap> ProvisionalSubmaps::Flush() {

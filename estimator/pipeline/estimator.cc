@@ -951,8 +951,13 @@ void Estimator::ReleaseHeld(bool flush) {
 void Estimator::SendProvisional(double newest_s) {
   const double after_s = config_.options.gnss_provisional_after_s;
   if (!sinks_.stream || after_s <= 0.0) return;
-  if (gnss_held_.empty() || !gnss_held_.front().provisional)
-    provisional_submaps_->Flush();  // the final output caught up: what was gathered is final
+  if (gnss_held_.empty() || !gnss_held_.front().provisional) {
+    // The final output caught up: what was gathered goes out now, not with a later outage.
+    if (std::optional<api::Submap> rest = provisional_submaps_->Flush()) {
+      std::lock_guard<std::mutex> lock(stream_mutex_);
+      sinks_.stream->OnProvisionalSubmap(*rest);
+    }
+  }
   const Eigen::Vector3d origin = gnss_->origin_utm();
   const std::string zone = gnss_->zone().Name();
   for (HeldOutput& h : gnss_held_) {
@@ -968,14 +973,22 @@ void Estimator::SendProvisional(double newest_s) {
     pose.utm_zone = zone;
     pose.p = T_utm_body.translation();
     pose.q = Eigen::Quaterniond(T_utm_body.linear()).normalized();
-    std::optional<api::Submap> submap;
-    if (h.keyframe)
-      submap = provisional_submaps_->Add(
-          h.keyframe->stamp_ns, T_utm_body, zone, h.keyframe->points_body, h.keyframe->intensities);
     std::lock_guard<std::mutex> lock(stream_mutex_);
     sinks_.stream->OnProvisionalPose(pose);
-    if (submap) sinks_.stream->OnProvisionalSubmap(*submap);
+    if (h.keyframe)
+      AddProvisionalKeyframe(
+          h.keyframe->stamp_ns, T_utm_body, zone, h.keyframe->points_body, h.keyframe->intensities);
   }
+}
+
+void Estimator::AddProvisionalKeyframe(int64_t stamp_ns,
+                                       const Eigen::Isometry3d& T_utm_body,
+                                       const std::string& zone,
+                                       const std::vector<Eigen::Vector3f>& points_body,
+                                       const std::vector<float>& intensities) {
+  for (const api::Submap& submap :
+       provisional_submaps_->Add(stamp_ns, T_utm_body, zone, points_body, intensities))
+    sinks_.stream->OnProvisionalSubmap(submap);
 }
 
 void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyframe) {

@@ -223,6 +223,13 @@ class Estimator {
   /// Sends the held poses and keyframes that have waited gnss_provisional_after_s behind the
   /// newest (`newest_s`) as provisional output.
   void SendProvisional(double newest_s);
+  /// Adds a keyframe's points at `T_utm_body` to the provisional submaps; sends one when it is
+  /// complete. Called under stream_mutex_.
+  void AddProvisionalKeyframe(int64_t stamp_ns,
+                              const Eigen::Isometry3d& T_utm_body,
+                              const std::string& zone,
+                              const std::vector<Eigen::Vector3f>& points_body,
+                              const std::vector<float>& intensities);
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss
   /// Serialises the stream sink's calls: poses from here, submaps from the submap worker.
   std::mutex stream_mutex_;

@@ -13,6 +13,22 @@
 namespace raillomer::mapstore {
 namespace {
 
+/// Poses every metre from `first` to `last` m along the corridor, 2 m above the ground,
+/// shifted by `shift` (UTM).
+std::vector<api::StreamPose> CorridorPoses(const Eigen::Vector3d& shift, int first, int last) {
+  std::vector<api::StreamPose> poses;
+  for (int k = first; k <= last; ++k) {
+    api::StreamPose p;
+    p.sequence = static_cast<uint64_t>(k);
+    p.stamp_ns = 1'600'000'000'000'000'000 + int64_t{k} * 100'000'000;
+    p.georeferenced = true;
+    p.utm_zone = "50N";
+    p.p = test::CorridorStart() + shift + Eigen::Vector3d(k, 0.0, 2.0);
+    poses.push_back(p);
+  }
+  return poses;
+}
+
 /// A run of the corridor: 6 submaps (140 m) and a pose every metre 2 m above the ground,
 /// everything shifted by `shift` (UTM), with `extra` points added to submap 3.
 int64_t IngestRun(MapStore& store,
@@ -30,18 +46,8 @@ int64_t IngestRun(MapStore& store,
       }
     EXPECT_TRUE(store.IngestSubmap(run.id, api::EncodeSubmapPcd(s), nullptr));
   }
-  std::vector<api::StreamPose> poses;
-  for (int k = 0; k <= 140; ++k) {
-    api::StreamPose p;
-    p.sequence = static_cast<uint64_t>(k);
-    p.stamp_ns = 1'600'000'000'000'000'000 + int64_t{k} * 100'000'000;
-    p.georeferenced = true;
-    p.utm_zone = "50N";
-    p.p = test::CorridorStart() + shift + Eigen::Vector3d(k, 0.0, 2.0);
-    poses.push_back(p);
-  }
   int stored = 0;
-  EXPECT_TRUE(store.IngestPoses(run.id, poses, &stored));
+  EXPECT_TRUE(store.IngestPoses(run.id, CorridorPoses(shift, 0, 140), &stored));
   EXPECT_TRUE(store.FinishRun(run.id, 1'700'000'000'000'000'000, nullptr));
   return run.id;
 }
@@ -70,18 +76,9 @@ int64_t IngestHalfRun(MapStore& store,
     piece->last_stamp_ns = s.last_stamp_ns;
     provisional->pieces.push_back(piece);
   }
-  std::vector<api::StreamPose> poses;
-  for (int k = 0; k <= 140; ++k) {
-    api::StreamPose p;
-    p.sequence = static_cast<uint64_t>(k);
-    p.stamp_ns = 1'600'000'000'000'000'000 + int64_t{k} * 100'000'000;
-    p.georeferenced = true;
-    p.utm_zone = "50N";
-    p.p = test::CorridorStart() + shift + Eigen::Vector3d(k, 0.0, 2.0);
-    (k <= 60 ? poses : provisional->poses).push_back(p);
-  }
+  provisional->poses = CorridorPoses(shift, 61, 140);
   int stored = 0;
-  EXPECT_TRUE(store.IngestPoses(run.id, poses, &stored));
+  EXPECT_TRUE(store.IngestPoses(run.id, CorridorPoses(shift, 0, 60), &stored));
   EXPECT_TRUE(store.Flush());  // the tiles as received so far, as the worker reads them
   return run.id;
 }

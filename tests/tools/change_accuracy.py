@@ -100,13 +100,17 @@ def provisional_changes(live, run):
     """Changes the live hub announced for `run` from its provisional output, and how many of
     those a comparison on the final output withdrew (it found nothing of their kind within
     2 m)."""
-    announced, withdrawn = set(), set()
+    announced, withdrawn = {}, set()
     for _, m in live.messages:
         if m["type"] != "change" or m["run"] != run:
             continue
-        announced |= {f["id"] for f in m["changes"] if f["properties"].get("provisional")}
+        announced.update({f["id"]: f["properties"] for f in m["changes"]
+                          if f["properties"].get("provisional")})
         withdrawn |= set(m.get("withdrawn", []))
-    return {"announced": len(announced), "withdrawn": len(withdrawn & announced)}
+    gone = [announced[i] for i in sorted(withdrawn & set(announced))]
+    return {"announced": len(announced), "withdrawn": len(gone),
+            "withdrawn_changes": [{k: p[k] for k in ("kind", "chainage_m", "offset_m", "size_m",
+                                                     "confidence")} for p in gone]}
 
 
 def run_case(server, live, line, scenario, seed, run_id, work, kind):
@@ -210,6 +214,10 @@ def run_line(line, work_root, include_repeat):
     finally:
         live.stop = True
         server.stop()
+        # Every hub message with its arrival time, for looking into a line's lags afterwards.
+        with open(os.path.join(work, "live.jsonl"), "w") as f:
+            for t, m in live.messages:
+                f.write(json.dumps({"t": t, "message": m}) + "\n")
     return rows
 
 
