@@ -21,6 +21,9 @@ Result DbError(const std::string& what, const std::string& message) {
 
 using api::NowNs;
 
+/// Two reports lie this close (horizontally) when they are the same thing seen again.
+constexpr double kSameChangeM = 2.0;
+
 json Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 Eigen::Vector3d VecOf(const json& j) {
   return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>());
@@ -316,7 +319,7 @@ Result ChangeStore::StoreChangesLocked(const StoredChange& base,
     c.provisional = o.provisional;
     auto same = std::find_if(provisional->begin(), provisional->end(), [&](const StoredChange& p) {
       return p.change.kind == found.kind &&
-             (p.change.centre_utm - found.centre_utm).head<2>().norm() < 2.0;
+             (p.change.centre_utm - found.centre_utm).head<2>().norm() < kSameChangeM;
     });
     Result r;
     if (same != provisional->end()) {
@@ -412,7 +415,7 @@ Result ChangeStore::CloseFixedLocked(int64_t run,
                   "WHERE id = ?");
   for (StoredChange& f : fixed) {
     const bool again = std::any_of(seen.begin(), seen.end(), [&](const StoredChange& s) {
-      return (s.change.centre_utm - f.change.centre_utm).head<2>().norm() < 2.0;
+      return (s.change.centre_utm - f.change.centre_utm).head<2>().norm() < kSameChangeM;
     });
     if (again) continue;
     f.status = "closed";

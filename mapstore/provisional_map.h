@@ -39,8 +39,9 @@ struct ProvisionalOptions {
 /// The provisional poses and submaps of live runs: what an estimator sends where its GNSS graph
 /// cannot place its output yet (a run's start, an outage), placed as well as it can for now.
 /// They stay in memory and out of the tiles: the run's final poses and submaps replace them as
-/// they arrive (Prune), and change detection compares a stretch on them ahead of the final map
-/// and again once that holds the stretch. A server restarted loses them, which costs only time.
+/// they arrive (PrunePoses, PruneMap), and change detection compares a stretch on them ahead of the
+/// final map and again once that holds the stretch. A server restarted loses them, which costs only
+/// time.
 class ProvisionalMap {
  public:
   explicit ProvisionalMap(ProvisionalOptions options = {}) : options_(options) {}
@@ -61,7 +62,8 @@ class ProvisionalMap {
   bool Get(int64_t run, ProvisionalRun* out) const;
 
  private:
-  /// kInvalid unless the run is live and `zone` fits it and what it holds.
+  /// kConflict unless the run is live; kInvalid unless georeferenced in a zone that fits the
+  /// run and what it holds.
   Result Check(const RunInfo& info, bool georeferenced, const std::string& zone) const;
   size_t PointsOf(const ProvisionalRun& run) const;
   /// Applies `prune` to the run's held output; forgets the run once nothing is left.

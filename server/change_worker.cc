@@ -139,12 +139,19 @@ bool ChangeWorker::Ready(const mapstore::RunInfo& run,
   const bool finished = run.status == "finished";
   int64_t mapped_ns = 0;
   if (!finished && !changes_->MappedUntil(run.id, &mapped_ns)) return false;
+  // How far the train and the map reach: [0] on the final output, [1] with the provisional.
+  const double infinity = std::numeric_limits<double>::infinity();
+  double train[2] = {infinity, infinity}, mapped[2] = {infinity, infinity};
+  if (!finished) {
+    const int64_t until = std::max(mapped_ns, comparison.provisional_mapped_until());
+    for (int p = 0; p < 2; ++p) {
+      train[p] = comparison.later_reach_m(p == 1);
+      mapped[p] = comparison.ReachUntil(p == 1 ? until : mapped_ns, p == 1);
+    }
+  }
   auto holds = [&](const mapstore::StretchRange& range, bool with_provisional) {
-    if (finished) return true;
-    const int64_t until =
-        with_provisional ? std::max(mapped_ns, comparison.provisional_mapped_until()) : mapped_ns;
-    return comparison.later_reach_m(with_provisional) >= range.to_m + options_.past_m &&
-           comparison.ReachUntil(until, with_provisional) >= range.to_m + options_.mapped_past_m;
+    return train[with_provisional] >= range.to_m + options_.past_m &&
+           mapped[with_provisional] >= range.to_m + options_.mapped_past_m;
   };
   ready->clear();
   again->clear();
