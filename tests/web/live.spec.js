@@ -30,7 +30,12 @@ test('a streaming run grows on screen without a reload', async ({ page }) => {
   await expect
     .poll(async () => (await viewerState(page)).changes, { timeout: 120_000 })
     .toBeGreaterThan(0);
-  const api = await getJson(f, `/api/v1/runs/${run.id}/changes`);
+  // Once the run's report is final (stretches compared on provisional output are compared
+  // again after the run ends), the list holds exactly its changes.
+  const api = await waitFor('the run\'s final report', async () => {
+    const answer = await getJson(f, `/api/v1/runs/${run.id}/changes`);
+    return answer.detection.status === 'done' ? answer : null;
+  }, 120_000, 500);
   await expect(page.locator('#changes-list li')).toHaveCount(api.features.length, { timeout: 60_000 });
   const png = await shot(page, 'live-done', page.locator('#viewport > canvas'));
   expect(countColor(png, BACKGROUND, 6).other).toBeGreaterThan(1000);
