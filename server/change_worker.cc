@@ -31,31 +31,35 @@ ChangeWorker::ChangeWorker(mapstore::MapStore* store,
 ChangeWorker::~ChangeWorker() { Stop(); }
 
 void ChangeWorker::Start() {
-  if (options_.enabled && !thread_.joinable()) thread_ = std::thread([this] { Loop(); });
+  if (!options_.enabled || threads_[0].joinable()) return;
+  for (Work work : {Work::kNew, Work::kAgain})
+    threads_[static_cast<int>(work)] = std::thread([this, work] { Loop(work); });
 }
 
 void ChangeWorker::Stop() {
   stopping_ = true;
   Notify();
-  if (thread_.joinable()) thread_.join();
+  for (std::thread& t : threads_)
+    if (t.joinable()) t.join();
 }
 
 void ChangeWorker::Notify() {
   {
     std::lock_guard<std::mutex> lock(mu_);
-    woken_ = true;
+    woken_[0] = woken_[1] = true;
   }
   wake_.notify_all();
 }
 
-void ChangeWorker::Loop() {
-  LowerPriority();
+void ChangeWorker::Loop(Work work) {
+  LowerPriority(work);
+  bool& woken = woken_[static_cast<int>(work)];
   while (!stopping()) {
-    Pass();
+    if (Pass(work)) continue;  // more to do at once
     std::unique_lock<std::mutex> lock(mu_);
     wake_.wait_for(
-        lock, std::chrono::milliseconds(options_.poll_ms), [this] { return woken_ || stopping(); });
-    woken_ = false;
+        lock, std::chrono::milliseconds(options_.poll_ms), [&] { return woken || stopping(); });
+    woken = false;
   }
 }
 
@@ -105,15 +109,17 @@ Result ChangeWorker::State(int64_t run, DetectionState* out, std::string* reason
   return {};
 }
 
-void ChangeWorker::Pass() {
+bool ChangeWorker::Pass(Work work) {
   std::vector<DetectionState> states;
-  if (!changes_->Detections(&states)) return;
+  if (!changes_->Detections(&states)) return false;
+  bool more = false;
   std::map<int64_t, DetectionState> by_run;
   for (const DetectionState& s : states) by_run[s.run_id] = s;
   for (const mapstore::RunInfo& run : store_->ListRuns()) {
-    if (stopping()) return;
+    if (stopping()) return false;
     auto found = by_run.find(run.id);
     if (found == by_run.end()) {
+      if (work == Work::kAgain) continue;
       mapstore::LineInfo line;
       if (!store_->GetLine(run.line, &line) || line.reference_run == 0 ||
           line.reference_run == run.id)
@@ -123,8 +129,9 @@ void ChangeWorker::Pass() {
       found = by_run.emplace(run.id, requested).first;
     }
     if (found->second.status == "done" || found->second.status == "failed") continue;
-    Advance(run, found->second);
+    more = Advance(run, found->second, work) || more;
   }
+  return more;
 }
 
 bool ChangeWorker::Ready(const mapstore::RunInfo& run,
@@ -182,6 +189,7 @@ Result ChangeWorker::PrepareComparison(const mapstore::RunInfo& run,
 }
 
 void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
+                                     Work work,
                                      const std::vector<Job>& batch,
                                      std::vector<mapstore::StretchOutcome>* outcomes,
                                      std::vector<Result>* results) {
@@ -190,16 +198,16 @@ void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
   std::vector<std::thread> workers;
   for (size_t i = 1; i < batch.size(); ++i)
     workers.emplace_back([&, i] {
-      LowerPriority();
+      LowerPriority(work);
       (*results)[i] = comparison.Compare(batch[i].range, &(*outcomes)[i], batch[i].provisional);
     });
   (*results)[0] = comparison.Compare(batch[0].range, &(*outcomes)[0], batch[0].provisional);
   for (std::thread& t : workers) t.join();
 }
 
-void ChangeWorker::LowerPriority() {
+void ChangeWorker::LowerPriority(Work work) {
   // Ingest and the API come first: comparing waits for the CPU they leave.
-  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
+  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), work == Work::kNew ? 5 : 10);
 }
 
 bool ChangeWorker::Store(int64_t run,
@@ -223,47 +231,51 @@ bool ChangeWorker::Store(int64_t run,
   return true;
 }
 
-void ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& state) {
+bool ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& state, Work work) {
   std::unique_ptr<mapstore::RunComparison> comparison;
   Result r = PrepareComparison(run, state.reference_run, &comparison);
   if (!r) {
     // A reference still live may finish; anything else will not mend itself.
-    if (r.outcome != Outcome::kConflict) changes_->SetStatus(run.id, "failed", r.message);
-    return;
+    if (work == Work::kNew && r.outcome != Outcome::kConflict)
+      changes_->SetStatus(run.id, "failed", r.message);
+    return false;
   }
   std::set<int> stored, provisional;
-  if (!changes_->StoredStretches(run.id, &stored, &provisional)) return;
+  if (!changes_->StoredStretches(run.id, &stored, &provisional)) return false;
   std::vector<Job> ready, again;
-  if (!Ready(run, *comparison, stored, provisional, &ready, &again)) return;
-  // New stretches first; of those compared again, one batch a pass, so that new ones keep
-  // their turn.
+  if (!Ready(run, *comparison, stored, provisional, &ready, &again)) return false;
   const size_t threads = static_cast<size_t>(std::max(1, options_.threads));
-  if (again.size() > threads) again.resize(threads);
-  ready.insert(ready.end(), again.begin(), again.end());
+  bool more = false;
+  if (work == Work::kAgain) {
+    // One batch, then a fresh look: the final output may reach further by then.
+    more = again.size() > threads;
+    if (more) again.resize(threads);
+    ready.swap(again);
+  }
   if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
   for (size_t first = 0; first < ready.size() && !stopping(); first += threads) {
     const std::vector<Job> batch(ready.begin() + first,
                                  ready.begin() + std::min(ready.size(), first + threads));
     std::vector<mapstore::StretchOutcome> outcomes;
     std::vector<Result> results;
-    CompareSideBySide(*comparison, batch, &outcomes, &results);
-    for (size_t i = 0; i < batch.size(); ++i) {
-      if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return;
-      stored.insert(batch[i].range.index);
-      if (batch[i].provisional)
-        provisional.insert(batch[i].range.index);
-      else
-        provisional.erase(batch[i].range.index);
-    }
+    CompareSideBySide(*comparison, work, batch, &outcomes, &results);
+    for (size_t i = 0; i < batch.size(); ++i)
+      if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return false;
   }
-  const bool finished = run.status == "finished";
-  if (finished && provisional.empty() && stored.size() >= comparison->stretches().size()) {
-    changes_->SetStatus(run.id, "done", "");
-    DetectionState now;
-    if (changes_->Detection(run.id, &now)) announce_({}, {}, {}, now);
-  } else if (finished && !provisional.empty()) {
-    Notify();  // the provisional stretches left, on the next pass
-  }
+  if (run.status == "finished") FinishIfDone(run, comparison->stretches().size());
+  return more;
+}
+
+void ChangeWorker::FinishIfDone(const mapstore::RunInfo& run, size_t stretches) {
+  std::lock_guard<std::mutex> lock(done_mu_);
+  DetectionState now;
+  std::set<int> stored, provisional;
+  if (!changes_->Detection(run.id, &now) || now.status == "done" || now.status == "failed" ||
+      !changes_->StoredStretches(run.id, &stored, &provisional))
+    return;
+  if (!provisional.empty() || stored.size() < stretches) return;
+  changes_->SetStatus(run.id, "done", "");
+  if (changes_->Detection(run.id, &now)) announce_({}, {}, {}, now);
 }
 
 }  // namespace raillomer::server

@@ -33,12 +33,13 @@ struct ChangeWorkerOptions {
 /// on a background thread, stretch by stretch as the run's tiles arrive: a stretch of a live
 /// run once the train is past it, the rest when the run finishes. Where the run's final output
 /// does not hold a stretch yet but its provisional output (ProvisionalMap) does, the stretch
-/// is compared on that, and again once the final output holds it; stretches not compared yet
-/// come first. Each stretch's changes are stored at once (ChangeStore) and handed to
+/// is compared on that, and again once the final output holds it, on a second thread at a
+/// lower priority, so that a stretch not compared yet never waits behind one compared already.
+/// Each stretch's changes are stored at once (ChangeStore) and handed to
 /// `announce`; a restarted server resumes where the stored stretches end.
 class ChangeWorker {
  public:
-  /// Called on the worker's thread with each stretch's changes (new, or found again when a
+  /// Called on a worker's thread with each stretch's changes (new, or found again when a
   /// provisional stretch is compared on the final output), changes of earlier runs it closed,
   /// provisional changes not found again, and the run's detection state after it.
   using Announce = std::function<void(const std::vector<mapstore::StoredChange>& found,
@@ -76,12 +77,20 @@ class ChangeWorker {
   uint64_t stretches_compared() const { return stretches_compared_; }
 
  private:
-  void Loop();
-  /// One look over every run: requests detection of new runs, advances each running one.
-  void Pass();
-  /// Compares the stretches of `state.run_id` that are ready; marks it done when the run
-  /// finished and every stretch is stored.
-  void Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state);
+  /// The two threads' work: stretches not compared yet (`Work::kNew`), or those compared on
+  /// provisional output that the final output now holds (`Work::kAgain`).
+  enum class Work { kNew = 0, kAgain = 1 };
+  void Loop(Work work);
+  /// One look over every run: requests detection of new runs (kNew), advances each running
+  /// one; true if there is more to do at once.
+  bool Pass(Work work);
+  /// Compares the stretches of `state.run_id` that are ready for `work` (of kAgain, one batch:
+  /// new ones may have come meanwhile; true if more wait); marks the run done when it finished
+  /// and every stretch is stored final.
+  bool Advance(const mapstore::RunInfo& run, const mapstore::DetectionState& state, Work work);
+  /// Marks a finished run's detection done once every stretch is stored on the final output;
+  /// either thread may find it so, one announces it.
+  void FinishIfDone(const mapstore::RunInfo& run, size_t stretches);
   /// A stretch to compare, on provisional output or not.
   struct Job {
     mapstore::StretchRange range;
@@ -102,6 +111,7 @@ class ChangeWorker {
                                      std::unique_ptr<mapstore::RunComparison>* out) const;
   /// Compares a batch of stretches on a thread each (the first on this one).
   static void CompareSideBySide(const mapstore::RunComparison& comparison,
+                                Work work,
                                 const std::vector<Job>& batch,
                                 std::vector<mapstore::StretchOutcome>* outcomes,
                                 std::vector<mapstore::Result>* results);
@@ -110,8 +120,9 @@ class ChangeWorker {
              int64_t reference,
              mapstore::Result r,
              const mapstore::StretchOutcome& outcome);
-  /// The calling thread yields to ingest and the API (nice 5).
-  static void LowerPriority();
+  /// The calling thread yields to ingest and the API (nice 5), and a stretch compared again
+  /// to everything else (nice 10): it has been compared once already.
+  static void LowerPriority(Work work);
   bool stopping() const { return stopping_; }
 
   mapstore::MapStore* store_;
@@ -121,10 +132,11 @@ class ChangeWorker {
   Announce announce_;
   std::mutex mu_;
   std::condition_variable wake_;
-  bool woken_ = false;
+  bool woken_[2] = {false, false};  ///< by Work
+  std::mutex done_mu_;              ///< FinishIfDone's check and mark
   std::atomic<bool> stopping_{false};
   std::atomic<uint64_t> stretches_compared_{0};
-  std::thread thread_;
+  std::thread threads_[2];  ///< by Work
 };
 
 }  // namespace raillomer::server
