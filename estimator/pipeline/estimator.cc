@@ -147,11 +147,16 @@ Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
   if (sinks_.stream) {
     SubmapOptions submap = config.options.submap;
     submap.p_body_odometer = config.rig.p_body_odometer;  // the wheels follow the rails
-    submaps_ = std::make_unique<SubmapWorker>(submap, [this](api::Submap s) {
-      std::lock_guard<std::mutex> lock(stream_mutex_);
-      s.sequence = s.index;
-      sinks_.stream->OnSubmap(s);
-    });
+    // The queue holds what the GNSS fusion releases at once after an outage, and more.
+    const double max_queued_s = std::max(30.0, config.options.gnss_max_latency_s + 30.0);
+    submaps_ = std::make_unique<SubmapWorker>(
+        submap,
+        [this](api::Submap s) {
+          std::lock_guard<std::mutex> lock(stream_mutex_);
+          s.sequence = s.index;
+          sinks_.stream->OnSubmap(s);
+        },
+        max_queued_s);
     provisional_submaps_ = std::make_unique<ProvisionalSubmaps>(config.options.submap.keyframes,
                                                                 config.options.submap.voxel_m,
                                                                 config.options.submap.max_range_m);
@@ -942,7 +947,7 @@ void Estimator::ReleaseHeld(bool flush) {
       h.keyframe->georeferenced = true;
       h.keyframe->origin_utm = h.frame.origin_utm;
     }
-    Output(h.frame, std::move(h.keyframe));
+    Output(h.frame, std::move(h.keyframe), h.provisional);
     gnss_held_.pop_front();
   }
   if (!flush) SendProvisional(newest_s);
@@ -951,12 +956,21 @@ void Estimator::ReleaseHeld(bool flush) {
 void Estimator::SendProvisional(double newest_s) {
   const double after_s = config_.options.gnss_provisional_after_s;
   if (!sinks_.stream || after_s <= 0.0) return;
-  if (gnss_held_.empty() || !gnss_held_.front().provisional) {
+  const bool held_behind = !gnss_held_.empty() && gnss_held_.front().provisional;
+  if (!held_behind && !submaps_->BehindProvisional()) {
     // The final output caught up: what was gathered goes out now, not with a later outage.
     if (std::optional<api::Submap> rest = provisional_submaps_->Flush()) {
       std::lock_guard<std::mutex> lock(stream_mutex_);
       sinks_.stream->OnProvisionalSubmap(*rest);
     }
+  }
+  // Queued keyframes are final (their poses went out) but their submaps are not built yet; they
+  // are older than anything held.
+  const auto before_ns = static_cast<int64_t>((newest_s - after_s) * 1e9);
+  for (const SubmapKeyframe& k : submaps_->TakeProvisional(before_ns)) {
+    if (!k.georeferenced) continue;
+    std::lock_guard<std::mutex> lock(stream_mutex_);
+    AddProvisionalKeyframe(k.stamp_ns, k.T_world_body, k.utm_zone, k.points_body, k.intensities);
   }
   const Eigen::Vector3d origin = gnss_->origin_utm();
   const std::string zone = gnss_->zone().Name();
@@ -991,7 +1005,9 @@ void Estimator::AddProvisionalKeyframe(int64_t stamp_ns,
     sinks_.stream->OnProvisionalSubmap(submap);
 }
 
-void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyframe) {
+void Estimator::Output(const FrameResult& frame,
+                       std::optional<Keyframe> keyframe,
+                       bool sent_provisionally) {
   if (sinks_.on_frame) sinks_.on_frame(frame);
   if (keyframe && sinks_.on_keyframe) sinks_.on_keyframe(*keyframe);
   if (!sinks_.stream) return;
@@ -1021,7 +1037,7 @@ void Estimator::Output(const FrameResult& frame, std::optional<Keyframe> keyfram
   k.odometry_suspect = frame.solver_iterations >= config_.options.max_solver_iterations;
   k.points_body = std::move(keyframe->points_body);  // the sinks above are done with it
   k.intensities = std::move(keyframe->intensities);
-  submaps_->Add(std::move(k));
+  submaps_->Add(std::move(k), sent_provisionally);
   stats_.submaps = submaps_->stats();
 }
 

@@ -173,8 +173,11 @@ class Estimator {
   /// Hands the held frames to the sinks, georeferenced or (after giving up) local.
   /// Sends the held frames the GNSS fusion has settled (all of them with flush).
   void ReleaseHeld(bool flush);
-  /// Hands a final frame (and its keyframe, whose cloud moves on into the submaps) to the sinks.
-  void Output(const FrameResult& frame, std::optional<Keyframe> keyframe);
+  /// Hands a final frame (and its keyframe, whose cloud moves on into the submaps) to the sinks;
+  /// `sent_provisionally`: the keyframe went out as provisional output while it was held.
+  void Output(const FrameResult& frame,
+              std::optional<Keyframe> keyframe,
+              bool sent_provisionally = false);
   /// Re-levels the world frame on gravity estimated from the IMU against the trajectory so
   /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
   /// `last_chance` it settles for whatever data there is.
@@ -220,8 +223,9 @@ class Estimator {
     std::optional<Keyframe> keyframe;
     bool provisional = false;  ///< sent as provisional output
   };
-  /// Sends the held poses and keyframes that have waited gnss_provisional_after_s behind the
-  /// newest (`newest_s`) as provisional output.
+  /// Sends as provisional output what has waited gnss_provisional_after_s behind the newest
+  /// frame (`newest_s`): the keyframes queued for the submap worker (after an outage it has
+  /// the outage's submaps to build first), then the held poses and keyframes.
   void SendProvisional(double newest_s);
   /// Adds a keyframe's points at `T_utm_body` to the provisional submaps; sends one when it is
   /// complete. Called under stream_mutex_.

@@ -1,11 +1,12 @@
 #pragma once
 
 #include <condition_variable>
-#include <cstddef>
+#include <cstdint>
 #include <deque>
 #include <functional>
 #include <mutex>
 #include <thread>
+#include <vector>
 
 #include "api/stream.h"
 #include "estimator/mapping/submap_builder.h"
@@ -22,15 +23,23 @@ class SubmapWorker {
   /// Called on the worker's thread with each submap as it completes, in order.
   using Emit = std::function<void(api::Submap)>;
 
-  /// `max_queued`: Add blocks while this many keyframes wait (each holds its cloud).
-  SubmapWorker(const SubmapOptions& options, Emit emit, size_t max_queued = 300);
+  /// `max_queued_s`: Add blocks while the keyframes waiting span more than this much time
+  /// (each holds its cloud). The GNSS fusion releases what it held through an outage at once
+  /// (up to its gnss_max_latency_s); those clouds are in memory already, and blocking then
+  /// would only stall the frames, so the span covers that.
+  SubmapWorker(const SubmapOptions& options, Emit emit, double max_queued_s = 90.0);
   /// Finishes first, if Finish was not called: nothing accepted is lost.
   ~SubmapWorker();
   SubmapWorker(const SubmapWorker&) = delete;
   SubmapWorker& operator=(const SubmapWorker&) = delete;
 
-  /// Queues a keyframe.
-  void Add(SubmapKeyframe keyframe);
+  /// Queues a keyframe; `sent_provisionally`: it went out as provisional output already.
+  void Add(SubmapKeyframe keyframe, bool sent_provisionally = false);
+  /// Copies of the keyframes waiting that are stamped before `before_ns` and were not sent
+  /// provisionally yet, in order; each is returned once (the caller sends it provisionally).
+  std::vector<SubmapKeyframe> TakeProvisional(int64_t before_ns);
+  /// Whether the oldest keyframe waiting went out provisionally: the final map is behind.
+  bool BehindProvisional() const;
   /// Builds everything queued, closes the last submap and stops the thread; every submap has
   /// been emitted when it returns. Add must not be called after it.
   void Finish();
@@ -42,10 +51,15 @@ class SubmapWorker {
 
   SubmapBuilder builder_;
   Emit emit_;
-  size_t max_queued_;
+  struct Waiting {
+    SubmapKeyframe keyframe;
+    bool sent_provisionally = false;
+  };
+
+  int64_t max_queued_ns_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
-  std::deque<SubmapKeyframe> queue_;
+  std::deque<Waiting> queue_;
   bool finishing_ = false;
   SubmapStats stats_;
   std::thread thread_;  ///< last: started once the rest is set up

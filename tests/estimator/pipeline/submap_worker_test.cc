@@ -2,6 +2,10 @@
 // the same submaps, in order, the last one closed at Finish, none lost when the queue is full.
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <mutex>
+#include <thread>
+
 #include "estimator/mapping/submap_builder.h"
 #include "estimator/pipeline/submap_worker.h"
 
@@ -40,10 +44,10 @@ TEST(SubmapWorker, BuildsWhatTheBuilderBuildsInOrderAndClosesTheLastAtFinish) {
   for (api::Submap& s : builder.Flush()) direct.push_back(std::move(s));
   ASSERT_EQ(direct.size(), 5u);  // four of ten, the last of five
 
-  // A queue of two: Add has to wait for the worker most of the time.
+  // A queue spanning 0.15 s, two keyframes: Add has to wait for the worker most of the time.
   std::vector<api::Submap> emitted;
   SubmapWorker worker(
-      Plain(), [&](api::Submap s) { emitted.push_back(std::move(s)); }, 2);
+      Plain(), [&](api::Submap s) { emitted.push_back(std::move(s)); }, 0.15);
   for (int k = 0; k < 45; ++k) worker.Add(Keyframe(k));
   worker.Finish();
   ASSERT_EQ(emitted.size(), direct.size());
@@ -64,6 +68,39 @@ TEST(SubmapWorker, TheDestructorFinishesWhatWasQueued) {
     for (int k = 0; k < 15; ++k) worker.Add(Keyframe(k));
   }
   EXPECT_EQ(emitted, 2u);
+}
+
+TEST(SubmapWorker, HandsOutWhatWaitsLongOnceForProvisionalOutput) {
+  // The emit callback holds the worker on the first submap, so everything after it waits.
+  std::mutex gate;
+  gate.lock();
+  size_t emitted = 0;
+  SubmapWorker worker(Plain(), [&](api::Submap) {
+    std::lock_guard<std::mutex> wait(gate);
+    ++emitted;
+  });
+  for (int k = 0; k < 30; ++k) worker.Add(Keyframe(k), /*sent_provisionally=*/k >= 12 && k < 15);
+  // Keyframes 0-9 went into the first submap; the worker may have taken a few more since.
+  const int64_t before_ns = Keyframe(20).stamp_ns;
+  const std::vector<SubmapKeyframe> taken = worker.TakeProvisional(before_ns);
+  ASSERT_FALSE(taken.empty());
+  int64_t last = 0;
+  for (const SubmapKeyframe& k : taken) {
+    EXPECT_LT(k.stamp_ns, before_ns);
+    EXPECT_GT(k.stamp_ns, last);  // in order
+    EXPECT_TRUE(k.stamp_ns < Keyframe(12).stamp_ns || k.stamp_ns >= Keyframe(15).stamp_ns)
+        << "sent provisionally already";
+    EXPECT_EQ(k.points_body.size(), 20u);  // a copy: the worker keeps its own
+    last = k.stamp_ns;
+  }
+  EXPECT_EQ(taken.back().stamp_ns, Keyframe(19).stamp_ns);
+  EXPECT_TRUE(worker.TakeProvisional(before_ns).empty()) << "each is handed out once";
+  EXPECT_TRUE(worker.BehindProvisional());
+  EXPECT_EQ(worker.TakeProvisional(Keyframe(30).stamp_ns).size(), 10u);
+  gate.unlock();
+  worker.Finish();
+  EXPECT_EQ(emitted, 3u);
+  EXPECT_FALSE(worker.BehindProvisional());
 }
 
 }  // namespace
