@@ -170,8 +170,8 @@ class Estimator {
   /// Georeferences a final frame (and its keyframe) once GNSS is aligned; holds them until
   /// then, and gives up after gnss_max_hold_s (the run then stays in the local frame).
   void Deliver(FrameResult frame, std::optional<Keyframe> keyframe);
-  /// Hands the held frames to the sinks, georeferenced or (after giving up) local.
-  /// Sends the held frames the GNSS fusion has settled (all of them with flush).
+  /// Hands the held frames the GNSS fusion has settled (all of them with flush) to the sinks,
+  /// georeferenced or (after giving up) local, then sends what still waits provisionally.
   void ReleaseHeld(bool flush);
   /// Hands a final frame (and its keyframe, whose cloud moves on into the submaps) to the sinks;
   /// `sent_provisionally`: the keyframe went out as provisional output while it was held.

@@ -1,7 +1,9 @@
 // The submap worker builds on its own thread exactly what the builder builds in the caller's:
-// the same submaps, in order, the last one closed at Finish, none lost when the queue is full.
+// the same submaps, in order, the last one closed at Finish, none lost when the queue is full;
+// its queue bounded by the time it spans; what waits long handed out once for provisional output.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <mutex>
 #include <thread>
@@ -101,6 +103,36 @@ TEST(SubmapWorker, HandsOutWhatWaitsLongOnceForProvisionalOutput) {
   worker.Finish();
   EXPECT_EQ(emitted, 3u);
   EXPECT_FALSE(worker.BehindProvisional());
+}
+
+TEST(SubmapWorker, AddWaitsOnlyWhileTheQueueSpansMoreThanItsTime) {
+  // The worker is held on its first submap (keyframes 0-9); with a 0.5 s span the queue takes
+  // keyframes up to about 0.5 s after the oldest waiting, then Add waits for the worker.
+  std::mutex gate;
+  gate.lock();
+  size_t emitted = 0;
+  SubmapWorker worker(
+      Plain(),
+      [&](api::Submap) {
+        std::lock_guard<std::mutex> wait(gate);
+        ++emitted;
+      },
+      0.5);
+  std::atomic<int> added{0};
+  std::thread feeder([&] {
+    for (int k = 0; k < 30; ++k) {
+      worker.Add(Keyframe(k));
+      ++added;
+    }
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_GE(added.load(), 15);  // 0-9 in the builder, then about six 0.1 s apart
+  EXPECT_LE(added.load(), 18);
+  gate.unlock();
+  feeder.join();
+  worker.Finish();
+  EXPECT_EQ(added.load(), 30);
+  EXPECT_EQ(emitted, 3u);
 }
 
 }  // namespace
