@@ -53,6 +53,7 @@ std::string EncodeSubmapPcd(const Submap& s) {
                 s.origin.y(),
                 s.origin.z());
   h << line;
+  if (s.placement > 0) h << "# raillomer placement " << s.placement << "\n";
   for (const StampedPose& k : s.keyframes) h << "# raillomer keyframe " << FormatTumLine(k) << "\n";
   h << "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
     << "WIDTH " << s.points.size() << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS "
@@ -122,6 +123,12 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
         if (!(in >> s->origin.x() >> s->origin.y() >> s->origin.z()))
           return fail("bad line '" + line + "'");
         have_origin = true;
+      } else if (what == "placement") {
+        std::string placement;
+        uint64_t n = 0;
+        if (!(in >> placement) || !ParseWholeNumber(placement, UINT32_MAX, &n))
+          return fail("bad line '" + line + "' (placement below 2^32)");
+        s->placement = static_cast<uint32_t>(n);
       } else if (what == "keyframe") {
         Trajectory t;
         std::string rest;

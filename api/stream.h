@@ -36,6 +36,10 @@ struct Submap {
   std::vector<Eigen::Vector3f> points;               ///< offsets from origin, world axes
   std::vector<float> intensities;                    ///< one per point
   std::vector<StampedPose> keyframes;                ///< body poses, absolute (double)
+  /// Provisional submaps: which placement of the GNSS fusion their keyframes come from
+  /// (1, 2, ...; 0: none given). Submaps of one placement fit one another; where the fusion's
+  /// graph moves, a new placement starts and its submaps can lie a little off the older ones.
+  uint32_t placement = 0;
 };
 
 /// Receives what the estimator produces, in order: each pose as it becomes final and each

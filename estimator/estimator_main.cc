@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
   bool no_odometer = false, no_rail_plane = false, no_height = false, no_favour = false;
   bool lidar_only = false, lidar_inertial = false, no_keyframes = false, quiet = false;
   bool realtime = false;
-  bool no_gnss = false, no_submaps = false;
+  bool no_gnss = false, no_submaps = false, provisional_submaps = false;
   std::string map_path, map_box_text;
   std::string server_url, token, token_file, outbox_dir, line = "unnamed line",
                                                          vehicle = "unnamed vehicle";
@@ -82,6 +82,11 @@ int main(int argc, char** argv) {
       "Ablation: ignore GNSS (odometry only, in the local frame, as part 1 of the estimator)");
   app.add_flag("--no-keyframes", no_keyframes, "Do not write keyframe clouds");
   app.add_flag("--no-submaps", no_submaps, "Do not write submaps (submaps/)");
+  app.add_flag("--provisional-submaps",
+               provisional_submaps,
+               "Also write the provisional submaps (provisional/): what a server is sent ahead of "
+               "the final output where the GNSS fusion holds poses back (a run's start, an "
+               "outage)");
   app.add_option("--map",
                  map_path,
                  "Write the global map of the whole run to this .ply or .pcd file (double x y z: "
@@ -204,6 +209,7 @@ int main(int argc, char** argv) {
     if (!map) return Fail(error);
   }
   if (!no_submaps && !writer.OpenSubmaps(&error)) return Fail(error);
+  if (provisional_submaps && !writer.OpenProvisional(&error)) return Fail(error);
   // Streaming to the server, through the durable outbox.
   std::unique_ptr<api::IngestClient> ingest;
   if (server_url.empty() && (!token.empty() || !token_file.empty() || !outbox_dir.empty()))
@@ -239,7 +245,7 @@ int main(int argc, char** argv) {
     RunWriter* writer;
     MapExporter* map;
     api::IngestClient* ingest;
-    bool write_submaps;
+    bool write_submaps, write_provisional;
     void OnPose(const api::StreamPose& p) override {
       if (ingest) ingest->OnPose(p);
     }
@@ -252,6 +258,7 @@ int main(int argc, char** argv) {
       if (ingest) ingest->OnProvisionalPose(p);
     }
     void OnProvisionalSubmap(const api::Submap& s) override {
+      if (write_provisional) writer->WriteProvisionalSubmap(s);
       if (ingest) ingest->OnProvisionalSubmap(s);
     }
   } stream;
@@ -259,9 +266,10 @@ int main(int argc, char** argv) {
   stream.map = map.get();
   stream.ingest = ingest.get();
   stream.write_submaps = !no_submaps;
+  stream.write_provisional = provisional_submaps;
 
   EstimatorSinks sinks;
-  if (!no_submaps || map || ingest) sinks.stream = &stream;
+  if (!no_submaps || provisional_submaps || map || ingest) sinks.stream = &stream;
   sinks.on_frame = [&](const FrameResult& f) { writer.WriteFrame(f); };
   if (config.options.write_keyframes)
     sinks.on_keyframe = [&](const Keyframe& k) { writer.WriteKeyframe(k); };

@@ -71,6 +71,7 @@ Result ProvisionalMap::AddSubmap(const RunInfo& info, const api::Submap& submap)
   auto piece = std::make_shared<ProvisionalPiece>();
   piece->first_stamp_ns = submap.first_stamp_ns;
   piece->last_stamp_ns = submap.last_stamp_ns;
+  piece->placement = submap.placement;
   piece->origin = submap.origin;
   piece->points = submap.points;
   run.pieces.push_back(std::move(piece));
@@ -119,14 +120,25 @@ bool ProvisionalMap::Get(int64_t run, ProvisionalRun* out) const {
   return true;
 }
 
-void ProvisionalPointsIn(const ProvisionalRun& run,
-                         const Eigen::AlignedBox2d& box,
-                         std::vector<Eigen::Vector3d>* out) {
-  for (const auto& piece : run.pieces)
+std::vector<std::vector<Eigen::Vector3d>> ProvisionalPointsIn(const ProvisionalRun& run,
+                                                              const Eigen::AlignedBox2d& box) {
+  std::vector<uint32_t> placements;
+  std::vector<std::vector<Eigen::Vector3d>> out;
+  for (const auto& piece : run.pieces) {
+    const size_t group =
+        std::find(placements.begin(), placements.end(), piece->placement) - placements.begin();
+    if (group == placements.size()) {
+      placements.push_back(piece->placement);
+      out.emplace_back();
+    }
     for (const Eigen::Vector3f& q : piece->points) {
       const Eigen::Vector3d p = piece->origin + q.cast<double>();
-      if (box.contains(p.head<2>())) out->push_back(p);
+      if (box.contains(p.head<2>())) out[group].push_back(p);
     }
+  }
+  out.erase(std::remove_if(out.begin(), out.end(), [](const auto& g) { return g.empty(); }),
+            out.end());
+  return out;
 }
 
 }  // namespace raillomer::mapstore

@@ -14,9 +14,11 @@
 
 namespace raillomer::mapstore {
 
-/// A provisional submap's points in UTM (float offsets from `origin`) and the time it spans.
+/// A provisional submap's points in UTM (float offsets from `origin`), the time it spans and
+/// the placement it comes from (api::Submap::placement).
 struct ProvisionalPiece {
   int64_t first_stamp_ns = 0, last_stamp_ns = 0;
+  uint32_t placement = 0;
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
   std::vector<Eigen::Vector3f> points;
 };
@@ -75,9 +77,10 @@ class ProvisionalMap {
   std::map<int64_t, ProvisionalRun> runs_;
 };
 
-/// The points of provisional pieces within a UTM box (easting, northing), appended.
-void ProvisionalPointsIn(const ProvisionalRun& run,
-                         const Eigen::AlignedBox2d& box,
-                         std::vector<Eigen::Vector3d>* out);
+/// The points of provisional pieces within a UTM box (easting, northing), a list a placement
+/// (pieces of one placement fit one another, pieces of two can lie apart), in the order the
+/// placements first come; none empty.
+std::vector<std::vector<Eigen::Vector3d>> ProvisionalPointsIn(const ProvisionalRun& run,
+                                                              const Eigen::AlignedBox2d& box);
 
 }  // namespace raillomer::mapstore

@@ -247,6 +247,11 @@ double RailResidual(const Stretch& stretch,
 /// The compared parts of a stretch and what placing a change there needs.
 struct StretchParts {
   RunStretch reference, later;
+  /// The later run's points by placement, before registration (LoadParts): its final output's,
+  /// then its provisional output's a placement each; none empty. RegisterLater registers each
+  /// on its own and gathers them in `later`.
+  std::vector<std::vector<Eigen::Vector3d>> later_placements;
+  size_t later_loaded = 0;  ///< the points of later_placements
   double rail_drop_m = 0.0;
   double lod_m = 0.0;
   double voxel_m = 0.0;  ///< the comparison's voxel (ChangeOptions::voxel_m)
@@ -281,9 +286,18 @@ Result LoadParts(const MapStore& store,
   parts->reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
   r = PointsIn(store, later.id, stretch.Box(reach + kShiftRoomM), &utm);
   if (!r) return r;
-  if (later.provisional)
-    ProvisionalPointsIn(*later.provisional, stretch.Box(reach + kShiftRoomM), &utm);
-  parts->later.points = stretch.Local(utm, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
+  std::vector<std::vector<Eigen::Vector3d>> placements = {std::move(utm)};
+  if (later.provisional) {
+    for (std::vector<Eigen::Vector3d>& p :
+         ProvisionalPointsIn(*later.provisional, stretch.Box(reach + kShiftRoomM)))
+      placements.push_back(std::move(p));
+  }
+  for (const std::vector<Eigen::Vector3d>& p : placements) {
+    std::vector<Eigen::Vector3d> local =
+        stretch.Local(p, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
+    parts->later_loaded += local.size();
+    if (!local.empty()) parts->later_placements.push_back(std::move(local));
+  }
   const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
   parts->reference.sensors = SensorsIn(*reference.poses, seen_from, stretch.origin());
   parts->later.sensors = SensorsIn(*later.poses, seen_from, stretch.origin());
@@ -295,21 +309,52 @@ Result LoadParts(const MapStore& store,
   return {};
 }
 
-/// The later run's points and sensors moved by its registration, its points cut a metre
-/// beyond the reference's: what the reference has near its cut is compared with all the later
-/// run has there.
-void MoveLater(const Stretch& stretch,
-               const RunComparisonOptions& o,
-               const Eigen::Isometry3d& T_reference_later,
-               StretchParts* parts) {
+/// `points` of the later run moved by its registration, cut a metre beyond the reference's:
+/// what the reference has near its cut is compared with all the later run has there.
+std::vector<Eigen::Vector3d> MoveLater(const Stretch& stretch,
+                                       const RunComparisonOptions& o,
+                                       const Eigen::Isometry3d& T_reference_later,
+                                       const std::vector<Eigen::Vector3d>& points) {
   std::vector<Eigen::Vector3d> registered;
-  for (const Eigen::Vector3d& p : parts->later.points) {
+  for (const Eigen::Vector3d& p : points) {
     const Eigen::Vector3d q = T_reference_later * p;
     if (stretch.Within(q + stretch.origin(), o.corridor_m + 1.0, o.overlap_m + 1.0))
       registered.push_back(q);
   }
-  parts->later.points = std::move(registered);
-  for (Eigen::Isometry3d& s : parts->later.sensors) s = T_reference_later * s;
+  return registered;
+}
+
+/// Registers the later run's points and sensors onto the reference and moves them there. A live
+/// run's points can come in several placements (its final output and provisional output the
+/// GNSS fusion placed at different times, up to a metre apart): each is registered on its own,
+/// so that one surface does not show twice; the largest one's fit stands for the stretch and
+/// moves the sensors. A placement with under a tenth of the points, or that does not register,
+/// is left out. Returns the largest placement's fit.
+RegistrationResult RegisterLater(const Stretch& stretch,
+                                 const RunComparisonOptions& o,
+                                 StretchParts* parts) {
+  const Eigen::Isometry3d initial = PathOffset(stretch, parts->later.sensors);
+  std::vector<std::vector<Eigen::Vector3d>>& placements = parts->later_placements;
+  std::stable_sort(placements.begin(), placements.end(), [](const auto& a, const auto& b) {
+    return a.size() > b.size();
+  });
+  RegistrationResult largest;
+  parts->later.points.clear();
+  for (size_t i = 0; i < placements.size(); ++i) {
+    if (i > 0 && placements[i].size() * 10 < parts->later_loaded) break;
+    const RegistrationResult fit =
+        RegisterClouds(parts->reference.points, placements[i], initial, o.registration);
+    if (i == 0) largest = fit;
+    if (!(fit.rms_m <= o.max_registration_rms_m)) {
+      if (i == 0) break;
+      continue;
+    }
+    const std::vector<Eigen::Vector3d> moved =
+        MoveLater(stretch, o, fit.T_fixed_moving, placements[i]);
+    parts->later.points.insert(parts->later.points.end(), moved.begin(), moved.end());
+  }
+  for (Eigen::Isometry3d& s : parts->later.sensors) s = largest.T_fixed_moving * s;
+  return largest;
 }
 
 /// M3C2's LoD95 with each map's voxel quantisation (sigma = voxel / sqrt 12) and the
@@ -704,15 +749,12 @@ Result RunComparison::Compare(const StretchRange& range,
                              {later_.id, &later_poses_, provisional ? &provisional_ : nullptr},
                              &parts);
   if (!r) return r;
-  if (parts.reference.points.size() < 1000 || parts.later.points.size() < 1000) {
+  if (parts.reference.points.size() < 1000 || parts.later_loaded < 1000) {
     out->skipped = "fewer than 1000 points of a run there";
     return {};
   }
   // The later run onto the reference, from where its path lies off the reference's.
-  const RegistrationResult fit = RegisterClouds(parts.reference.points,
-                                                parts.later.points,
-                                                PathOffset(stretch, parts.later.sensors),
-                                                o.registration);
+  const RegistrationResult fit = RegisterLater(stretch, o, &parts);
   out->registration_rms_m = fit.rms_m;
   if (!(fit.rms_m <= o.max_registration_rms_m)) {
     // Compared misregistered, everything would differ: better none than a field of false
@@ -720,7 +762,6 @@ Result RunComparison::Compare(const StretchRange& range,
     out->skipped = "the runs did not register (RMS " + std::to_string(fit.rms_m) + " m)";
     return {};
   }
-  MoveLater(stretch, o, fit.T_fixed_moving, &parts);
   out->compared = true;
   out->T_reference_later = fit.T_fixed_moving;
   std::vector<StretchChange> found =

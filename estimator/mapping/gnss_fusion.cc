@@ -276,6 +276,7 @@ void GnssFusion::Align(const std::vector<Pair>& pairs, bool resolve) {
   }
   const Eigen::Vector3d before = correction_.Apply(pairs.back().antenna_odom);
   correction_ = Correction();
+  ++revision_;
   correction_.anchor_enu = a.T_enu_odom.t;
   correction_.yaw_rad = a.T_enu_odom.yaw_rad;
   drift_[0] = drift_[1] = 0.0;
@@ -393,6 +394,7 @@ void GnssFusion::Optimize() {
   // The correction maps the newest node's odometry pose onto its georeferenced one.
   const Node& n = nodes_.back();
   correction_ = NodeCorrection(n);
+  ++revision_;
 }
 
 GnssFusion::Correction GnssFusion::NodeCorrection(const Node& n) const {

@@ -106,6 +106,9 @@ class GnssFusion {
   void Finish();
 
   bool aligned() const { return aligned_; }
+  /// Counts the alignments and the graph's solves: poses placed by ToEnu under one revision
+  /// fit one another; a new revision can move the newest poses' placement.
+  uint64_t revision() const { return revision_; }
   /// UTM (easting, northing, height) of the local ENU frame's origin; valid once aligned.
   const Eigen::Vector3d& origin_utm() const { return origin_utm_; }
   /// An odometry pose in the local ENU frame with the newest correction (valid once aligned).
@@ -206,6 +209,7 @@ class GnssFusion {
   std::deque<Pair> pairs_;  ///< recent fixes with their odometry (alignment and re-solving)
 
   bool aligned_ = false;
+  uint64_t revision_ = 0;
   std::string pending_reason_ = "no usable GNSS fix yet";
   Correction correction_;
   double drift_[2] = {0.0, 0.0};  ///< [ln scale, heading rate] of the odometry (window)

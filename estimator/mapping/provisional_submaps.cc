@@ -11,16 +11,18 @@ ProvisionalSubmaps::ProvisionalSubmaps(int keyframes, double voxel_m, double max
 std::vector<api::Submap> ProvisionalSubmaps::Add(int64_t stamp_ns,
                                                  const Eigen::Isometry3d& T_utm_body,
                                                  const std::string& zone,
+                                                 uint32_t placement,
                                                  const std::vector<Eigen::Vector3f>& points_body,
                                                  const std::vector<float>& intensities) {
   std::vector<api::Submap> done;
-  // One zone and one stretch of time a submap.
-  if (!open_.keyframes.empty() &&
-      (open_.utm_zone != zone || (stamp_ns - open_.last_stamp_ns) * 1e-9 > kMaxGapS))
+  // One zone, one placement and one stretch of time a submap.
+  if (!open_.keyframes.empty() && (open_.utm_zone != zone || open_.placement != placement ||
+                                   (stamp_ns - open_.last_stamp_ns) * 1e-9 > kMaxGapS))
     done.push_back(*Flush());
   if (open_.keyframes.empty()) {
     open_.georeferenced = true;
     open_.utm_zone = zone;
+    open_.placement = placement;
     open_.origin = T_utm_body.translation();
     open_.first_stamp_ns = stamp_ns;
   }

@@ -23,12 +23,14 @@ class ProvisionalSubmaps {
   /// their keyframe (0: all).
   ProvisionalSubmaps(int keyframes, double voxel_m, double max_range_m);
 
-  /// Adds a keyframe's points at its provisional pose (UTM, `zone`); returns the submaps
-  /// completed: one once `keyframes` have gathered, and the one gathered so far first when
-  /// this keyframe is in another zone or more than max_gap_s after it.
+  /// Adds a keyframe's points at its provisional pose (UTM, `zone`) of `placement`
+  /// (api::Submap::placement); returns the submaps completed: one once `keyframes` have
+  /// gathered, and the one gathered so far first when this keyframe is of another zone or
+  /// placement or more than max_gap_s after it.
   std::vector<api::Submap> Add(int64_t stamp_ns,
                                const Eigen::Isometry3d& T_utm_body,
                                const std::string& zone,
+                               uint32_t placement,
                                const std::vector<Eigen::Vector3f>& points_body,
                                const std::vector<float>& intensities);
   /// The submap gathered so far, if it holds any keyframe.

@@ -970,7 +970,8 @@ void Estimator::SendProvisional(double newest_s) {
   for (const SubmapKeyframe& k : submaps_->TakeProvisional(before_ns)) {
     if (!k.georeferenced) continue;
     std::lock_guard<std::mutex> lock(stream_mutex_);
-    AddProvisionalKeyframe(k.stamp_ns, k.T_world_body, k.utm_zone, k.points_body, k.intensities);
+    AddProvisionalKeyframe(
+        k.stamp_ns, k.T_world_body, k.utm_zone, true, k.points_body, k.intensities);
   }
   const Eigen::Vector3d origin = gnss_->origin_utm();
   const std::string zone = gnss_->zone().Name();
@@ -990,18 +991,24 @@ void Estimator::SendProvisional(double newest_s) {
     std::lock_guard<std::mutex> lock(stream_mutex_);
     sinks_.stream->OnProvisionalPose(pose);
     if (h.keyframe)
-      AddProvisionalKeyframe(
-          h.keyframe->stamp_ns, T_utm_body, zone, h.keyframe->points_body, h.keyframe->intensities);
+      AddProvisionalKeyframe(h.keyframe->stamp_ns,
+                             T_utm_body,
+                             zone,
+                             false,
+                             h.keyframe->points_body,
+                             h.keyframe->intensities);
   }
 }
 
 void Estimator::AddProvisionalKeyframe(int64_t stamp_ns,
                                        const Eigen::Isometry3d& T_utm_body,
                                        const std::string& zone,
+                                       bool queued,
                                        const std::vector<Eigen::Vector3f>& points_body,
                                        const std::vector<float>& intensities) {
+  const auto placement = static_cast<uint32_t>(2 * gnss_->revision() + (queued ? 2 : 1));
   for (const api::Submap& submap :
-       provisional_submaps_->Add(stamp_ns, T_utm_body, zone, points_body, intensities))
+       provisional_submaps_->Add(stamp_ns, T_utm_body, zone, placement, points_body, intensities))
     sinks_.stream->OnProvisionalSubmap(submap);
 }
 

@@ -228,10 +228,15 @@ class Estimator {
   /// the outage's submaps to build first), then the held poses and keyframes.
   void SendProvisional(double newest_s);
   /// Adds a keyframe's points at `T_utm_body` to the provisional submaps; sends one when it is
-  /// complete. Called under stream_mutex_.
+  /// complete. `queued`: a keyframe of the submap worker's queue, placed at its final pose (the
+  /// fusion's published, continuous placement); otherwise held, placed by the fusion's graph as
+  /// it stands (GnssFusion::ToEnu), which a new revision of the graph moves. Each of the two,
+  /// under each revision, is a placement of its own (api::Submap::placement). Called under
+  /// stream_mutex_.
   void AddProvisionalKeyframe(int64_t stamp_ns,
                               const Eigen::Isometry3d& T_utm_body,
                               const std::string& zone,
+                              bool queued,
                               const std::vector<Eigen::Vector3f>& points_body,
                               const std::vector<float>& intensities);
   std::unique_ptr<GnssFusion> gnss_;  ///< null with --no-gnss

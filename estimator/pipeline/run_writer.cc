@@ -30,7 +30,7 @@ std::string PoseLine(int64_t stamp_ns, const Eigen::Isometry3d& T) {
 }  // namespace
 
 RunWriter::~RunWriter() {
-  for (std::FILE* f : {trajectory_, timing_, keyframes_, submap_index_}) {
+  for (std::FILE* f : {trajectory_, timing_, keyframes_, submap_index_, provisional_index_}) {
     if (f) std::fclose(f);
   }
 }
@@ -86,35 +86,56 @@ bool RunWriter::Open(const std::string& out_dir,
 }
 
 bool RunWriter::OpenSubmaps(std::string* error) {
+  return OpenSubmapIndex("submaps", &submap_index_, error);
+}
+
+bool RunWriter::OpenProvisional(std::string* error) {
+  return OpenSubmapIndex("provisional", &provisional_index_, error);
+}
+
+bool RunWriter::OpenSubmapIndex(const std::string& folder, std::FILE** index, std::string* error) {
+  const std::string dir = out_dir_ + "/" + folder;
   std::error_code ec;
-  std::filesystem::create_directories(out_dir_ + "/submaps", ec);
+  std::filesystem::create_directories(dir, ec);
   if (ec) {
-    *error = "cannot create " + out_dir_ + "/submaps: " + ec.message();
+    *error = "cannot create " + dir + ": " + ec.message();
     return false;
   }
-  const std::string index = out_dir_ + "/submaps/index.csv";
-  submap_index_ = std::fopen(index.c_str(), "w");
-  if (!submap_index_) {
-    *error = "cannot write " + index;
+  const std::string path = dir + "/index.csv";
+  *index = std::fopen(path.c_str(), "w");
+  if (!*index) {
+    *error = "cannot write " + path;
     return false;
   }
-  std::fprintf(submap_index_,
+  std::fprintf(*index,
                "sequence,index,file,first_stamp_s,last_stamp_s,keyframes,points,frame,origin_x,"
                "origin_y,origin_z\n");
-  std::fflush(submap_index_);
+  std::fflush(*index);
   return true;
 }
 
 void RunWriter::WriteSubmap(const api::Submap& s) {
-  if (!submap_index_) return;
+  if (submap_index_) WriteSubmapTo("submaps", submap_index_, s.index, s);
+}
+
+void RunWriter::WriteProvisionalSubmap(const api::Submap& s) {
+  if (provisional_index_)
+    WriteSubmapTo("provisional", provisional_index_, provisional_written_++, s);
+}
+
+void RunWriter::WriteSubmapTo(const std::string& folder,
+                              std::FILE* index,
+                              uint32_t number,
+                              const api::Submap& s) {
   char name[32];
-  std::snprintf(name, sizeof(name), "%06u.pcd", s.index);
+  std::snprintf(name, sizeof(name), "%06u.pcd", number);
   std::string error;
-  if (!api::WriteFileAtomically(out_dir_ + "/submaps/" + name, api::EncodeSubmapPcd(s), &error)) {
+  if (!api::WriteFileAtomically(
+          out_dir_ + "/" + folder + "/" + name, api::EncodeSubmapPcd(s), &error)) {
     Failed(error);
     return;
   }
-  std::fprintf(submap_index_,
+  std::fprintf(index,
                "%llu,%u,%s,%s,%s,%zu,%zu,%s,%.4f,%.4f,%.4f\n",
                static_cast<unsigned long long>(s.sequence),
                s.index,
@@ -127,7 +148,7 @@ void RunWriter::WriteSubmap(const api::Submap& s) {
                s.origin.x(),
                s.origin.y(),
                s.origin.z());
-  std::fflush(submap_index_);
+  std::fflush(index);
 }
 
 void RunWriter::WriteHeader(const FrameResult* first) {

@@ -1,5 +1,6 @@
 #pragma once
 
+#include <cstdint>
 #include <cstdio>
 #include <mutex>
 #include <string>
@@ -18,6 +19,8 @@ namespace raillomer {
 ///                   binary PCD, the pose also in VIEWPOINT)
 ///   submaps/<index>.pcd, submaps/index.csv  submaps as they complete (OpenSubmaps): float
 ///                   offsets from a double origin, the origin in the index and the PCD header
+///   provisional/<n>.pcd, provisional/index.csv  provisional submaps (OpenProvisional), the same
+///                   way, numbered as they go out
 ///   summary.json    counts, timing percentiles and the real-time factor (at Close)
 class RunWriter {
  public:
@@ -32,6 +35,10 @@ class RunWriter {
   /// Creates submaps/ and its index; false with a message on failure.
   bool OpenSubmaps(std::string* error);
   void WriteSubmap(const api::Submap& submap);
+  /// Creates provisional/ and its index, likewise.
+  bool OpenProvisional(std::string* error);
+  /// Writes a provisional submap; called from one thread at a time, as the estimator does.
+  void WriteProvisionalSubmap(const api::Submap& submap);
   void WriteFrame(const FrameResult& frame);
   /// Keyframes after their frame (a georeferenced keyframe takes that frame's UTM origin).
   void WriteKeyframe(const Keyframe& keyframe);
@@ -55,10 +62,19 @@ class RunWriter {
   std::FILE* timing_ = nullptr;
   std::FILE* keyframes_ = nullptr;
   std::FILE* submap_index_ = nullptr;
+  std::FILE* provisional_index_ = nullptr;
+  uint32_t provisional_written_ = 0;
   bool write_keyframes_ = false;
   std::string header_;
   bool header_written_ = false;
   void WriteHeader(const FrameResult* first);
+  /// Creates out_dir/folder and its index.csv with the header line.
+  bool OpenSubmapIndex(const std::string& folder, std::FILE** index, std::string* error);
+  /// Writes `s` as folder/<number>.pcd and its index line.
+  void WriteSubmapTo(const std::string& folder,
+                     std::FILE* index,
+                     uint32_t number,
+                     const api::Submap& s);
   std::vector<double> frame_ms_, frontend_ms_, backend_ms_;
   /// A write that failed: WriteSubmap runs on the submap worker's thread, the rest on the
   /// caller's.

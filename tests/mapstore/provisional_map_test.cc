@@ -23,8 +23,9 @@ api::StreamPose Pose(int64_t stamp_ns, const std::string& zone = "50N") {
   return p;
 }
 
-api::Submap Submap(int64_t first_ns, int64_t last_ns, size_t points) {
+api::Submap Submap(int64_t first_ns, int64_t last_ns, size_t points, uint32_t placement = 0) {
   api::Submap s;
+  s.placement = placement;
   s.georeferenced = true;
   s.utm_zone = "50N";
   s.first_stamp_ns = first_ns;
@@ -32,6 +33,24 @@ api::Submap Submap(int64_t first_ns, int64_t last_ns, size_t points) {
   s.origin = Eigen::Vector3d(500000.0, 4000000.0, 10.0);
   for (size_t i = 0; i < points; ++i) s.points.emplace_back(static_cast<float>(i), 0.0f, 0.0f);
   return s;
+}
+
+TEST(ProvisionalMap, GivesThePointsOfAPlacementTogether) {
+  ProvisionalMap map;
+  ASSERT_TRUE(map.AddSubmap(LiveRun(), Submap(1, 2, 10, 3)));
+  ASSERT_TRUE(map.AddSubmap(LiveRun(), Submap(3, 4, 20, 5)));
+  ASSERT_TRUE(map.AddSubmap(LiveRun(), Submap(5, 6, 30, 3)));
+  ASSERT_TRUE(map.AddSubmap(LiveRun(), Submap(7, 8, 2, 9)));
+  ProvisionalRun run;
+  ASSERT_TRUE(map.Get(7, &run));
+  // Placement 3's two pieces together, then 5's; 9's two points lie outside the box.
+  const std::vector<std::vector<Eigen::Vector3d>> points =
+      ProvisionalPointsIn(run,
+                          Eigen::AlignedBox2d(Eigen::Vector2d(500002.5, 3999999.0),
+                                              Eigen::Vector2d(500100.0, 4000001.0)));
+  ASSERT_EQ(points.size(), 2u);
+  EXPECT_EQ(points[0].size(), 7u + 27u);
+  EXPECT_EQ(points[1].size(), 17u);
 }
 
 TEST(ProvisionalMap, HoldsALiveRunsOutputUntilTheFinalCoversIt) {
@@ -50,12 +69,12 @@ TEST(ProvisionalMap, HoldsALiveRunsOutputUntilTheFinalCoversIt) {
   EXPECT_EQ(run.poses.front().stamp_ns, 1);
   EXPECT_EQ(run.pieces.size(), 2u);
   EXPECT_EQ(run.MappedUntil(), 4);
-  std::vector<Eigen::Vector3d> points;
-  ProvisionalPointsIn(run,
-                      Eigen::AlignedBox2d(Eigen::Vector2d(500000.0, 3999999.0),
-                                          Eigen::Vector2d(500004.5, 4000001.0)),
-                      &points);
-  EXPECT_EQ(points.size(), 10u);  // x 0..4 of each piece
+  const std::vector<std::vector<Eigen::Vector3d>> points =
+      ProvisionalPointsIn(run,
+                          Eigen::AlignedBox2d(Eigen::Vector2d(500000.0, 3999999.0),
+                                              Eigen::Vector2d(500004.5, 4000001.0)));
+  ASSERT_EQ(points.size(), 1u);      // one placement
+  EXPECT_EQ(points[0].size(), 10u);  // x 0..4 of each piece
 
   map.PrunePoses(7, 2);  // the final output holds poses up to 2 and submaps up to 2
   map.PruneMap(7, 2);

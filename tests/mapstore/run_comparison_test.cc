@@ -178,6 +178,48 @@ TEST_F(RunComparisonTest, AStretchIsComparedOnProvisionalOutputAheadOfTheFinal) 
   EXPECT_NEAR(comparison->later_reach_m(true), 60.0, 1.0);
 }
 
+TEST_F(RunComparisonTest, EachProvisionalPlacementIsRegisteredOnItsOwn) {
+  MapStore* store = store_.get();
+  const int64_t reference = IngestRun(*store, Eigen::Vector3d::Zero(), {});
+  ProvisionalRun provisional;
+  const int64_t later =
+      IngestHalfRun(*store, Eigen::Vector3d(0.0, -0.4, 0.1), Box(150, 26), &provisional);
+  for (auto& piece : provisional.pieces) {
+    auto placed = std::make_shared<ProvisionalPiece>(*piece);
+    placed->placement = 1;
+    piece = placed;
+  }
+  // The fusion's graph moved: the same place (submap 3, with the box) sent again, placed
+  // 0.3 m aside and 0.5 m higher, as a second placement.
+  auto moved = std::make_shared<ProvisionalPiece>(*provisional.pieces.front());
+  moved->origin += Eigen::Vector3d(0.0, 0.3, 0.5);
+  moved->placement = 2;
+  moved->first_stamp_ns = provisional.pieces.back()->last_stamp_ns + 1;
+  moved->last_stamp_ns = moved->first_stamp_ns + 1;
+  provisional.pieces.push_back(moved);
+  const auto compare = [&](StretchOutcome* out) {
+    std::unique_ptr<RunComparison> comparison;
+    ASSERT_TRUE(RunComparison::Prepare(
+        *store, reference, later, RunComparisonOptions(), &comparison, &provisional));
+    ASSERT_TRUE(comparison->Compare(comparison->stretches().at(0), out, true));
+  };
+  StretchOutcome apart;
+  compare(&apart);
+  ASSERT_TRUE(apart.compared) << apart.skipped;
+  EXPECT_LT(apart.registration_rms_m, 0.03);
+  ASSERT_EQ(apart.changes.size(), 1u);  // the box, not the ground seen twice
+  EXPECT_EQ(apart.changes[0].kind, ChangeKind::kAdded);
+  EXPECT_NEAR(apart.changes[0].chainage_m, 75.6, 0.6);
+  // Taken as one placement, the two do not fit: the ground shows twice, or nothing registers.
+  auto same = std::make_shared<ProvisionalPiece>(*moved);
+  same->placement = 1;
+  provisional.pieces.back() = same;
+  StretchOutcome together;
+  compare(&together);
+  EXPECT_TRUE(!together.compared || together.changes.size() > 1u)
+      << together.changes.size() << " changes";
+}
+
 /// A piece of contact wire one run sampled: 0.8 m along the track, 0.2 m across and high,
 /// 6 m above the rails, 0.13 m right of the centre (the stagger).
 RunChange WirePiece() {

@@ -1,5 +1,6 @@
 // Provisional submaps: keyframes' points placed at their provisional UTM poses, a voxel apart
-// and within range, a submap every N keyframes, and a new one after a gap or in another zone.
+// and within range, a submap every N keyframes, and a new one after a gap, in another zone or
+// of another placement.
 #include <gtest/gtest.h>
 
 #include "estimator/mapping/provisional_submaps.h"
@@ -21,10 +22,10 @@ TEST(ProvisionalSubmaps, GathersKeyframesAtTheirPosesAVoxelApartWithinRange) {
   const std::vector<Eigen::Vector3f> points = {
       {1.01f, 0.0f, 0.0f}, {1.02f, 0.01f, 0.0f}, {60.0f, 0.0f, 0.0f}};
   const std::vector<float> intensities = {10.0f, 20.0f, 30.0f};
-  EXPECT_TRUE(submaps.Add(0, At(0.0), "50N", points, intensities).empty());
-  EXPECT_TRUE(submaps.Add(kSecond / 10, At(2.0), "50N", points, intensities).empty());
+  EXPECT_TRUE(submaps.Add(0, At(0.0), "50N", 1, points, intensities).empty());
+  EXPECT_TRUE(submaps.Add(kSecond / 10, At(2.0), "50N", 1, points, intensities).empty());
   const std::vector<api::Submap> done =
-      submaps.Add(2 * kSecond / 10, At(4.0), "50N", points, intensities);
+      submaps.Add(2 * kSecond / 10, At(4.0), "50N", 1, points, intensities);
   ASSERT_EQ(done.size(), 1u);
   const api::Submap& s = done[0];
   EXPECT_TRUE(s.georeferenced);
@@ -45,12 +46,12 @@ TEST(ProvisionalSubmaps, GathersKeyframesAtTheirPosesAVoxelApartWithinRange) {
 TEST(ProvisionalSubmaps, StartsAnotherAfterAGapOrInAnotherZone) {
   ProvisionalSubmaps submaps(10, 0.1, 0.0);
   const std::vector<Eigen::Vector3f> points = {{1.0f, 0.0f, 0.0f}};
-  EXPECT_TRUE(submaps.Add(0, At(0.0), "50N", points, {1.0f}).empty());
+  EXPECT_TRUE(submaps.Add(0, At(0.0), "50N", 1, points, {1.0f}).empty());
   // 3 s later: the first goes out alone.
-  std::vector<api::Submap> done = submaps.Add(3 * kSecond, At(80.0), "50N", points, {1.0f});
+  std::vector<api::Submap> done = submaps.Add(3 * kSecond, At(80.0), "50N", 1, points, {1.0f});
   ASSERT_EQ(done.size(), 1u);
   EXPECT_EQ(done[0].keyframes.size(), 1u);
-  done = submaps.Add(3 * kSecond + kSecond / 10, At(82.0), "51N", points, {1.0f});
+  done = submaps.Add(3 * kSecond + kSecond / 10, At(82.0), "51N", 1, points, {1.0f});
   ASSERT_EQ(done.size(), 1u);
   EXPECT_EQ(done[0].utm_zone, "50N");
   EXPECT_EQ(done[0].first_stamp_ns, 3 * kSecond);
@@ -59,6 +60,22 @@ TEST(ProvisionalSubmaps, StartsAnotherAfterAGapOrInAnotherZone) {
   EXPECT_EQ(rest->utm_zone, "51N");
   EXPECT_EQ(rest->sequence, 2u);
   EXPECT_FALSE(submaps.Flush());
+}
+
+TEST(ProvisionalSubmaps, StartsAnotherWhereThePlacementChanges) {
+  ProvisionalSubmaps submaps(10, 0.1, 0.0);
+  const std::vector<Eigen::Vector3f> points = {{1.0f, 0.0f, 0.0f}};
+  EXPECT_TRUE(submaps.Add(0, At(0.0), "50N", 3, points, {1.0f}).empty());
+  EXPECT_TRUE(submaps.Add(kSecond / 10, At(2.0), "50N", 3, points, {1.0f}).empty());
+  const std::vector<api::Submap> done =
+      submaps.Add(2 * kSecond / 10, At(4.5), "50N", 4, points, {1.0f});
+  ASSERT_EQ(done.size(), 1u);
+  EXPECT_EQ(done[0].placement, 3u);
+  EXPECT_EQ(done[0].keyframes.size(), 2u);
+  const std::optional<api::Submap> rest = submaps.Flush();
+  ASSERT_TRUE(rest);
+  EXPECT_EQ(rest->placement, 4u);
+  EXPECT_EQ(rest->first_stamp_ns, 2 * kSecond / 10);
 }
 
 }  // namespace

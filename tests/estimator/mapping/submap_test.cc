@@ -310,10 +310,26 @@ TEST(SubmapCodec, RoundTripKeepsEverything) {
     EXPECT_EQ(back.points[i], s.points[i]);
     EXPECT_EQ(back.intensities[i], s.intensities[i]);
   }
+  EXPECT_EQ(back.placement, 0u);
   // A cut file is named as such.
   const std::string bytes = api::EncodeSubmapPcd(s);
   EXPECT_FALSE(api::DecodeSubmapPcd(bytes.substr(0, bytes.size() - 5), &back, &error));
   EXPECT_NE(error.find("truncated"), std::string::npos) << error;
+}
+
+TEST(SubmapCodec, KeepsAProvisionalSubmapsPlacement) {
+  api::Submap s = SampleSubmap();
+  s.placement = 7;
+  const std::string bytes = api::EncodeSubmapPcd(s);
+  api::Submap back;
+  std::string error;
+  ASSERT_TRUE(api::DecodeSubmapPcd(bytes, &back, &error)) << error;
+  EXPECT_EQ(back.placement, 7u);
+  // A placement that is no whole number is named.
+  std::string bad = bytes;
+  bad.replace(bad.find("placement 7"), 11, "placement x");
+  EXPECT_FALSE(api::DecodeSubmapPcd(bad, &back, &error));
+  EXPECT_NE(error.find("placement"), std::string::npos) << error;
 }
 
 class MapExport : public ::testing::TestWithParam<const char*> {};

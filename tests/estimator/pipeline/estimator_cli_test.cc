@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -148,13 +149,42 @@ TEST_F(EstimatorCli, ShortSimulatedRunTracksTheTruth) {
   EXPECT_LT(eval["end_drift_pct"].get<double>(), 0.5);
 }
 
+/// provisional/ (--provisional-submaps): the run's start, held until the GNSS graph settles,
+/// as provisional submaps in UTM, each of one placement, their keyframes within 2 m of where
+/// the final trajectory puts them.
+void ExpectProvisionalSubmapsNearTheTrajectory(const fs::path& out,
+                                               const raillomer::api::Trajectory& trajectory) {
+  std::map<int64_t, Eigen::Vector3d> final_at;
+  for (const raillomer::api::StampedPose& p : trajectory.poses) final_at[p.stamp_ns] = p.p_world;
+  std::ifstream index(out / "provisional" / "index.csv");
+  std::string line, error;
+  std::getline(index, line);
+  EXPECT_EQ(line.rfind("sequence,index,file,", 0), 0u) << line;
+  int submaps = 0;
+  while (std::getline(index, line)) {
+    raillomer::api::Submap s;
+    const std::string file = line.substr(line.find(',', line.find(',') + 1) + 1, 10);
+    ASSERT_TRUE(raillomer::api::DecodeSubmapPcd(ReadText(out / "provisional" / file), &s, &error))
+        << file << ": " << error;
+    EXPECT_EQ(s.utm_zone, "50N");
+    EXPECT_GT(s.placement, 0u) << file;
+    EXPECT_FALSE(s.points.empty()) << file;
+    for (const raillomer::api::StampedPose& k : s.keyframes) {
+      ASSERT_TRUE(final_at.count(k.stamp_ns)) << file;
+      EXPECT_LT((k.p_world - final_at[k.stamp_ns]).norm(), 2.0) << file;
+    }
+    ++submaps;
+  }
+  EXPECT_GE(submaps, 1);
+}
+
 TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
   // The whole demo (0.3 km): aligned to UTM after 100 m, then a GNSS factor every 10 s; its
   // submaps and the global map in UTM.
   const fs::path out = Dir() / "utm";
   const CommandResult r =
-      Estimate("--sim demo --no-keyframes --out " + ShellQuote(out.string()) + " --map " +
-               ShellQuote((out / "map.ply").string()) + " --map-voxel 0.2");
+      Estimate("--sim demo --no-keyframes --provisional-submaps --out " + ShellQuote(out.string()) +
+               " --map " + ShellQuote((out / "map.ply").string()) + " --map-voxel 0.2");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(ReadText(out / "trajectory.tum").rfind("# utm_zone 50N\n", 0), 0u);
   const nlohmann::json summary = nlohmann::json::parse(ReadText(out / "summary.json"));
@@ -207,6 +237,7 @@ TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
     ++submaps;
   }
   EXPECT_GE(submaps, 3);
+  ExpectProvisionalSubmapsNearTheTrajectory(out, trajectory);
   std::vector<Eigen::Vector3d> points;
   std::vector<float> intensities;
   ASSERT_TRUE(
