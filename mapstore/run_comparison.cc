@@ -286,7 +286,8 @@ Result LoadParts(const MapStore& store,
   parts->reference.points = stretch.Local(utm, o.corridor_m, o.overlap_m);
   r = PointsIn(store, later.id, stretch.Box(reach + kShiftRoomM), &utm);
   if (!r) return r;
-  std::vector<std::vector<Eigen::Vector3d>> placements = {std::move(utm)};
+  std::vector<std::vector<Eigen::Vector3d>> placements;
+  placements.push_back(std::move(utm));
   if (later.provisional) {
     for (std::vector<Eigen::Vector3d>& p :
          ProvisionalPointsIn(*later.provisional, stretch.Box(reach + kShiftRoomM)))
@@ -327,31 +328,36 @@ std::vector<Eigen::Vector3d> MoveLater(const Stretch& stretch,
 /// Registers the later run's points and sensors onto the reference and moves them there. A live
 /// run's points can come in several placements (its final output and provisional output the
 /// GNSS fusion placed at different times, up to a metre apart): each is registered on its own,
-/// so that one surface does not show twice; the largest one's fit stands for the stretch and
-/// moves the sensors. A placement with under a tenth of the points, or that does not register,
-/// is left out. Returns the largest placement's fit.
+/// so that one surface does not show twice. The largest one's fit stands for the stretch and
+/// moves the sensors; the others start from it, with a first stage of kPlacementReachM. A
+/// placement with under a tenth of the points, or that does not register, is left out.
+/// Returns the largest placement's fit.
 RegistrationResult RegisterLater(const Stretch& stretch,
                                  const RunComparisonOptions& o,
                                  StretchParts* parts) {
-  const Eigen::Isometry3d initial = PathOffset(stretch, parts->later.sensors);
+  constexpr double kPlacementReachM = 2.0;
   std::vector<std::vector<Eigen::Vector3d>>& placements = parts->later_placements;
   std::stable_sort(placements.begin(), placements.end(), [](const auto& a, const auto& b) {
     return a.size() > b.size();
   });
+  RegistrationTarget reference(parts->reference.points, o.registration);
   RegistrationResult largest;
   parts->later.points.clear();
   for (size_t i = 0; i < placements.size(); ++i) {
     if (i > 0 && placements[i].size() * 10 < parts->later_loaded) break;
     const RegistrationResult fit =
-        RegisterClouds(parts->reference.points, placements[i], initial, o.registration);
+        i == 0 ? reference.Register(placements[i], PathOffset(stretch, parts->later.sensors))
+               : reference.Register(placements[i], largest.T_fixed_moving, kPlacementReachM);
     if (i == 0) largest = fit;
     if (!(fit.rms_m <= o.max_registration_rms_m)) {
       if (i == 0) break;
       continue;
     }
-    const std::vector<Eigen::Vector3d> moved =
-        MoveLater(stretch, o, fit.T_fixed_moving, placements[i]);
-    parts->later.points.insert(parts->later.points.end(), moved.begin(), moved.end());
+    std::vector<Eigen::Vector3d> moved = MoveLater(stretch, o, fit.T_fixed_moving, placements[i]);
+    if (parts->later.points.empty())
+      parts->later.points = std::move(moved);
+    else
+      parts->later.points.insert(parts->later.points.end(), moved.begin(), moved.end());
   }
   for (Eigen::Isometry3d& s : parts->later.sensors) s = largest.T_fixed_moving * s;
   return largest;

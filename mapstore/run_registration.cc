@@ -205,14 +205,14 @@ std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& 
 namespace {
 
 /// One stage of the registration at a correspondence distance, from `result`'s transform;
-/// `normals` are the fixed cloud's, worked out as pairs ask for them.
+/// `grid` holds the fixed cloud, `normals` are its, worked out as pairs ask for them.
 void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
+                   const Grid& grid,
                    Normals* normals,
                    const std::vector<Eigen::Vector3d>& moving,
                    double correspondence_m,
                    const RegistrationOptions& o,
                    RegistrationResult* result) {
-  const Grid grid(fixed, std::max(2.0 * o.voxel_m, correspondence_m / 4.0));
   std::vector<Pair> pairs;
   std::vector<double> residuals;
   result->converged = false;
@@ -297,18 +297,51 @@ std::vector<Eigen::Vector3d> EvenSample(const std::vector<Eigen::Vector3d>& poin
 
 }  // namespace
 
-RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_points,
-                                  const std::vector<Eigen::Vector3d>& moving_points,
-                                  const Eigen::Isometry3d& initial,
-                                  const RegistrationOptions& o) {
+/// The fixed cloud thinned to one stage's voxels, its normals and its grids by side.
+struct RegistrationTarget::Level {
+  std::vector<Eigen::Vector3d> fixed;
+  std::unique_ptr<Normals> normals;
+  std::vector<std::pair<double, std::unique_ptr<Grid>>> grids;
+
+  /// The grid of cells of `side`, made on first use.
+  const Grid& GridOf(double side) {
+    for (const auto& [s, grid] : grids)
+      if (s == side) return *grid;
+    grids.emplace_back(side, std::make_unique<Grid>(fixed, side));
+    return *grids.back().second;
+  }
+};
+
+RegistrationTarget::RegistrationTarget(const std::vector<Eigen::Vector3d>& fixed,
+                                       const RegistrationOptions& o)
+    : points_(fixed), o_(o) {}
+
+RegistrationTarget::~RegistrationTarget() = default;
+
+RegistrationTarget::Level& RegistrationTarget::LevelFor(double voxel_m) {
+  for (auto& [side, level] : levels_)
+    if (side == voxel_m) return *level;
+  auto level = std::make_unique<Level>();
+  level->fixed = VoxelCentroids(points_, voxel_m);
+  RegistrationOptions normal = o_;
+  normal.normal_radius_m = std::max(o_.normal_radius_m, 2.5 * voxel_m);
+  level->normals = std::make_unique<Normals>(level->fixed, normal);
+  levels_.emplace_back(voxel_m, std::move(level));
+  return *levels_.back().second;
+}
+
+RegistrationResult RegistrationTarget::Register(const std::vector<Eigen::Vector3d>& moving_points,
+                                                const Eigen::Isometry3d& initial,
+                                                double initial_correspondence_m) {
+  const RegistrationOptions& o = o_;
   RegistrationResult result;
   result.T_fixed_moving = initial;
-  double distance = std::max(o.initial_correspondence_m, o.max_correspondence_m);
-  // Stages on voxels of the same side (the last two, with the defaults) share the centroids
-  // and the fixed cloud's normals.
+  double distance = std::max(
+      initial_correspondence_m > 0.0 ? initial_correspondence_m : o.initial_correspondence_m,
+      o.max_correspondence_m);
+  // Stages on voxels of the same side (the last two, with the defaults) share the centroids.
   double voxel_m = 0.0;
-  std::vector<Eigen::Vector3d> fixed, moving_centroids;
-  std::unique_ptr<Normals> normals;
+  std::vector<Eigen::Vector3d> moving_centroids;
   while (true) {
     RegistrationOptions stage = o;
     stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
@@ -317,20 +350,31 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_poin
       stage.converged_step_m = std::max(o.converged_step_m, o.coarse_converged_share * distance);
     if (stage.voxel_m != voxel_m) {
       voxel_m = stage.voxel_m;
-      fixed = VoxelCentroids(fixed_points, voxel_m);
       moving_centroids = VoxelCentroids(moving_points, voxel_m);
-      RegistrationOptions normal = stage;
-      normal.normal_radius_m = std::max(o.normal_radius_m, 2.5 * voxel_m);
-      normals = std::make_unique<Normals>(fixed, normal);
     }
+    Level& level = LevelFor(voxel_m);
     const std::vector<Eigen::Vector3d> moving =
         EvenSample(moving_centroids, last ? o.max_moving_points : o.coarse_moving_points);
-    if (fixed.size() < 10 || moving.size() < 10) return result;
-    RegisterStage(fixed, normals.get(), moving, distance, stage, &result);
+    if (level.fixed.size() < 10 || moving.size() < 10) return result;
+    RegisterStage(level.fixed,
+                  level.GridOf(std::max(2.0 * voxel_m, distance / 4.0)),
+                  level.normals.get(),
+                  moving,
+                  distance,
+                  stage,
+                  &result);
     if (last) break;
     distance = std::max(o.max_correspondence_m, 0.5 * distance);
   }
   return result;
+}
+
+RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed_points,
+                                  const std::vector<Eigen::Vector3d>& moving_points,
+                                  const Eigen::Isometry3d& initial,
+                                  const RegistrationOptions& o) {
+  RegistrationTarget target(fixed_points, o);
+  return target.Register(moving_points, initial);
 }
 
 }  // namespace raillomer::mapstore

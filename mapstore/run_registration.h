@@ -1,7 +1,9 @@
 #pragma once
 
 #include <cstddef>
+#include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -59,6 +61,32 @@ RegistrationResult RegisterClouds(const std::vector<Eigen::Vector3d>& fixed,
                                   const std::vector<Eigen::Vector3d>& moving,
                                   const Eigen::Isometry3d& initial,
                                   const RegistrationOptions& options);
+
+/// A fixed cloud to register clouds onto, one after another: its voxel centroids, normals and
+/// grids for each stage are worked out once, for all of them.
+class RegistrationTarget {
+ public:
+  /// Keeps a reference to `fixed`, which must outlive the target.
+  RegistrationTarget(const std::vector<Eigen::Vector3d>& fixed, const RegistrationOptions& o);
+  ~RegistrationTarget();
+  RegistrationTarget(const RegistrationTarget&) = delete;
+  RegistrationTarget& operator=(const RegistrationTarget&) = delete;
+
+  /// Registers `moving` as RegisterClouds does; its first stage pairs points up to
+  /// `initial_correspondence_m` apart (0: the options' initial_correspondence_m).
+  RegistrationResult Register(const std::vector<Eigen::Vector3d>& moving,
+                              const Eigen::Isometry3d& initial,
+                              double initial_correspondence_m = 0.0);
+
+ private:
+  struct Level;
+  /// The fixed cloud at a stage's voxel side, made on first use.
+  Level& LevelFor(double voxel_m);
+
+  const std::vector<Eigen::Vector3d>& points_;
+  RegistrationOptions o_;
+  std::vector<std::pair<double, std::unique_ptr<Level>>> levels_;
+};
 
 /// The centroids of the points in each voxel of side `voxel_m`.
 std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& points,

@@ -8,6 +8,7 @@
 #include <map>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -149,6 +150,23 @@ TEST_F(EstimatorCli, ShortSimulatedRunTracksTheTruth) {
   EXPECT_LT(eval["end_drift_pct"].get<double>(), 0.5);
 }
 
+/// The submaps a folder's index.csv lists (submaps/ or provisional/), decoded, each with the
+/// sequence its index line gives.
+void ReadSubmapFolder(const fs::path& dir,
+                      std::vector<std::pair<uint64_t, raillomer::api::Submap>>* submaps) {
+  std::ifstream index(dir / "index.csv");
+  std::string line, error;
+  std::getline(index, line);
+  EXPECT_EQ(line.rfind("sequence,index,file,", 0), 0u) << line;
+  while (std::getline(index, line)) {
+    raillomer::api::Submap s;
+    const std::string file = line.substr(line.find(',', line.find(',') + 1) + 1, 10);
+    ASSERT_TRUE(raillomer::api::DecodeSubmapPcd(ReadText(dir / file), &s, &error))
+        << file << ": " << error;
+    submaps->emplace_back(std::stoull(line.substr(0, line.find(','))), std::move(s));
+  }
+}
+
 /// provisional/ (--provisional-submaps): the run's start, held until the GNSS graph settles,
 /// as provisional submaps in UTM, each of one placement, their keyframes within 2 m of where
 /// the final trajectory puts them.
@@ -156,26 +174,18 @@ void ExpectProvisionalSubmapsNearTheTrajectory(const fs::path& out,
                                                const raillomer::api::Trajectory& trajectory) {
   std::map<int64_t, Eigen::Vector3d> final_at;
   for (const raillomer::api::StampedPose& p : trajectory.poses) final_at[p.stamp_ns] = p.p_world;
-  std::ifstream index(out / "provisional" / "index.csv");
-  std::string line, error;
-  std::getline(index, line);
-  EXPECT_EQ(line.rfind("sequence,index,file,", 0), 0u) << line;
-  int submaps = 0;
-  while (std::getline(index, line)) {
-    raillomer::api::Submap s;
-    const std::string file = line.substr(line.find(',', line.find(',') + 1) + 1, 10);
-    ASSERT_TRUE(raillomer::api::DecodeSubmapPcd(ReadText(out / "provisional" / file), &s, &error))
-        << file << ": " << error;
+  std::vector<std::pair<uint64_t, raillomer::api::Submap>> submaps;
+  ReadSubmapFolder(out / "provisional", &submaps);
+  EXPECT_GE(submaps.size(), 1u);
+  for (const auto& [sequence, s] : submaps) {
     EXPECT_EQ(s.utm_zone, "50N");
-    EXPECT_GT(s.placement, 0u) << file;
-    EXPECT_FALSE(s.points.empty()) << file;
+    EXPECT_GT(s.placement, 0u) << sequence;
+    EXPECT_FALSE(s.points.empty()) << sequence;
     for (const raillomer::api::StampedPose& k : s.keyframes) {
-      ASSERT_TRUE(final_at.count(k.stamp_ns)) << file;
-      EXPECT_LT((k.p_world - final_at[k.stamp_ns]).norm(), 2.0) << file;
+      ASSERT_TRUE(final_at.count(k.stamp_ns)) << sequence;
+      EXPECT_LT((k.p_world - final_at[k.stamp_ns]).norm(), 2.0) << sequence;
     }
-    ++submaps;
   }
-  EXPECT_GE(submaps, 1);
 }
 
 TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
@@ -218,25 +228,16 @@ TEST_F(EstimatorCli, GnssPutsTheRunInUtm) {
   raillomer::api::Trajectory trajectory;
   std::string error;
   ASSERT_TRUE(raillomer::api::ReadTum((out / "trajectory.tum").string(), &trajectory, &error));
-  std::ifstream index(out / "submaps" / "index.csv");
-  std::string line;
-  std::getline(index, line);
-  EXPECT_EQ(line.rfind("sequence,index,file,", 0), 0u) << line;
-  uint64_t last_sequence = 0;
-  int submaps = 0;
-  while (std::getline(index, line)) {
-    raillomer::api::Submap s;
-    const std::string file = line.substr(line.find(',', line.find(',') + 1) + 1, 10);
-    ASSERT_TRUE(raillomer::api::DecodeSubmapPcd(ReadText(out / "submaps" / file), &s, &error))
-        << file << ": " << error;
-    EXPECT_EQ(std::to_string(s.sequence) + ",", line.substr(0, line.find(',') + 1));
-    EXPECT_TRUE(submaps == 0 || s.sequence > last_sequence);
-    last_sequence = s.sequence;
+  std::vector<std::pair<uint64_t, raillomer::api::Submap>> submaps;
+  ReadSubmapFolder(out / "submaps", &submaps);
+  for (size_t i = 0; i < submaps.size(); ++i) {
+    const raillomer::api::Submap& s = submaps[i].second;
+    EXPECT_EQ(s.sequence, submaps[i].first);
+    EXPECT_TRUE(i == 0 || s.sequence > submaps[i - 1].second.sequence);
     EXPECT_EQ(s.utm_zone, "50N");
     EXPECT_LT((s.origin - trajectory.poses.front().p_world).head<2>().norm(), 400.0);
-    ++submaps;
   }
-  EXPECT_GE(submaps, 3);
+  EXPECT_GE(submaps.size(), 3u);
   ExpectProvisionalSubmapsNearTheTrajectory(out, trajectory);
   std::vector<Eigen::Vector3d> points;
   std::vector<float> intensities;
