@@ -248,8 +248,8 @@ double RailResidual(const Stretch& stretch,
 struct StretchParts {
   RunStretch reference, later;
   /// The later run's points by placement, before registration (LoadParts): its final output's,
-  /// then its provisional output's a placement each; none empty. RegisterLater registers each
-  /// on its own and gathers them in `later`.
+  /// then its provisional output's a placement each; none empty. RegisterLater gathers those
+  /// that fit one another in `later`.
   std::vector<std::vector<Eigen::Vector3d>> later_placements;
   size_t later_loaded = 0;  ///< the points of later_placements
   double rail_drop_m = 0.0;
@@ -325,17 +325,26 @@ std::vector<Eigen::Vector3d> MoveLater(const Stretch& stretch,
   return registered;
 }
 
+/// Whether a placement fits where the largest one was registered (`check`,
+/// RegistrationTarget::Check): about as many of its pairs inliers, about as close. Most do:
+/// the GNSS graph moves little once settled.
+bool FitsLargest(const RegistrationResult& check, const RegistrationResult& largest) {
+  if (check.pairs == 0 || largest.pairs == 0) return false;
+  const double share = static_cast<double>(check.inliers) / static_cast<double>(check.pairs);
+  const double largest_share =
+      static_cast<double>(largest.inliers) / static_cast<double>(largest.pairs);
+  return share >= 0.9 * largest_share && check.rms_m <= 1.25 * largest.rms_m + 0.005;
+}
+
 /// Registers the later run's points and sensors onto the reference and moves them there. A live
 /// run's points can come in several placements (its final output and provisional output the
-/// GNSS fusion placed at different times, up to a metre apart): each is registered on its own,
-/// so that one surface does not show twice. The largest one's fit stands for the stretch and
-/// moves the sensors; the others start from it, with a first stage of kPlacementReachM. A
-/// placement with under a tenth of the points, or that does not register, is left out.
-/// Returns the largest placement's fit.
+/// GNSS fusion placed at different times, up to a metre apart). The largest one is registered
+/// and its fit stands for the stretch; another joins it where it fits that fit (FitsLargest)
+/// and is left out where it does not, so that no surface shows twice (registering each on its
+/// own costs the start-up's stretches their 10 s). Returns the largest placement's fit.
 RegistrationResult RegisterLater(const Stretch& stretch,
                                  const RunComparisonOptions& o,
                                  StretchParts* parts) {
-  constexpr double kPlacementReachM = 2.0;
   std::vector<std::vector<Eigen::Vector3d>>& placements = parts->later_placements;
   std::stable_sort(placements.begin(), placements.end(), [](const auto& a, const auto& b) {
     return a.size() > b.size();
@@ -344,16 +353,14 @@ RegistrationResult RegisterLater(const Stretch& stretch,
   RegistrationResult largest;
   parts->later.points.clear();
   for (size_t i = 0; i < placements.size(); ++i) {
-    if (i > 0 && placements[i].size() * 10 < parts->later_loaded) break;
-    const RegistrationResult fit =
-        i == 0 ? reference.Register(placements[i], PathOffset(stretch, parts->later.sensors))
-               : reference.Register(placements[i], largest.T_fixed_moving, kPlacementReachM);
-    if (i == 0) largest = fit;
-    if (!(fit.rms_m <= o.max_registration_rms_m)) {
-      if (i == 0) break;
+    if (i == 0) {
+      largest = reference.Register(placements[i], PathOffset(stretch, parts->later.sensors));
+      if (!(largest.rms_m <= o.max_registration_rms_m)) break;
+    } else if (!FitsLargest(reference.Check(placements[i], largest.T_fixed_moving), largest)) {
       continue;
     }
-    std::vector<Eigen::Vector3d> moved = MoveLater(stretch, o, fit.T_fixed_moving, placements[i]);
+    std::vector<Eigen::Vector3d> moved =
+        MoveLater(stretch, o, largest.T_fixed_moving, placements[i]);
     if (parts->later.points.empty())
       parts->later.points = std::move(moved);
     else

@@ -330,15 +330,37 @@ RegistrationTarget::Level& RegistrationTarget::LevelFor(double voxel_m) {
   return *levels_.back().second;
 }
 
+RegistrationResult RegistrationTarget::Check(const std::vector<Eigen::Vector3d>& moving_points,
+                                             const Eigen::Isometry3d& T_fixed_moving) {
+  RegistrationOptions stage = o_;
+  stage.max_iterations = 1;
+  const double distance = o_.max_correspondence_m;
+  const double voxel_m = std::max(o_.voxel_m, distance / 5.0);
+  Level& level = LevelFor(voxel_m);
+  const std::vector<Eigen::Vector3d> moving =
+      EvenSample(VoxelCentroids(moving_points, voxel_m), o_.max_moving_points);
+  RegistrationResult result;
+  result.T_fixed_moving = T_fixed_moving;
+  if (level.fixed.size() < 10 || moving.size() < 10) return result;
+  RegisterStage(level.fixed,
+                level.GridOf(std::max(2.0 * voxel_m, distance / 4.0)),
+                level.normals.get(),
+                moving,
+                distance,
+                stage,
+                &result);
+  // One step was taken: the figures are those of the transform asked about.
+  result.T_fixed_moving = T_fixed_moving;
+  result.converged = false;
+  return result;
+}
+
 RegistrationResult RegistrationTarget::Register(const std::vector<Eigen::Vector3d>& moving_points,
-                                                const Eigen::Isometry3d& initial,
-                                                double initial_correspondence_m) {
+                                                const Eigen::Isometry3d& initial) {
   const RegistrationOptions& o = o_;
   RegistrationResult result;
   result.T_fixed_moving = initial;
-  double distance = std::max(
-      initial_correspondence_m > 0.0 ? initial_correspondence_m : o.initial_correspondence_m,
-      o.max_correspondence_m);
+  double distance = std::max(o.initial_correspondence_m, o.max_correspondence_m);
   // Stages on voxels of the same side (the last two, with the defaults) share the centroids.
   double voxel_m = 0.0;
   std::vector<Eigen::Vector3d> moving_centroids;

@@ -72,11 +72,13 @@ class RegistrationTarget {
   RegistrationTarget(const RegistrationTarget&) = delete;
   RegistrationTarget& operator=(const RegistrationTarget&) = delete;
 
-  /// Registers `moving` as RegisterClouds does; its first stage pairs points up to
-  /// `initial_correspondence_m` apart (0: the options' initial_correspondence_m).
+  /// Registers `moving` as RegisterClouds does.
   RegistrationResult Register(const std::vector<Eigen::Vector3d>& moving,
-                              const Eigen::Isometry3d& initial,
-                              double initial_correspondence_m = 0.0);
+                              const Eigen::Isometry3d& initial);
+  /// How well `moving` fits at `T_fixed_moving` as it stands: the pairs, inliers and RMS of
+  /// the last stage's first iteration, the transform unchanged.
+  RegistrationResult Check(const std::vector<Eigen::Vector3d>& moving,
+                           const Eigen::Isometry3d& T_fixed_moving);
 
  private:
   struct Level;

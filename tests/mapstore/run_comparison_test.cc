@@ -3,6 +3,8 @@
 // added beside the track; the comparison finds the box, on the left side, at its kilometre,
 // outside the structure gauge, and nothing else; and which pieces of the catenary's wires
 // are no change.
+#include <algorithm>
+
 #include <gtest/gtest.h>
 
 #include "mapstore/run_comparison.h"
@@ -178,7 +180,7 @@ TEST_F(RunComparisonTest, AStretchIsComparedOnProvisionalOutputAheadOfTheFinal) 
   EXPECT_NEAR(comparison->later_reach_m(true), 60.0, 1.0);
 }
 
-TEST_F(RunComparisonTest, EachProvisionalPlacementIsRegisteredOnItsOwn) {
+TEST_F(RunComparisonTest, AProvisionalPlacementThatDoesNotFitIsLeftOut) {
   MapStore* store = store_.get();
   const int64_t reference = IngestRun(*store, Eigen::Vector3d::Zero(), {});
   ProvisionalRun provisional;
@@ -197,6 +199,14 @@ TEST_F(RunComparisonTest, EachProvisionalPlacementIsRegisteredOnItsOwn) {
   moved->first_stamp_ns = provisional.pieces.back()->last_stamp_ns + 1;
   moved->last_stamp_ns = moved->first_stamp_ns + 1;
   provisional.pieces.push_back(moved);
+  // A third placement that fits the first, with a second box 10 m before the first.
+  auto fitting = std::make_shared<ProvisionalPiece>(*provisional.pieces.front());
+  const std::vector<Eigen::Vector3f> second_box = Box(50, 26);
+  fitting->points.insert(fitting->points.end(), second_box.begin(), second_box.end());
+  fitting->placement = 3;
+  fitting->first_stamp_ns = moved->last_stamp_ns + 1;
+  fitting->last_stamp_ns = fitting->first_stamp_ns + 1;
+  provisional.pieces.push_back(fitting);
   const auto compare = [&](StretchOutcome* out) {
     std::unique_ptr<RunComparison> comparison;
     ASSERT_TRUE(RunComparison::Prepare(
@@ -207,13 +217,22 @@ TEST_F(RunComparisonTest, EachProvisionalPlacementIsRegisteredOnItsOwn) {
   compare(&apart);
   ASSERT_TRUE(apart.compared) << apart.skipped;
   EXPECT_LT(apart.registration_rms_m, 0.03);
-  ASSERT_EQ(apart.changes.size(), 1u);  // the box, not the ground seen twice
-  EXPECT_EQ(apart.changes[0].kind, ChangeKind::kAdded);
-  EXPECT_NEAR(apart.changes[0].chainage_m, 75.6, 0.6);
-  // Taken as one placement, the two do not fit: the ground shows twice, or nothing registers.
+  // The two boxes, not the ground seen twice: the moved placement is left out, the fitting
+  // one kept.
+  ASSERT_EQ(apart.changes.size(), 2u);
+  std::vector<double> at;
+  for (const RunChange& c : apart.changes) {
+    EXPECT_EQ(c.kind, ChangeKind::kAdded);
+    at.push_back(c.chainage_m);
+  }
+  std::sort(at.begin(), at.end());
+  EXPECT_NEAR(at[0], 65.6, 0.6);
+  EXPECT_NEAR(at[1], 75.6, 0.6);
+  // Taken as one placement, the first two do not fit: the ground shows twice, or nothing
+  // registers.
   auto same = std::make_shared<ProvisionalPiece>(*moved);
   same->placement = 1;
-  provisional.pieces.back() = same;
+  provisional.pieces[provisional.pieces.size() - 2] = same;
   StretchOutcome together;
   compare(&together);
   EXPECT_TRUE(!together.compared || together.changes.size() > 1u)

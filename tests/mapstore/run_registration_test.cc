@@ -72,6 +72,37 @@ TEST(RunRegistration, RecoversAKnownOffsetAndChangesDoNotPullIt) {
   EXPECT_GT(r.translation_conditioning, 0.01);
 }
 
+TEST(RunRegistration, OneTargetRegistersAndChecksSeveralClouds) {
+  const std::vector<Eigen::Vector3d> reference = Stretch(0.1, 0.0, 0.01, false, false, 1);
+  const std::vector<Eigen::Vector3d> later = Stretch(0.1, 0.05, 0.01, true, true, 2);
+  // Two placements of the later run, 0.8 m apart: each is registered onto the one target.
+  const Eigen::Vector3d shifts[2] = {{1.2, -0.5, -0.3}, {0.4, 0.1, 0.2}};
+  RegistrationTarget target(reference, RegistrationOptions());
+  for (const Eigen::Vector3d& shift : shifts) {
+    std::vector<Eigen::Vector3d> moved = later;
+    for (Eigen::Vector3d& p : moved) p -= shift;
+    const RegistrationResult alone =
+        RegisterClouds(reference, moved, Eigen::Isometry3d::Identity(), RegistrationOptions());
+    const RegistrationResult shared = target.Register(moved, Eigen::Isometry3d::Identity());
+    EXPECT_TRUE(shared.T_fixed_moving.isApprox(alone.T_fixed_moving, 1e-12));
+    EXPECT_EQ(shared.iterations, alone.iterations);
+    EXPECT_LT((shared.T_fixed_moving.translation() - shift).norm(), 0.02);
+  }
+  std::vector<Eigen::Vector3d> second = later;
+  for (Eigen::Vector3d& p : second) p -= shifts[1];
+  Eigen::Isometry3d first = Eigen::Isometry3d::Identity();
+  first.translation() = shifts[0];
+  // Checked where it lies, the second fits closely; where the first lies, it does not.
+  Eigen::Isometry3d there = Eigen::Isometry3d::Identity();
+  there.translation() = shifts[1];
+  const RegistrationResult fits = target.Check(second, there);
+  const RegistrationResult off = target.Check(second, first);
+  EXPECT_TRUE(fits.T_fixed_moving.isApprox(there));
+  EXPECT_GT(fits.inliers, fits.pairs * 8 / 10);
+  EXPECT_LT(fits.rms_m, 0.03);
+  EXPECT_GT(off.rms_m, 0.1);
+}
+
 TEST(RunRegistration, ABareStraightCannotTellAShiftAlongTheTrack) {
   std::vector<Eigen::Vector3d> bare;
   for (double x = 0.0; x < 80.0; x += 0.1)
