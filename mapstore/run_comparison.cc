@@ -340,8 +340,9 @@ bool FitsLargest(const RegistrationResult& check, const RegistrationResult& larg
 /// run's points can come in several placements (its final output and provisional output the
 /// GNSS fusion placed at different times, up to a metre apart). The largest one is registered
 /// and its fit stands for the stretch; another joins it where it fits that fit (FitsLargest)
-/// and is left out where it does not, so that no surface shows twice (registering each on its
-/// own costs the start-up's stretches their 10 s). Returns the largest placement's fit.
+/// and is left out where it does not, so that no surface shows twice; the final comparison
+/// has all of it. (Registering each on its own would take the registration's time again, at a
+/// run's start, when the cores are busiest.) Returns the largest placement's fit.
 RegistrationResult RegisterLater(const Stretch& stretch,
                                  const RunComparisonOptions& o,
                                  StretchParts* parts) {
