@@ -330,25 +330,34 @@ RegistrationTarget::Level& RegistrationTarget::LevelFor(double voxel_m) {
   return *levels_.back().second;
 }
 
+bool RegistrationTarget::RunStage(const std::vector<Eigen::Vector3d>& moving,
+                                  double distance,
+                                  const RegistrationOptions& stage,
+                                  RegistrationResult* result) {
+  Level& level = LevelFor(stage.voxel_m);
+  if (level.fixed.size() < 10 || moving.size() < 10) return false;
+  RegisterStage(level.fixed,
+                level.GridOf(std::max(2.0 * stage.voxel_m, distance / 4.0)),
+                level.normals.get(),
+                moving,
+                distance,
+                stage,
+                result);
+  return true;
+}
+
 RegistrationResult RegistrationTarget::Check(const std::vector<Eigen::Vector3d>& moving_points,
                                              const Eigen::Isometry3d& T_fixed_moving) {
   RegistrationOptions stage = o_;
   stage.max_iterations = 1;
   const double distance = o_.max_correspondence_m;
-  const double voxel_m = std::max(o_.voxel_m, distance / 5.0);
-  Level& level = LevelFor(voxel_m);
-  const std::vector<Eigen::Vector3d> moving =
-      EvenSample(VoxelCentroids(moving_points, voxel_m), o_.max_moving_points);
+  stage.voxel_m = std::max(o_.voxel_m, distance / 5.0);
   RegistrationResult result;
   result.T_fixed_moving = T_fixed_moving;
-  if (level.fixed.size() < 10 || moving.size() < 10) return result;
-  RegisterStage(level.fixed,
-                level.GridOf(std::max(2.0 * voxel_m, distance / 4.0)),
-                level.normals.get(),
-                moving,
-                distance,
-                stage,
-                &result);
+  RunStage(EvenSample(VoxelCentroids(moving_points, stage.voxel_m), o_.max_moving_points),
+           distance,
+           stage,
+           &result);
   // One step was taken: the figures are those of the transform asked about.
   result.T_fixed_moving = T_fixed_moving;
   result.converged = false;
@@ -374,17 +383,11 @@ RegistrationResult RegistrationTarget::Register(const std::vector<Eigen::Vector3
       voxel_m = stage.voxel_m;
       moving_centroids = VoxelCentroids(moving_points, voxel_m);
     }
-    Level& level = LevelFor(voxel_m);
-    const std::vector<Eigen::Vector3d> moving =
-        EvenSample(moving_centroids, last ? o.max_moving_points : o.coarse_moving_points);
-    if (level.fixed.size() < 10 || moving.size() < 10) return result;
-    RegisterStage(level.fixed,
-                  level.GridOf(std::max(2.0 * voxel_m, distance / 4.0)),
-                  level.normals.get(),
-                  moving,
+    if (!RunStage(EvenSample(moving_centroids, last ? o.max_moving_points : o.coarse_moving_points),
                   distance,
                   stage,
-                  &result);
+                  &result))
+      return result;
     if (last) break;
     distance = std::max(o.max_correspondence_m, 0.5 * distance);
   }

@@ -84,6 +84,12 @@ class RegistrationTarget {
   struct Level;
   /// The fixed cloud at a stage's voxel side, made on first use.
   Level& LevelFor(double voxel_m);
+  /// One stage (`stage.voxel_m` its voxels, `distance` its correspondence distance) on
+  /// `moving`, thinned to those voxels; false if either cloud is too small to pair.
+  bool RunStage(const std::vector<Eigen::Vector3d>& moving,
+                double distance,
+                const RegistrationOptions& stage,
+                RegistrationResult* result);
 
   const std::vector<Eigen::Vector3d>& points_;
   RegistrationOptions o_;
