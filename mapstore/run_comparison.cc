@@ -251,7 +251,6 @@ struct StretchParts {
   /// then its provisional output's a placement each; none empty. RegisterLater gathers those
   /// that fit one another in `later`.
   std::vector<std::vector<Eigen::Vector3d>> later_placements;
-  size_t later_loaded = 0;  ///< the points of later_placements
   double rail_drop_m = 0.0;
   double lod_m = 0.0;
   double voxel_m = 0.0;  ///< the comparison's voxel (ChangeOptions::voxel_m)
@@ -296,7 +295,6 @@ Result LoadParts(const MapStore& store,
   for (const std::vector<Eigen::Vector3d>& p : placements) {
     std::vector<Eigen::Vector3d> local =
         stretch.Local(p, o.corridor_m + kShiftRoomM, o.overlap_m + kShiftRoomM);
-    parts->later_loaded += local.size();
     if (!local.empty()) parts->later_placements.push_back(std::move(local));
   }
   const Eigen::AlignedBox2d seen_from = stretch.Box(o.look_back_m);
@@ -763,7 +761,9 @@ Result RunComparison::Compare(const StretchRange& range,
                              {later_.id, &later_poses_, provisional ? &provisional_ : nullptr},
                              &parts);
   if (!r) return r;
-  if (parts.reference.points.size() < 1000 || parts.later_loaded < 1000) {
+  size_t later_points = 0;
+  for (const std::vector<Eigen::Vector3d>& p : parts.later_placements) later_points += p.size();
+  if (parts.reference.points.size() < 1000 || later_points < 1000) {
     out->skipped = "fewer than 1000 points of a run there";
     return {};
   }
