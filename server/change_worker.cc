@@ -1,5 +1,6 @@
 #include "server/change_worker.h"
 
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -52,7 +53,7 @@ void ChangeWorker::Notify() {
 }
 
 void ChangeWorker::Loop(Work work) {
-  LowerPriority(work);
+  LowerPriority(work, false);
   bool& woken = woken_[static_cast<int>(work)];
   while (!stopping()) {
     if (Pass(work)) continue;  // more to do at once
@@ -190,24 +191,32 @@ Result ChangeWorker::PrepareComparison(const mapstore::RunInfo& run,
 
 void ChangeWorker::CompareSideBySide(const mapstore::RunComparison& comparison,
                                      Work work,
+                                     bool live,
                                      const std::vector<Job>& batch,
                                      std::vector<mapstore::StretchOutcome>* outcomes,
                                      std::vector<Result>* results) {
   outcomes->assign(batch.size(), mapstore::StretchOutcome());
   results->assign(batch.size(), Result());
+  // Only the comparing itself may wait for idle CPU: flushing and storing take locks that
+  // ingest and the API wait on.
+  const bool idle = work == Work::kAgain && live;
+  auto compare = [&](size_t i) {
+    LowerPriority(work, idle);
+    (*results)[i] = comparison.Compare(batch[i].range, &(*outcomes)[i], batch[i].provisional);
+    LowerPriority(work, false);
+  };
   std::vector<std::thread> workers;
-  for (size_t i = 1; i < batch.size(); ++i)
-    workers.emplace_back([&, i] {
-      LowerPriority(work);
-      (*results)[i] = comparison.Compare(batch[i].range, &(*outcomes)[i], batch[i].provisional);
-    });
-  (*results)[0] = comparison.Compare(batch[0].range, &(*outcomes)[0], batch[0].provisional);
+  for (size_t i = 1; i < batch.size(); ++i) workers.emplace_back(compare, i);
+  compare(0);
   for (std::thread& t : workers) t.join();
 }
 
-void ChangeWorker::LowerPriority(Work work) {
+void ChangeWorker::LowerPriority(Work work, bool idle) {
   // Ingest and the API come first: comparing waits for the CPU they leave.
-  setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), work == Work::kNew ? 5 : 10);
+  const auto tid = static_cast<pid_t>(syscall(SYS_gettid));
+  const sched_param none{};
+  sched_setscheduler(tid, idle ? SCHED_IDLE : SCHED_OTHER, &none);
+  setpriority(PRIO_PROCESS, static_cast<id_t>(tid), work == Work::kNew ? 5 : 10);
 }
 
 bool ChangeWorker::Store(int64_t run,
@@ -253,12 +262,13 @@ bool ChangeWorker::Advance(const mapstore::RunInfo& run, const DetectionState& s
     ready.swap(again);
   }
   if (!ready.empty()) store_->Flush();  // the stretches' tiles as received so far
+  const bool live = run.status != "finished";
   for (size_t first = 0; first < ready.size() && !stopping(); first += threads) {
     const std::vector<Job> batch(ready.begin() + first,
                                  ready.begin() + std::min(ready.size(), first + threads));
     std::vector<mapstore::StretchOutcome> outcomes;
     std::vector<Result> results;
-    CompareSideBySide(*comparison, work, batch, &outcomes, &results);
+    CompareSideBySide(*comparison, work, live, batch, &outcomes, &results);
     for (size_t i = 0; i < batch.size(); ++i)
       if (!Store(run.id, state.reference_run, results[i], outcomes[i])) return false;
   }

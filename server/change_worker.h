@@ -112,6 +112,7 @@ class ChangeWorker {
   /// Compares a batch of stretches on a thread each (the first on this one).
   static void CompareSideBySide(const mapstore::RunComparison& comparison,
                                 Work work,
+                                bool live,
                                 const std::vector<Job>& batch,
                                 std::vector<mapstore::StretchOutcome>* outcomes,
                                 std::vector<mapstore::Result>* results);
@@ -121,8 +122,10 @@ class ChangeWorker {
              mapstore::Result r,
              const mapstore::StretchOutcome& outcome);
   /// The calling thread yields to ingest and the API (nice 5), and a stretch compared again
-  /// to everything else (nice 10): it has been compared once already.
-  static void LowerPriority(Work work);
+  /// to everything else (nice 10): it has been compared once already. `idle`: it takes only
+  /// CPU that nothing else wants (SCHED_IDLE), as a live run's stretch compared again does:
+  /// the first comparisons of the stretches the train is passing never wait on it.
+  static void LowerPriority(Work work, bool idle);
   bool stopping() const { return stopping_; }
 
   mapstore::MapStore* store_;
