@@ -328,10 +328,10 @@ std::vector<Eigen::Vector3d> MoveLater(const Stretch& stretch,
 /// the GNSS graph moves little once settled.
 bool FitsLargest(const RegistrationResult& check, const RegistrationResult& largest) {
   if (check.pairs == 0 || largest.pairs == 0) return false;
-  const double share = static_cast<double>(check.inliers) / static_cast<double>(check.pairs);
-  const double largest_share =
-      static_cast<double>(largest.inliers) / static_cast<double>(largest.pairs);
-  return share >= 0.9 * largest_share && check.rms_m <= 1.25 * largest.rms_m + 0.005;
+  auto share = [](const RegistrationResult& r) {
+    return static_cast<double>(r.inliers) / static_cast<double>(r.pairs);
+  };
+  return share(check) >= 0.9 * share(largest) && check.rms_m <= 1.25 * largest.rms_m + 0.005;
 }
 
 /// Registers the later run's points and sensors onto the reference and moves them there. A live

@@ -295,6 +295,12 @@ std::vector<Eigen::Vector3d> EvenSample(const std::vector<Eigen::Vector3d>& poin
   return out;
 }
 
+/// The voxel side of a stage pairing points up to `distance` apart: coarser for the wide
+/// first stages, which need only the shapes.
+double StageVoxel(const RegistrationOptions& o, double distance) {
+  return std::max(o.voxel_m, distance / 5.0);
+}
+
 }  // namespace
 
 /// The fixed cloud thinned to one stage's voxels, its normals and its grids by side.
@@ -351,7 +357,7 @@ RegistrationResult RegistrationTarget::Check(const std::vector<Eigen::Vector3d>&
   RegistrationOptions stage = o_;
   stage.max_iterations = 1;
   const double distance = o_.max_correspondence_m;
-  stage.voxel_m = std::max(o_.voxel_m, distance / 5.0);
+  stage.voxel_m = StageVoxel(o_, distance);
   RegistrationResult result;
   result.T_fixed_moving = T_fixed_moving;
   RunStage(EvenSample(VoxelCentroids(moving_points, stage.voxel_m), o_.max_moving_points),
@@ -375,7 +381,7 @@ RegistrationResult RegistrationTarget::Register(const std::vector<Eigen::Vector3
   std::vector<Eigen::Vector3d> moving_centroids;
   while (true) {
     RegistrationOptions stage = o;
-    stage.voxel_m = std::max(o.voxel_m, distance / 5.0);
+    stage.voxel_m = StageVoxel(o, distance);
     const bool last = distance <= o.max_correspondence_m;
     if (!last)
       stage.converged_step_m = std::max(o.converged_step_m, o.coarse_converged_share * distance);
