@@ -59,60 +59,39 @@ std::string DefaultWebRoot() {
   return "";
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{
-      "raillomer-server: stores each run streamed by raillomer-estimator as a tiled, "
-      "Draco-compressed map with an SQLite index, and serves it over REST (/api/v1/), a live "
-      "WebSocket hub (/live) and the browser viewer.\n\n"
-      "  raillomer-server --data <dir> [--port <n>] [--config <yaml>]\n\n"
-      "The ingest token (for ingest and every write) is generated into <dir>/ingest.token on "
-      "first start unless the config sets one; send it as 'Authorization: Bearer <token>'."};
+/// The command line's flags; each given one overrides the config file's setting.
+struct Flags {
   std::string config_path, data_dir, host, web_root;
   int port = -1, ws_port = -1;
-  app.add_option("--data", data_dir, "the store's folder (created if missing)");
-  app.add_option("--port", port, "HTTP port (default 8470; 0 lets the OS pick)");
-  app.add_option("--ws-port", ws_port, "live WebSocket port (default: port + 1)");
-  app.add_option("--host", host, "address to listen on (default 127.0.0.1)");
-  app.add_option("--web-root",
-                 web_root,
-                 "the viewer's static files, served at / (default: the installed viewer, or "
-                 "web/dist of the source tree once built)");
-  app.add_option("--config", config_path, "YAML config; flags override it");
-  CLI11_PARSE(app, argc, argv);
+};
 
-  ServerConfig config;
-  std::string error;
-  if (!config_path.empty() && !raillomer::server::LoadServerConfig(config_path, &config, &error)) {
-    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
-    return 2;
-  }
-  if (!data_dir.empty()) config.data_dir = data_dir;
-  if (port >= 0) config.port = port;
-  if (ws_port >= 0) config.ws_port = ws_port;
-  if (!host.empty()) config.host = host;
-  if (!web_root.empty()) config.web_root = web_root;
-  if (config.web_root.empty()) config.web_root = DefaultWebRoot();
-  if (!config.IsValid(&error)) {
-    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
-    return 2;
-  }
-  // Signals are taken by this thread alone (sigwait), never by the serving threads.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  signal(SIGPIPE, SIG_IGN);
+void AddFlags(CLI::App* app, Flags* f) {
+  app->add_option("--data", f->data_dir, "the store's folder (created if missing)");
+  app->add_option("--port", f->port, "HTTP port (default 8470; 0 lets the OS pick)");
+  app->add_option("--ws-port", f->ws_port, "live WebSocket port (default: port + 1)");
+  app->add_option("--host", f->host, "address to listen on (default 127.0.0.1)");
+  app->add_option("--web-root",
+                  f->web_root,
+                  "the viewer's static files, served at / (default: the installed viewer, or "
+                  "web/dist of the source tree once built)");
+  app->add_option("--config", f->config_path, "YAML config; flags override it");
+}
 
-  // The store's files (index, payloads, token) are readable by the server's user alone.
-  umask(077);
-  raillomer::server::Server server(config);
-  if (!server.Start(&error)) {
-    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
-    return 1;
-  }
+/// The config file (if any) with the flags over it, checked.
+bool ResolveConfig(const Flags& f, ServerConfig* config, std::string* error) {
+  if (!f.config_path.empty() && !raillomer::server::LoadServerConfig(f.config_path, config, error))
+    return false;
+  if (!f.data_dir.empty()) config->data_dir = f.data_dir;
+  if (f.port >= 0) config->port = f.port;
+  if (f.ws_port >= 0) config->ws_port = f.ws_port;
+  if (!f.host.empty()) config->host = f.host;
+  if (!f.web_root.empty()) config->web_root = f.web_root;
+  if (config->web_root.empty()) config->web_root = DefaultWebRoot();
+  return config->IsValid(error);
+}
+
+/// The config in effect, what recovery found, where the server listens and its token.
+void PrintServing(const raillomer::server::Server& server) {
   std::printf("raillomer-server: config in effect\n");
   for (const auto& [key, value] : raillomer::server::DescribeConfig(server.config()))
     std::printf("  %-28s %s\n", key.c_str(), value.c_str());
@@ -131,6 +110,44 @@ int main(int argc, char** argv) {
     std::printf("raillomer-server: ingest token: %s\n", server.token_path().c_str());
   }
   std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "raillomer-server: stores each run streamed by raillomer-estimator as a tiled, "
+      "Draco-compressed map with an SQLite index, and serves it over REST (/api/v1/), a live "
+      "WebSocket hub (/live) and the browser viewer.\n\n"
+      "  raillomer-server --data <dir> [--port <n>] [--config <yaml>]\n\n"
+      "The ingest token (for ingest and every write) is generated into <dir>/ingest.token on "
+      "first start unless the config sets one; send it as 'Authorization: Bearer <token>'."};
+  Flags flags;
+  AddFlags(&app, &flags);
+  CLI11_PARSE(app, argc, argv);
+
+  ServerConfig config;
+  std::string error;
+  if (!ResolveConfig(flags, &config, &error)) {
+    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
+    return 2;
+  }
+  // Signals are taken by this thread alone (sigwait), never by the serving threads.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  signal(SIGPIPE, SIG_IGN);
+
+  // The store's files (index, payloads, token) are readable by the server's user alone.
+  umask(077);
+  raillomer::server::Server server(config);
+  if (!server.Start(&error)) {
+    std::fprintf(stderr, "raillomer-server: %s\n", error.c_str());
+    return 1;
+  }
+  PrintServing(server);
   int received = 0;
   sigwait(&signals, &received);
   std::printf("raillomer-server: %s, writing the last tiles and stopping\n",

@@ -48,92 +48,85 @@ void PrintRow(const std::string& label, const raillomer::eval::PullSummary& s) {
               1e6 * m.rotation_rad.z());
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{
-      "raillomer-registration-bias: the pull of the scan-to-map registration at true poses on a "
-      "simulated scenario (mean per frame, body axes: x forward, y left, z up; roll, pitch, yaw)"};
+/// The command line.
+struct Options {
   std::string scenario_name, config_path, json_path;
   unsigned seed = 0;
   bool has_seed = false;
-  raillomer::eval::RegistrationBiasOptions options;
-  app.add_option("--scenario", scenario_name, "built-in scenario name or scenario YAML file")
+  raillomer::eval::RegistrationBiasOptions bias;
+  std::vector<double> offset;
+  std::string matches = "all";
+};
+
+/// Declares the options; returns the --seed option, to tell whether it was given.
+CLI::Option* AddOptions(CLI::App* app, Options* o) {
+  app->add_option("--scenario", o->scenario_name, "built-in scenario name or scenario YAML file")
       ->required();
-  auto* seed_option = app.add_option("--seed", seed, "noise seed (the corridor keeps its own)");
-  app.add_option("--config",
-                 config_path,
-                 "estimator configuration (rig.yaml with an optional estimator: section); "
-                 "default: the scenario's rig with the estimator's defaults");
-  app.add_option("--duration", options.duration_s, "seconds of the scenario (0: all of it)")
+  auto* seed_option = app->add_option("--seed", o->seed, "noise seed (the corridor keeps its own)");
+  app->add_option("--config",
+                  o->config_path,
+                  "estimator configuration (rig.yaml with an optional estimator: section); "
+                  "default: the scenario's rig with the estimator's defaults");
+  app->add_option("--duration", o->bias.duration_s, "seconds of the scenario (0: all of it)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
-  app.add_option("--window", options.window_s, "length of the report's time windows (s)")
+  app->add_option("--window", o->bias.window_s, "length of the report's time windows (s)")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
-  app.add_option("--min-matches", options.min_matches, "fewer matches: the frame is not solved")
+  app->add_option("--min-matches", o->bias.min_matches, "fewer matches: the frame is not solved")
       ->check(CLI::Range(6, 1000000))
       ->capture_default_str();
-  std::vector<double> offset;
-  app.add_option("--start-offset",
-                 offset,
-                 "match and solve each frame from the truth moved by x,y,z (m) and roll,pitch,yaw "
-                 "(mrad) in the body frame, to see how much of that error the registration takes "
-                 "back")
+  app->add_option("--start-offset",
+                  o->offset,
+                  "match and solve each frame from the truth moved by x,y,z (m) and "
+                  "roll,pitch,yaw (mrad) in the body frame, to see how much of that error the "
+                  "registration takes back")
       ->expected(6)
       ->delimiter(',');
-  std::string matches = "all";
-  app.add_option("--matches",
-                 matches,
-                 "solve with these matches only: all, planes or edges (whose pull is it)")
+  app->add_option("--matches",
+                  o->matches,
+                  "solve with these matches only: all, planes or edges (whose pull is it)")
       ->check(CLI::IsMember({"all", "planes", "edges"}))
       ->capture_default_str();
-  app.add_option("--json", json_path, "write the figures here as JSON");
-  CLI11_PARSE(app, argc, argv);
-  has_seed = seed_option->count() > 0;
+  app->add_option("--json", o->json_path, "write the figures here as JSON");
+  return seed_option;
+}
+
+/// --matches and --start-offset into the measurement's options.
+void ApplyParsed(Options* o) {
   using Matches = raillomer::eval::RegistrationBiasOptions::Matches;
-  options.matches = matches == "planes" ? Matches::kPlanes
-                                        : (matches == "edges" ? Matches::kEdges : Matches::kAll);
-  if (offset.size() == 6) {
-    options.start_offset = Eigen::Translation3d(offset[0], offset[1], offset[2]) *
-                           Eigen::AngleAxisd(1e-3 * offset[5], Eigen::Vector3d::UnitZ()) *
-                           Eigen::AngleAxisd(1e-3 * offset[4], Eigen::Vector3d::UnitY()) *
-                           Eigen::AngleAxisd(1e-3 * offset[3], Eigen::Vector3d::UnitX());
+  o->bias.matches = o->matches == "planes"
+                        ? Matches::kPlanes
+                        : (o->matches == "edges" ? Matches::kEdges : Matches::kAll);
+  if (o->offset.size() == 6) {
+    const std::vector<double>& v = o->offset;
+    o->bias.start_offset = Eigen::Translation3d(v[0], v[1], v[2]) *
+                           Eigen::AngleAxisd(1e-3 * v[5], Eigen::Vector3d::UnitZ()) *
+                           Eigen::AngleAxisd(1e-3 * v[4], Eigen::Vector3d::UnitY()) *
+                           Eigen::AngleAxisd(1e-3 * v[3], Eigen::Vector3d::UnitX());
   }
+}
 
-  raillomer::sim::Scenario scenario;
-  std::string error;
-  if (!raillomer::sim::LoadScenario(scenario_name, &scenario, &error)) {
-    std::cerr << "raillomer-registration-bias: " << error << "\n";
-    return kExitInputError;
-  }
-  if (has_seed) scenario.seed = seed;
-  auto simulator =
-      raillomer::sim::Simulator::Create(scenario, raillomer::sim::SimOptions{}, &error);
-  if (simulator == nullptr) {
-    std::cerr << "raillomer-registration-bias: " << error << "\n";
-    return kExitInputError;
-  }
-  raillomer::EstimatorConfig config;
-  const bool parsed =
-      config_path.empty()
-          ? raillomer::ParseEstimatorConfig(simulator->RigYaml(), "rig.yaml", &config, &error)
-          : raillomer::LoadEstimatorConfig(config_path, &config, &error);
-  if (!parsed) {
-    std::cerr << "raillomer-registration-bias: " << error << "\n";
-    return kExitInputError;
-  }
+/// The simulator of the scenario (with --seed) and the estimator configuration: --config, or
+/// the scenario's rig with the estimator's defaults.
+bool Prepare(const Options& o,
+             raillomer::sim::Scenario* scenario,
+             std::unique_ptr<raillomer::sim::Simulator>* simulator,
+             raillomer::EstimatorConfig* config,
+             std::string* error) {
+  if (!raillomer::sim::LoadScenario(o.scenario_name, scenario, error)) return false;
+  if (o.has_seed) scenario->seed = o.seed;
+  *simulator = raillomer::sim::Simulator::Create(*scenario, raillomer::sim::SimOptions{}, error);
+  if (*simulator == nullptr) return false;
+  return o.config_path.empty()
+             ? raillomer::ParseEstimatorConfig((*simulator)->RigYaml(), "rig.yaml", config, error)
+             : raillomer::LoadEstimatorConfig(o.config_path, config, error);
+}
 
-  raillomer::eval::RegistrationBiasReport report;
-  const bool ok = raillomer::eval::MeasureRegistrationBias(
-      simulator.get(), config, options, &report, &error, [](double t) {
-        std::fprintf(stderr, "raillomer-registration-bias: %.0f s of the scenario\n", t);
-      });
-  if (!ok) {
-    std::cerr << "raillomer-registration-bias: " << error << "\n";
-    return kExitInputError;
-  }
-
+/// The table: the mean pull per window, over the run, and of each LiDAR alone.
+void PrintReport(const raillomer::sim::Scenario& scenario,
+                 const std::string& matches,
+                 const raillomer::eval::RegistrationBiasReport& report) {
   std::printf("raillomer-registration-bias  scenario %s  seed %u  frames %d  matches %s\n",
               scenario.name.c_str(),
               scenario.seed,
@@ -150,28 +143,62 @@ int main(int argc, char** argv) {
   for (size_t i = 0; i < report.per_lidar.size(); ++i) {
     PrintRow(report.lidar_names[i] + " alone", report.per_lidar[i]);
   }
+}
 
-  if (!json_path.empty()) {
-    nlohmann::json j;
-    j["scenario"] = scenario.name;
-    j["seed"] = scenario.seed;
-    j["matches"] = matches;
-    j["frames"] = report.frames;
-    j["both"] = PullJson(report.both);
-    for (size_t i = 0; i < report.per_lidar.size(); ++i) {
-      j["per_lidar"][report.lidar_names[i]] = PullJson(report.per_lidar[i]);
-    }
-    j["windows"] = nlohmann::json::array();
-    for (const auto& w : report.windows) {
-      nlohmann::json row = PullJson(w.both);
-      row["from_s"] = w.t_from_s;
-      row["to_s"] = w.t_to_s;
-      j["windows"].push_back(row);
-    }
-    if (!raillomer::api::WriteFileAtomically(json_path, j.dump(2) + "\n", &error)) {
-      std::cerr << "raillomer-registration-bias: " << error << "\n";
-      return kExitOutputError;
-    }
+/// The same figures as JSON, for --json.
+std::string ReportJson(const raillomer::sim::Scenario& scenario,
+                       const std::string& matches,
+                       const raillomer::eval::RegistrationBiasReport& report) {
+  nlohmann::json j;
+  j["scenario"] = scenario.name;
+  j["seed"] = scenario.seed;
+  j["matches"] = matches;
+  j["frames"] = report.frames;
+  j["both"] = PullJson(report.both);
+  for (size_t i = 0; i < report.per_lidar.size(); ++i) {
+    j["per_lidar"][report.lidar_names[i]] = PullJson(report.per_lidar[i]);
   }
+  j["windows"] = nlohmann::json::array();
+  for (const auto& w : report.windows) {
+    nlohmann::json row = PullJson(w.both);
+    row["from_s"] = w.t_from_s;
+    row["to_s"] = w.t_to_s;
+    j["windows"].push_back(row);
+  }
+  return j.dump(2) + "\n";
+}
+
+int Fail(int code, const std::string& error) {
+  std::cerr << "raillomer-registration-bias: " << error << "\n";
+  return code;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "raillomer-registration-bias: the pull of the scan-to-map registration at true poses on a "
+      "simulated scenario (mean per frame, body axes: x forward, y left, z up; roll, pitch, yaw)"};
+  Options o;
+  CLI::Option* seed_option = AddOptions(&app, &o);
+  CLI11_PARSE(app, argc, argv);
+  o.has_seed = seed_option->count() > 0;
+  ApplyParsed(&o);
+
+  raillomer::sim::Scenario scenario;
+  std::unique_ptr<raillomer::sim::Simulator> simulator;
+  raillomer::EstimatorConfig config;
+  std::string error;
+  if (!Prepare(o, &scenario, &simulator, &config, &error)) return Fail(kExitInputError, error);
+  raillomer::eval::RegistrationBiasReport report;
+  const bool ok = raillomer::eval::MeasureRegistrationBias(
+      simulator.get(), config, o.bias, &report, &error, [](double t) {
+        std::fprintf(stderr, "raillomer-registration-bias: %.0f s of the scenario\n", t);
+      });
+  if (!ok) return Fail(kExitInputError, error);
+  PrintReport(scenario, o.matches, report);
+  if (!o.json_path.empty() && !raillomer::api::WriteFileAtomically(
+                                  o.json_path, ReportJson(scenario, o.matches, report), &error))
+    return Fail(kExitOutputError, error);
   return 0;
 }

@@ -41,103 +41,84 @@ struct CellHash {
   }
 };
 
-}  // namespace
-
-int main(int argc, char** argv) {
+/// The command line.
+struct Args {
   std::string submaps_dir, store_dir = "/tmp/raillomer_store_benchmark";
   int repeat = 1;
   bool error_check = true;
   mapstore::StoreOptions options;
+};
+
+/// The command line into `a`; false (usage printed) on anything it does not know.
+bool ParseArgs(int argc, char** argv, Args* a) {
   for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--submaps" && i + 1 < argc) {
-      submaps_dir = argv[++i];
-    } else if (a == "--store" && i + 1 < argc) {
-      store_dir = argv[++i];
-    } else if (a == "--tile-m" && i + 1 < argc) {
-      options.grid.tile_m = std::atof(argv[++i]);
-    } else if (a == "--draco-speed" && i + 1 < argc) {
-      options.draco_speed = std::atoi(argv[++i]);
-    } else if (a == "--flush-points" && i + 1 < argc) {
-      options.flush_dirty_points = std::strtoull(argv[++i], nullptr, 10);
-    } else if (a == "--no-error-check") {
-      error_check = false;
-    } else if (a == "--repeat" && i + 1 < argc) {
-      repeat = std::max(1, std::atoi(argv[++i]));
+    const std::string arg = argv[i];
+    if (arg == "--submaps" && i + 1 < argc) {
+      a->submaps_dir = argv[++i];
+    } else if (arg == "--store" && i + 1 < argc) {
+      a->store_dir = argv[++i];
+    } else if (arg == "--tile-m" && i + 1 < argc) {
+      a->options.grid.tile_m = std::atof(argv[++i]);
+    } else if (arg == "--draco-speed" && i + 1 < argc) {
+      a->options.draco_speed = std::atoi(argv[++i]);
+    } else if (arg == "--flush-points" && i + 1 < argc) {
+      a->options.flush_dirty_points = std::strtoull(argv[++i], nullptr, 10);
+    } else if (arg == "--no-error-check") {
+      a->error_check = false;
+    } else if (arg == "--repeat" && i + 1 < argc) {
+      a->repeat = std::max(1, std::atoi(argv[++i]));
     } else {
       std::fprintf(stderr,
                    "usage: %s --submaps <dir> [--store <dir>] [--repeat N] [--no-error-check] "
                    "[--tile-m M] [--draco-speed N] [--flush-points N]\n",
                    argv[0]);
-      return 2;
+      return false;
     }
   }
-  if (submaps_dir.empty()) {
+  if (a->submaps_dir.empty()) {
     std::fprintf(stderr, "map_store_benchmark: --submaps <dir> is required\n");
-    return 2;
+    return false;
   }
-  std::vector<std::string> files;
-  for (const auto& e : std::filesystem::directory_iterator(submaps_dir)) {
-    if (e.path().extension() == ".pcd") files.push_back(e.path().string());
-  }
-  std::sort(files.begin(), files.end());
-  if (files.empty()) {
-    std::fprintf(stderr, "map_store_benchmark: no .pcd submaps in %s\n", submaps_dir.c_str());
-    return 1;
-  }
-  // Payloads in memory; with --repeat the run is sent again shifted 10 km north, as a longer run.
+  return true;
+}
+
+/// The run's georeferenced submaps in memory: their payloads (with --repeat, the run again
+/// shifted 10 km north, as a longer run), the first pass decoded, and the points sent.
+struct Payloads {
   std::vector<std::string> payloads;
   std::vector<api::Submap> submaps;
   size_t points = 0;
-  for (int r = 0; r < repeat; ++r) {
+};
+
+bool LoadPayloads(const Args& a, Payloads* out, std::string* error) {
+  std::vector<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(a.submaps_dir)) {
+    if (e.path().extension() == ".pcd") files.push_back(e.path().string());
+  }
+  std::sort(files.begin(), files.end());
+  if (files.empty()) return *error = "no .pcd submaps in " + a.submaps_dir, false;
+  for (int r = 0; r < a.repeat; ++r) {
     for (const std::string& f : files) {
       api::Submap s;
-      std::string error;
-      if (!api::ReadSubmapFile(f, &s, &error)) {
-        std::fprintf(stderr, "map_store_benchmark: %s\n", error.c_str());
-        return 1;
-      }
+      if (!api::ReadSubmapFile(f, &s, error)) return false;
       if (!s.georeferenced) continue;
       s.origin.y() += 10000.0 * r;
       s.sequence += 1'000'000ull * r;
-      points += s.points.size();
-      payloads.push_back(api::EncodeSubmapPcd(s));
-      if (r == 0) submaps.push_back(std::move(s));
+      out->points += s.points.size();
+      out->payloads.push_back(api::EncodeSubmapPcd(s));
+      if (r == 0) out->submaps.push_back(std::move(s));
     }
   }
-  std::filesystem::remove_all(store_dir);
-  std::string error;
-  auto store = mapstore::MapStore::Open(store_dir, options, &error);
-  if (!store) {
-    std::fprintf(stderr, "map_store_benchmark: %s\n", error.c_str());
-    return 1;
-  }
-  mapstore::RunInfo run;
-  store->CreateRun({"benchmark", "RLM-1", 0}, &run);
-  std::printf("ingesting %zu submaps, %zu points\n", payloads.size(), points);
-  const auto t0 = std::chrono::steady_clock::now();
-  for (const std::string& p : payloads) {
-    const mapstore::Result r = store->IngestSubmap(run.id, p, nullptr);
-    if (!r) {
-      std::fprintf(stderr, "map_store_benchmark: %s\n", r.message.c_str());
-      return 1;
-    }
-  }
-  const auto t_ingested = std::chrono::steady_clock::now();
-  const mapstore::Result flushed = store->Flush();
-  const auto t1 = std::chrono::steady_clock::now();
-  if (!flushed) {
-    std::fprintf(stderr, "map_store_benchmark: %s\n", flushed.message.c_str());
-    return 1;
-  }
-  const double seconds = Seconds(t0, t1);
-  const mapstore::StoreStats stats = store->stats();
+  if (out->submaps.empty())
+    return *error = "no submap in " + a.submaps_dir + " is georeferenced", false;
+  return true;
+}
 
-  // Compression and error, level by level.
-  const Eigen::AlignedBox2d everywhere(Eigen::Vector2d(0, 0), Eigen::Vector2d(1e6, 1e7));
+/// Bits per point and the quantisation's bound, level by level.
+void PrintLevels(const mapstore::MapStore& store, int64_t run, const Eigen::AlignedBox2d& box) {
   std::vector<mapstore::TileInfo> tiles;
-  for (int level = 0; level < store->options().grid.levels; ++level) {
-    store->TilesInBox(run.id, level, everywhere, &tiles);
+  for (int level = 0; level < store.options().grid.levels; ++level) {
+    store.TilesInBox(run, level, box, &tiles);
     int64_t tile_points = 0, tile_bytes = 0;
     for (const auto& t : tiles) {
       tile_points += t.points;
@@ -150,44 +131,101 @@ int main(int argc, char** argv) {
                 8.0 * tile_bytes / std::max<int64_t>(1, tile_points),
                 tiles.empty() ? 0.0 : 1000.0 * tiles[0].max_error_m);
   }
-  // Each level-0 point of the first pass against the nearest submap point (UTM, doubles).
-  std::unordered_map<CellKey, std::vector<Eigen::Vector3d>, CellHash> source;
+}
+
+/// The submaps' points (UTM, doubles) on a 0.1 m grid.
+using PointGrid = std::unordered_map<CellKey, std::vector<Eigen::Vector3d>, CellHash>;
+
+PointGrid GridOf(const std::vector<api::Submap>& submaps) {
+  PointGrid grid;
   for (const api::Submap& s : submaps) {
-    if (!error_check) break;
     for (const Eigen::Vector3f& p : s.points) {
       const Eigen::Vector3d q = s.origin + p.cast<double>();
-      source[{Cell(q.x(), 0.1), Cell(q.y(), 0.1), Cell(q.z(), 0.1)}].push_back(q);
+      grid[{Cell(q.x(), 0.1), Cell(q.y(), 0.1), Cell(q.z(), 0.1)}].push_back(q);
     }
   }
-  store->TilesInBox(run.id, 0, everywhere, &tiles);
-  double worst = 0.0;
-  size_t checked = 0;
+  return grid;
+}
+
+/// The distance (largest coordinate) from `q` to the nearest point of the grid's cells around
+/// it; infinity if none is near.
+double NearestError(const PointGrid& grid, const Eigen::Vector3d& q) {
+  double best = INFINITY;
+  for (int dx = -1; dx <= 1; ++dx)
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dz = -1; dz <= 1; ++dz) {
+        auto it = grid.find({Cell(q.x(), 0.1) + dx, Cell(q.y(), 0.1) + dy, Cell(q.z(), 0.1) + dz});
+        if (it == grid.end()) continue;
+        for (const Eigen::Vector3d& s : it->second)
+          best = std::min(best, (s - q).cwiseAbs().maxCoeff());
+      }
+  return best;
+}
+
+/// Each level-0 point of the first pass against the nearest submap point: the largest error
+/// and the points checked.
+bool LargestError(const mapstore::MapStore& store,
+                  int64_t run,
+                  const Eigen::AlignedBox2d& box,
+                  const std::vector<api::Submap>& submaps,
+                  double* worst,
+                  size_t* checked,
+                  std::string* error) {
+  const PointGrid source = GridOf(submaps);
+  std::vector<mapstore::TileInfo> tiles;
+  store.TilesInBox(run, 0, box, &tiles);
   for (const auto& t : tiles) {
-    if (!error_check) break;
     if (t.origin.y() >= submaps.front().origin.y() + 5000.0) continue;  // a repeated pass
     std::string bytes;
     mapstore::TilePoints decoded;
-    store->Tile(run.id, t.key, nullptr, &bytes);
-    if (!mapstore::DecodeTile(bytes, &decoded, &error)) {
-      std::fprintf(stderr, "map_store_benchmark: %s\n", error.c_str());
-      return 1;
-    }
+    store.Tile(run, t.key, nullptr, &bytes);
+    if (!mapstore::DecodeTile(bytes, &decoded, error)) return false;
     for (const Eigen::Vector3f& p : decoded.points) {
-      const Eigen::Vector3d q = decoded.origin + p.cast<double>();
-      double best = INFINITY;
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz) {
-            auto it =
-                source.find({Cell(q.x(), 0.1) + dx, Cell(q.y(), 0.1) + dy, Cell(q.z(), 0.1) + dz});
-            if (it == source.end()) continue;
-            for (const Eigen::Vector3d& s : it->second)
-              best = std::min(best, (s - q).cwiseAbs().maxCoeff());
-          }
-      worst = std::max(worst, best);
-      ++checked;
+      *worst = std::max(*worst, NearestError(source, decoded.origin + p.cast<double>()));
+      ++*checked;
     }
   }
+  return true;
+}
+
+int Fail(const std::string& message) {
+  std::fprintf(stderr, "map_store_benchmark: %s\n", message.c_str());
+  return 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  if (!ParseArgs(argc, argv, &a)) return 2;
+  Payloads in;
+  std::string error;
+  if (!LoadPayloads(a, &in, &error)) return Fail(error);
+  std::filesystem::remove_all(a.store_dir);
+  auto store = mapstore::MapStore::Open(a.store_dir, a.options, &error);
+  if (!store) return Fail(error);
+  mapstore::RunInfo run;
+  store->CreateRun({"benchmark", "RLM-1", 0}, &run);
+  std::printf("ingesting %zu submaps, %zu points\n", in.payloads.size(), in.points);
+  const auto t0 = std::chrono::steady_clock::now();
+  for (const std::string& p : in.payloads) {
+    const mapstore::Result r = store->IngestSubmap(run.id, p, nullptr);
+    if (!r) return Fail(r.message);
+  }
+  const auto t_ingested = std::chrono::steady_clock::now();
+  const mapstore::Result flushed = store->Flush();
+  const auto t1 = std::chrono::steady_clock::now();
+  if (!flushed) return Fail(flushed.message);
+  const double seconds = Seconds(t0, t1);
+  const mapstore::StoreStats stats = store->stats();
+
+  const Eigen::AlignedBox2d everywhere(Eigen::Vector2d(0, 0), Eigen::Vector2d(1e6, 1e7));
+  PrintLevels(*store, run.id, everywhere);
+  double worst = 0.0;
+  size_t checked = 0;
+  if (a.error_check &&
+      !LargestError(*store, run.id, everywhere, in.submaps, &worst, &checked, &error))
+    return Fail(error);
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   std::printf(
@@ -197,7 +235,7 @@ int main(int argc, char** argv) {
       Seconds(t0, t_ingested),
       Seconds(t_ingested, t1),
       static_cast<unsigned long long>(stats.flushes),
-      points / seconds / 1e6,
+      in.points / seconds / 1e6,
       static_cast<unsigned long long>(stats.points_off_grid),
       static_cast<unsigned long long>(stats.points_encoded));
   std::printf("position error: largest %.2f mm over %zu level-0 points\n", 1000.0 * worst, checked);
