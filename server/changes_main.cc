@@ -2,6 +2,7 @@
 // (the server's own detection does the same as runs arrive), and prints the changes.
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
 
@@ -152,7 +153,8 @@ void PrintTable(int64_t run,
                 c.confidence);
 }
 
-void WriteJson(const std::string& path,
+/// The summary and the changes as JSON; false if the file could not be written.
+bool WriteJson(const std::string& path,
                int64_t run,
                int64_t reference,
                const RunComparisonSummary& summary,
@@ -166,7 +168,61 @@ void WriteJson(const std::string& path,
                                                         : nlohmann::json(summary.rail_rms_m)},
                         {"changes", nlohmann::json::array()}};
   for (const RunChange& c : changes) out["changes"].push_back(ChangeJson(c));
-  std::ofstream(path) << out.dump(1) << "\n";
+  std::ofstream file(path);
+  file << out.dump(1) << "\n";
+  return static_cast<bool>(file.flush());
+}
+
+/// The command line.
+struct Options {
+  std::string data_dir, json_path;
+  bool save = false;
+  int64_t run = 0, reference = 0;
+  std::vector<double> explain_at;
+  double explain_radius_m = 5.0;
+  double from_km = -1e9, to_km = 1e9;
+};
+
+void AddOptions(CLI::App* app, Options* o) {
+  app->add_option("--data", o->data_dir, "the store's folder")->required();
+  app->add_option("--run", o->run, "the run to compare")->required();
+  app->add_option("--reference", o->reference, "the run to compare with (default: the line's)");
+  app->add_option("--json", o->json_path, "also write the changes and the summary as JSON here");
+  app->add_flag("--save",
+                o->save,
+                "store the changes in the store as the server's own detection does (replacing "
+                "the run's earlier ones), for the server to serve");
+  app->add_option("--explain-at",
+                  o->explain_at,
+                  "easting,northing (the reference run's map): print every object compared "
+                  "near it, reported or not, with its evidence")
+      ->expected(2)
+      ->delimiter(',');
+  app->add_option(
+      "--explain-radius", o->explain_radius_m, "metres around --explain-at (default 5)");
+  app->add_option(
+      "--from-km", o->from_km, "compare from this kilometre of the line (default: start)");
+  app->add_option("--to-km", o->to_km, "compare up to this kilometre (default: the line's end)");
+}
+
+/// The run and the run to compare it with: --reference, else its line's reference run.
+Result ResolveRuns(const MapStore& store, const Options& o, RunInfo* info, int64_t* reference) {
+  LineInfo line;
+  Result r = store.GetRun(o.run, info);
+  if (r) r = store.GetLine(info->line, &line);
+  if (!r) return r;
+  *reference = o.reference != 0 ? o.reference : line.reference_run;
+  if (*reference == 0) return {Outcome::kInvalid, "no reference run: name one with --reference"};
+  if (*reference == o.run)
+    return {Outcome::kInvalid,
+            "run " + std::to_string(o.run) +
+                " is its line's reference run: name another to compare with, --reference <id>"};
+  return {};
+}
+
+int Fail(const std::string& message) {
+  std::fprintf(stderr, "raillomer-changes: %s\n", message.c_str());
+  return 2;
 }
 
 }  // namespace
@@ -178,65 +234,37 @@ int main(int argc, char** argv) {
       "kilometre, side, offset, size and margin against the structure gauge.\n\n"
       "  raillomer-changes --data <dir> --run <id> [--reference <id>] [--from-km <km>] "
       "[--to-km <km>] [--json <file>] [--save] [--explain-at <easting,northing>]"};
-  std::string data_dir, json_path;
-  bool save = false;
-  int64_t run = 0, reference = 0;
-  app.add_option("--data", data_dir, "the store's folder")->required();
-  app.add_option("--run", run, "the run to compare")->required();
-  app.add_option("--reference", reference, "the run to compare with (default: the line's)");
-  app.add_option("--json", json_path, "also write the changes and the summary as JSON here");
-  app.add_flag("--save",
-               save,
-               "store the changes in the store as the server's own detection does (replacing the "
-               "run's earlier ones), for the server to serve");
-  std::vector<double> explain_at;
-  Explain explain;
-  app.add_option("--explain-at",
-                 explain_at,
-                 "easting,northing (the reference run's map): print every object compared "
-                 "near it, reported or not, with its evidence")
-      ->expected(2)
-      ->delimiter(',');
-  app.add_option("--explain-radius", explain.radius_m, "metres around --explain-at (default 5)");
-  double from_km = -1e9, to_km = 1e9;
-  app.add_option("--from-km", from_km, "compare from this kilometre of the line (default: start)");
-  app.add_option("--to-km", to_km, "compare up to this kilometre (default: the line's end)");
+  Options o;
+  AddOptions(&app, &o);
   CLI11_PARSE(app, argc, argv);
+  const std::filesystem::path json_dir = std::filesystem::path(o.json_path).parent_path();
+  if (!o.json_path.empty() && !json_dir.empty() && !std::filesystem::is_directory(json_dir))
+    return Fail("cannot write " + o.json_path + ": no folder " + json_dir.string());
   std::string error;
   StoreOptions store_options;
   store_options.flush_interval_ms = 0;
-  auto store = MapStore::Open(data_dir, store_options, &error);
-  if (!store) {
-    std::fprintf(stderr, "raillomer-changes: %s\n", error.c_str());
-    return 2;
-  }
+  auto store = MapStore::Open(o.data_dir, store_options, &error);
+  if (!store) return Fail(error);
   RunInfo info;
-  LineInfo line;
-  Result r = store->GetRun(run, &info);
-  if (r) r = store->GetLine(info.line, &line);
-  if (r && reference == 0) reference = line.reference_run;
-  if (!r || reference == 0 || reference == run) {
-    std::fprintf(stderr,
-                 "raillomer-changes: %s\n",
-                 !r ? r.message.c_str() : "no reference run: name one with --reference");
-    return 2;
-  }
+  int64_t reference = 0;
+  Result r = ResolveRuns(*store, o, &info, &reference);
+  if (!r) return Fail(r.message);
   RunComparisonOptions options;
-  if (explain_at.size() == 2) {
+  Explain explain;
+  explain.radius_m = o.explain_radius_m;
+  if (o.explain_at.size() == 2) {
     explain.on = options.change.keep_rejected = true;
-    explain.at = Eigen::Vector2d(explain_at[0], explain_at[1]);
+    explain.at = Eigen::Vector2d(o.explain_at[0], o.explain_at[1]);
   }
-  options.from_m = 1000.0 * from_km;
-  options.to_m = 1000.0 * to_km;
+  options.from_m = 1000.0 * o.from_km;
+  options.to_m = 1000.0 * o.to_km;
   std::vector<RunChange> changes;
   RunComparisonSummary summary;
-  r = Compare(*store, reference, run, options, save, explain, &changes, &summary);
+  r = Compare(*store, reference, o.run, options, o.save, explain, &changes, &summary);
   std::fprintf(stderr, "\n");
-  if (!r) {
-    std::fprintf(stderr, "raillomer-changes: %s\n", r.message.c_str());
-    return 2;
-  }
-  PrintTable(run, reference, info.line, summary, changes);
-  if (!json_path.empty()) WriteJson(json_path, run, reference, summary, changes);
+  if (!r) return Fail(r.message);
+  PrintTable(o.run, reference, info.line, summary, changes);
+  if (!o.json_path.empty() && !WriteJson(o.json_path, o.run, reference, summary, changes))
+    return Fail("cannot write " + o.json_path);
   return 0;
 }

@@ -2,11 +2,13 @@
 demo corridor, then the same a week later with a box beside the track, a mast gone and a tree
 fallen across it) streamed by raillomer-estimator, the server's own detection read back with
 curl and compared with the simulator's changes.json; the CSV, the snapshot PNG (decoded with
-zlib and struct, not our code), the HTML report, status updates and bad requests."""
+zlib and struct, not our code), the HTML report, status updates and bad requests; and
+raillomer-changes, the same comparison offline on a copy of the store."""
 import json
 import os
 import shutil
 import signal
+import sqlite3
 import struct
 import subprocess
 import sys
@@ -293,6 +295,50 @@ class KilledDuringDetection(unittest.TestCase):
              "SELECT count(*), count(DISTINCT stretch) FROM change_stretches WHERE run_id = 2"],
             check=True, stdout=subprocess.PIPE).stdout.decode().strip()
         self.assertEqual(rows, "%d|%d" % (total, total))
+
+
+class OfflineComparison(unittest.TestCase):
+    """raillomer-changes on a copy of the store (the server keeps serving the original): the
+    server's changes, a table of them, and errors that name what is wrong."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.copy = tempfile.mkdtemp(prefix="offline_", dir=FIX["dir"])
+        source = sqlite3.connect(os.path.join(FIX["server"].data, "index.sqlite"))
+        target = sqlite3.connect(os.path.join(cls.copy, "index.sqlite"))
+        source.backup(target)
+        target.close()
+        source.close()
+
+    def changes(self, *args):
+        return subprocess.run(
+            [os.path.join(harness.bin_dir(), "raillomer-changes"), "--data", self.copy] +
+            list(args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=600)
+
+    def test_the_offline_comparison_finds_what_the_server_found(self):
+        out = os.path.join(self.copy, "changes.json")
+        done = self.changes("--run", "2", "--json", out)
+        self.assertEqual(done.returncode, 0, done.stderr)
+        self.assertIn("run 2 against run 1 (line 'Demo')", done.stdout)
+        with open(out) as f:
+            offline = json.load(f)
+        self.assertEqual(offline["reference_run"], 1)
+        self.assertLess(offline["rail_residual_m"], 0.03)
+        self.assertEqual(sorted((c["kind"], round(c["chainage_m"], 1), round(c["offset_m"], 1))
+                                for c in offline["changes"]), signature(FIX["found"]))
+        rows = done.stdout.splitlines()[2:]
+        self.assertEqual(len(rows), len(offline["changes"]))
+        for row, c in zip(rows, offline["changes"]):
+            self.assertEqual(row.split()[:2], [c["kind"], "%.3f" % (c["chainage_m"] / 1000.0)])
+
+    def test_bad_requests_name_what_is_wrong(self):
+        for args, words in ((["--run", "1"], "is its line's reference run"),
+                            (["--run", "99"], "no run 99"),
+                            (["--run", "2", "--reference", "98"], "98"),
+                            (["--run", "2", "--json", "/nonexistent/x.json"], "no folder")):
+            done = self.changes(*args)
+            self.assertEqual(done.returncode, 2, args)
+            self.assertIn(words, done.stderr, args)
 
 
 if __name__ == "__main__":
