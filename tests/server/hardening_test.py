@@ -337,44 +337,61 @@ class Hardening(unittest.TestCase):
         self.assertEqual(mode("ingest.token"), 0o600)
 
 
-def bad_requests(run, token):
-    """Malformed and hostile requests, as raw bytes: each must get a 4xx and change nothing."""
-    auth = "Authorization: Bearer %s\r\n" % token
-    cases = []
+class Requests:
+    """Raw HTTP/1.1 requests as bytes, with the ingest token unless told otherwise."""
 
-    def req(method, path, body=b"", headers="", with_auth=True, length=True):
+    def __init__(self, token):
+        self.auth = "Authorization: Bearer %s\r\n" % token
+        self.cases = []
+
+    def add(self, method, path, body=b"", headers="", with_auth=True, length=True):
         head = "%s %s HTTP/1.1\r\nHost: 127.0.0.1\r\n%s%s" % (
-            method, path, auth if with_auth else "", headers)
+            method, path, self.auth if with_auth else "", headers)
         if length:
             head += "Content-Length: %d\r\n" % len(body)
-        cases.append((head + "\r\n").encode() + body)
+        self.cases.append((head + "\r\n").encode() + body)
 
+    def json(self, method, path, body):
+        self.add(method, path, body, "Content-Type: application/json\r\n")
+
+
+JSON_BODIES = [b"", b"null", b"[]", b"{", b"\xff\xfe{}", b'{"a":' * 5000 + b"1" + b"}" * 5000,
+               b'{"line": 3, "vehicle": "v"}', b'{"line": "", "vehicle": "v"}',
+               b'{"line": "x\u0001", "vehicle": "v"}', b'{"line": "l", "vehicle": "v", '
+               b'"start_ns": -1}', b'{"line": "l", "vehicle": "v", "start_ns": 1.5}',
+               b'{"line": "%s", "vehicle": "v"}' % (b"x" * 300), b"NaN", b"1e999"]
+
+
+def unauthorised_writes(r, run, token):
+    """Every write without a token, with a wrong one, with one in the query, or gzipped."""
     runs = "/api/v1/runs/%d" % run
     writes = [("POST", "/api/v1/runs"), ("POST", runs + "/finish"), ("POST", runs + "/submaps"),
               ("POST", runs + "/poses"), ("POST", "/api/v1/lines/L/kmposts"),
               ("POST", "/api/v1/pois"), ("PUT", "/api/v1/pois/1"), ("DELETE", "/api/v1/pois/1")]
-    for method, path in writes:  # no token, a wrong one, a token in the query
-        req(method, path, b"{}", with_auth=False)
-        req(method, path, b"{}", "Authorization: Bearer wrong-token-wrong-token\r\n", False)
-        req(method, path + "?token=" + token, b"{}", with_auth=False)
-        req(method, path, b"{}", "Content-Encoding: gzip\r\n")
-    json_bodies = [b"", b"null", b"[]", b"{", b"\xff\xfe{}", b'{"a":' * 5000 + b"1" + b"}" * 5000,
-                   b'{"line": 3, "vehicle": "v"}', b'{"line": "", "vehicle": "v"}',
-                   b'{"line": "x\u0001", "vehicle": "v"}', b'{"line": "l", "vehicle": "v", '
-                   b'"start_ns": -1}', b'{"line": "l", "vehicle": "v", "start_ns": 1.5}',
-                   b'{"line": "%s", "vehicle": "v"}' % (b"x" * 300), b"NaN", b"1e999"]
-    for body in json_bodies:
-        req("POST", "/api/v1/runs", body, "Content-Type: application/json\r\n")
+    for method, path in writes:
+        r.add(method, path, b"{}", with_auth=False)
+        r.add(method, path, b"{}", "Authorization: Bearer wrong-token-wrong-token\r\n", False)
+        r.add(method, path + "?token=" + token, b"{}", with_auth=False)
+        r.add(method, path, b"{}", "Content-Encoding: gzip\r\n")
+
+
+def bad_runs_and_poses(r, run):
+    """Runs with bad JSON, poses with bad fields or bodies."""
+    runs = "/api/v1/runs/%d" % run
+    for body in JSON_BODIES:
+        r.json("POST", "/api/v1/runs", body)
     good = pose(0)
     for change in ({"sequence": -1}, {"sequence": 1.5}, {"sequence": "1"}, {"stamp_ns": None},
                    {"p": [1, 2]}, {"p": [1e999, 0, 0]}, {"q": [0, 0, 0, 2]}, {"q": [0, 0, 0]},
                    {"georeferenced": "yes"}, {"utm_zone": "99Q"}, {"utm_zone": 50},
                    {"p": [-5.0, 3585200.0, 30.0]}, {"sequence": 1 << 63}):
-        bad = dict(good, **change)
-        req("POST", runs + "/poses", json.dumps({"poses": [bad]}).encode(),
-            "Content-Type: application/json\r\n")
-    for body in json_bodies[:6] + [b'{"poses": 5}', b'{"poses": [1, 2]}', b'{"pose": []}']:
-        req("POST", runs + "/poses", body, "Content-Type: application/json\r\n")
+        r.json("POST", runs + "/poses", json.dumps({"poses": [dict(good, **change)]}).encode())
+    for body in JSON_BODIES[:6] + [b'{"poses": 5}', b'{"poses": [1, 2]}', b'{"pose": []}']:
+        r.json("POST", runs + "/poses", body)
+
+
+def bad_submaps(r, run):
+    """Submaps truncated, with a wrong header, zone, origin, stamps, sequence or points."""
     ok = submap_pcd(0)
     for body in [b"", b"garbage", ok[:-7], ok.replace(b"DATA binary", b"DATA ascii"),
                  ok.replace(b"POINTS 32000", b"POINTS 99999999999999999999"),
@@ -390,20 +407,31 @@ def bad_requests(run, token):
                  submap_pcd(0, points=[(float("nan"), 0.0, 0.0)]),
                  submap_pcd(0, points=[(20000.0, 0.0, 0.0)]), submap_pcd(0, points=[]),
                  submap_pcd(0, points=[(0.0, 0.0, 0.0), (3000.0, 0.0, 0.0)])]:
-        req("POST", runs + "/submaps", body, "Content-Type: application/octet-stream\r\n")
+        r.add("POST", "/api/v1/runs/%d/submaps" % run, body,
+              "Content-Type: application/octet-stream\r\n")
+
+
+def bad_posts_and_pois(r, run):
+    """Kilometre posts and points of interest with bad fields, writes to runs that do not
+    exist."""
     for body in [b'{"km": "1", "easting": 1, "northing": 2}', b'{"km": 1}', b"[]",
                  b'{"km": 1, "easting": 432100, "northing": 3585200}']:
-        req("POST", "/api/v1/lines/Nowhere/kmposts", body, "Content-Type: application/json\r\n")
+        r.json("POST", "/api/v1/lines/Nowhere/kmposts", body)
     for body in [b'{"kind": 1}', b'{"kind": "m", "utm_zone": "50N", "position": [1, 2]}',
                  b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "properties": []}',
                  b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "line": 5}']:
-        req("POST", "/api/v1/pois", body, "Content-Type: application/json\r\n")
-        req("PUT", "/api/v1/pois/1", body, "Content-Type: application/json\r\n")
-    req("POST", runs + "/finish", b'{"end_ns": "soon"}', "Content-Type: application/json\r\n")
-    req("POST", "/api/v1/runs/999/finish", b"{}")
-    req("POST", "/api/v1/runs/0/poses", json.dumps({"poses": [good]}).encode())
-    req("POST", "/api/v1/runs/99999999999999999999/submaps", ok)
-    req("DELETE", "/api/v1/pois/999")
+        r.json("POST", "/api/v1/pois", body)
+        r.json("PUT", "/api/v1/pois/1", body)
+    r.json("POST", "/api/v1/runs/%d/finish" % run, b'{"end_ns": "soon"}')
+    r.add("POST", "/api/v1/runs/999/finish", b"{}")
+    r.add("POST", "/api/v1/runs/0/poses", json.dumps({"poses": [pose(0)]}).encode())
+    r.add("POST", "/api/v1/runs/99999999999999999999/submaps", submap_pcd(0))
+    r.add("DELETE", "/api/v1/pois/999")
+
+
+def bad_reads(r, run):
+    """Reads of what does not exist, with bad levels, boxes, formats or paths."""
+    runs = "/api/v1/runs/%d" % run
     reads = ["/api/v1/runs/999", "/api/v1/runs/abc", "/api/v1/runs/-1", "/api/v1/runs/1.0",
              runs + "/tiles?level=-1", runs + "/tiles?level=4", runs + "/tiles?level=1e3",
              runs + "/tiles?level=0x1", runs + "/tiles?bbox=1,2,3", runs + "/tiles?bbox=a,b,c,d",
@@ -422,31 +450,46 @@ def bad_requests(run, token):
              "/api/v1/runs/%zz", "/api/v1/%00", "/api/v1/runs?x=%", "/api/v1/runs/1/../../health",
              "/" + "a" * 20000]
     for path in reads:
-        req("GET", path, with_auth=False)
+        r.add("GET", path, with_auth=False)
+
+
+def bad_run_ids(r):
+    """Every run route with an id that is no run's."""
     for bad_id in ("abc", "0", "-1", "999", "1e3", "01x"):
         base = "/api/v1/runs/" + bad_id
-        req("GET", base, with_auth=False)
-        req("GET", base + "/tiles", with_auth=False)
-        req("GET", base + "/tiles/0/0/0", with_auth=False)
-        req("GET", base + "/trajectory", with_auth=False)
-        req("GET", base + "/export?bbox=0,0,1,1", with_auth=False)
-        req("POST", base + "/finish", b"{}")
-        req("POST", base + "/submaps", ok)
-        req("POST", base + "/poses", json.dumps({"poses": [good]}).encode())
+        for read in ("", "/tiles", "/tiles/0/0/0", "/trajectory", "/export?bbox=0,0,1,1"):
+            r.add("GET", base + read, with_auth=False)
+        r.add("POST", base + "/finish", b"{}")
+        r.add("POST", base + "/submaps", submap_pcd(0))
+        r.add("POST", base + "/poses", json.dumps({"poses": [pose(0)]}).encode())
     for method in ("PATCH", "OPTIONS", "TRACE", "CONNECT", "PROPFIND", "BREW"):
-        req(method, "/api/v1/runs", b"{}")
-    protocol = [b"GARBAGE\r\n\r\n", b"GET\r\n\r\n", b"GET / HTTP/9.9\r\n\r\n",
-                b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n", b"GET /health HTTP/1.1\r\nNoColon\r\n\r\n",
-                b"GET /health HTTP/1.1\r\nX: a\x00b\r\n\r\n",
-                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: -5\r\n\r\n",
-                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 99999999999999999999999\r\n\r\n",
-                b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 5\r\nContent-Length: 6\r\n\r\n",
-                b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: gzip\r\n\r\n",
-                b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: chunked\r\n" + auth.encode() +
-                b"\r\nzz\r\n", b"GET /h\xffealth HTTP/1.1\r\n\r\n",
-                b"GET http://evil/ HTTP/1.1\r\n\r\n", b"GET * HTTP/1.1\r\n\r\n"]
-    cases += protocol
-    return cases
+        r.add(method, "/api/v1/runs", b"{}")
+
+
+def bad_protocol(auth):
+    """Bytes that are not the HTTP/1.1 the server speaks."""
+    return [b"GARBAGE\r\n\r\n", b"GET\r\n\r\n", b"GET / HTTP/9.9\r\n\r\n",
+            b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n", b"GET /health HTTP/1.1\r\nNoColon\r\n\r\n",
+            b"GET /health HTTP/1.1\r\nX: a\x00b\r\n\r\n",
+            b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: -5\r\n\r\n",
+            b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 99999999999999999999999\r\n\r\n",
+            b"POST /api/v1/runs HTTP/1.1\r\nContent-Length: 5\r\nContent-Length: 6\r\n\r\n",
+            b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: gzip\r\n\r\n",
+            b"POST /api/v1/runs HTTP/1.1\r\nTransfer-Encoding: chunked\r\n" + auth.encode() +
+            b"\r\nzz\r\n", b"GET /h\xffealth HTTP/1.1\r\n\r\n",
+            b"GET http://evil/ HTTP/1.1\r\n\r\n", b"GET * HTTP/1.1\r\n\r\n"]
+
+
+def bad_requests(run, token):
+    """Malformed and hostile requests, as raw bytes: each must get a 4xx and change nothing."""
+    r = Requests(token)
+    unauthorised_writes(r, run, token)
+    bad_runs_and_poses(r, run)
+    bad_submaps(r, run)
+    bad_posts_and_pois(r, run)
+    bad_reads(r, run)
+    bad_run_ids(r)
+    return r.cases + bad_protocol(r.auth)
 
 
 class BadInputs(unittest.TestCase):

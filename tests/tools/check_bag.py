@@ -276,7 +276,7 @@ def check_odometer(report, bag, topic, args):
     report.check("odometer name == [wheel]", not bad, "; ".join(bad[:3]))
 
 
-def main(argv):
+def parse_args(argv):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("bag")
     parser.add_argument("--duration-s", type=float, help="expected time span of the bag")
@@ -296,15 +296,89 @@ def main(argv):
     for name in ("points_per_frame", "lidar_rate", "imu_rate", "gnss_rate", "odom_rate"):
         if getattr(args, name) <= 0:
             parser.error("--%s must be positive" % name.replace("_", "-"))
+    return args
 
-    lidar_topics = [t for t in args.lidar_topics.split(",") if t]
-    expected = {t: "livox_ros_driver/CustomMsg" for t in lidar_topics}
+
+def expected_topics(args):
+    """{topic: message type} of the sensors the bag should hold (an empty name skips one)."""
+    expected = {t: "livox_ros_driver/CustomMsg" for t in args.lidar_topics.split(",") if t}
     for topic, type_name in ((args.imu_topic, "sensor_msgs/Imu"),
                              (args.gnss_topic, "sensor_msgs/NavSatFix"),
                              (args.odom_topic, "sensor_msgs/JointState")):
-        if topic:  # an empty name skips that sensor
+        if topic:
             expected[topic] = type_name
+    return expected
 
+
+def check_connection(report, topic, type_name, c):
+    """A connection's type, MD5 and stored definition against the contract."""
+    report.check("type %s" % topic, c.datatype == type_name,
+                 "%s (expected %s)" % (c.datatype, type_name))
+    report.check("md5 %s" % topic, c.md5sum == MD5.get(type_name),
+                 "%s (expected %s)" % (c.md5sum, MD5.get(type_name)))
+    try:
+        rehash = md5_of_definition(c.datatype, c.msg_def)
+    except Exception as e:
+        rehash = "error: %s" % e
+    report.check("definition %s" % topic, rehash == c.md5sum,
+                 "genmsg re-hashes the stored definition to %s" % rehash)
+
+
+def check_first_message(report, bag, topic, type_name):
+    """One message deserialised with the class genpy builds from the stored definition."""
+    try:
+        msg = next(bag.read_messages(topics=[topic])).message
+        detail = msg._type
+        if msg._type == "livox_ros_driver/CustomMsg":
+            ok = len(msg.points) == msg.point_num and msg.header.stamp.to_nsec() == msg.timebase
+            detail += ", %d points" % len(msg.points)
+        else:
+            ok = msg._type == type_name
+        report.check("dynamic deserialization %s" % topic, ok, detail)
+    except Exception as e:
+        report.check("dynamic deserialization %s" % topic, False, "%s: %s" % (type(e).__name__, e))
+
+
+def check_topics(report, bag, expected):
+    """Every expected topic present, typed and readable; {topic: [connection]}."""
+    connections = {}
+    for c in bag._get_connections():
+        connections.setdefault(c.topic, []).append(c)
+    for topic, type_name in expected.items():
+        conns = connections.get(topic)
+        if not report.check("topic %s present" % topic, conns,
+                            "" if conns else "bag has: %s" % ", ".join(sorted(connections))):
+            continue
+        for c in conns:
+            check_connection(report, topic, type_name, c)
+        check_first_message(report, bag, topic, type_name)
+    return connections
+
+
+def check_streams(report, bag, expected, connections, args):
+    """Each correctly typed sensor's stream (rates, gaps, contents) and the bag's span."""
+    def typed(topic):
+        return topic in expected and any(c.datatype == expected[topic]
+                                         for c in connections.get(topic, []))
+
+    for topic in (t for t in args.lidar_topics.split(",") if t):
+        if typed(topic):
+            check_lidar(report, bag, topic, args)
+    for topic, check in ((args.imu_topic, check_imu), (args.gnss_topic, check_gnss),
+                         (args.odom_topic, check_odometer)):
+        if typed(topic):
+            check(report, bag, topic, args)
+    if args.duration_s is not None:
+        span = bag.get_end_time() - bag.get_start_time()
+        tolerance = 0.05 * args.duration_s + 0.15
+        report.check("duration", abs(span - args.duration_s) <= tolerance,
+                     "bag spans %.3f s (expected %.3f +- %.3f s)" % (span, args.duration_s,
+                                                                     tolerance))
+
+
+def main(argv):
+    args = parse_args(argv)
+    expected = expected_topics(args)
     report = Report()
     print("bag %s (%d bytes)" % (args.bag, os.path.getsize(args.bag)))
     try:
@@ -312,64 +386,10 @@ def main(argv):
     except Exception as e:  # unindexed, truncated or not a bag at all
         report.check("bag readable", False, "%s: %s" % (type(e).__name__, e))
         return finish(report, args)
-
     with bag:
         report.check("bag readable", True, "%d messages" % bag.get_message_count())
-        connections = {}
-        for c in bag._get_connections():
-            connections.setdefault(c.topic, []).append(c)
-        for topic, type_name in expected.items():
-            conns = connections.get(topic)
-            if not report.check("topic %s present" % topic, conns,
-                                "" if conns else "bag has: %s" % ", ".join(sorted(connections))):
-                continue
-            for c in conns:
-                report.check("type %s" % topic, c.datatype == type_name,
-                             "%s (expected %s)" % (c.datatype, type_name))
-                report.check("md5 %s" % topic, c.md5sum == MD5.get(type_name),
-                             "%s (expected %s)" % (c.md5sum, MD5.get(type_name)))
-                try:
-                    rehash = md5_of_definition(c.datatype, c.msg_def)
-                except Exception as e:
-                    rehash = "error: %s" % e
-                report.check("definition %s" % topic, rehash == c.md5sum,
-                             "genmsg re-hashes the stored definition to %s" % rehash)
-            # Deserialise one message with the class genpy builds from the stored definition.
-            try:
-                first = next(bag.read_messages(topics=[topic]))
-                msg = first.message
-                detail = msg._type
-                if msg._type == "livox_ros_driver/CustomMsg":
-                    ok = (len(msg.points) == msg.point_num and
-                          msg.header.stamp.to_nsec() == msg.timebase)
-                    detail += ", %d points" % len(msg.points)
-                else:
-                    ok = msg._type == type_name
-                report.check("dynamic deserialization %s" % topic, ok, detail)
-            except Exception as e:
-                report.check("dynamic deserialization %s" % topic, False,
-                             "%s: %s" % (type(e).__name__, e))
-
-        def typed(topic):
-            return topic in expected and any(c.datatype == expected[topic]
-                                             for c in connections.get(topic, []))
-
-        for topic in lidar_topics:
-            if typed(topic):
-                check_lidar(report, bag, topic, args)
-        if typed(args.imu_topic):
-            check_imu(report, bag, args.imu_topic, args)
-        if typed(args.gnss_topic):
-            check_gnss(report, bag, args.gnss_topic, args)
-        if typed(args.odom_topic):
-            check_odometer(report, bag, args.odom_topic, args)
-
-        if args.duration_s is not None:
-            span = bag.get_end_time() - bag.get_start_time()
-            tolerance = 0.05 * args.duration_s + 0.15
-            report.check("duration", abs(span - args.duration_s) <= tolerance,
-                         "bag spans %.3f s (expected %.3f +- %.3f s)" % (span, args.duration_s,
-                                                                         tolerance))
+        connections = check_topics(report, bag, expected)
+        check_streams(report, bag, expected, connections, args)
     return finish(report, args)
 
 
