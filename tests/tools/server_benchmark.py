@@ -172,7 +172,7 @@ async def live(ws_port, port, token, run_id, subscribers, seconds):
     return n_poses, complete, pick(0.5), pick(0.99), latencies[-1]
 
 
-def main():
+def parse_args():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--work")
@@ -182,50 +182,72 @@ def main():
     ap.add_argument("--server-config", help="a raillomer-server YAML config for parts 2 and 3")
     ap.add_argument("--skip-ingest", action="store_true", help="leave out part 1")
     ap.add_argument("--check", action="store_true")
-    a = ap.parse_args()
+    return ap.parse_args()
+
+
+def estimated_submaps(a, work):
+    """--submaps, else the submaps of an estimator run of reverse_running."""
+    if a.submaps:
+        return a.submaps
+    print("estimating reverse_running for its submaps ...", flush=True)
+    out = os.path.join(work, "estimate")
+    run([os.path.join(a.build, "bin", "raillomer-estimator"), "--sim", "reverse_running", "--out", out,
+         "--quiet", "--no-keyframes"])
+    return os.path.join(out, "submaps")
+
+
+def bench_ingest(a, work, submaps):
+    """Part 1: map_store_benchmark on the run sent three times; True if its targets hold."""
+    print("1. ingest into the map store ...", flush=True)
+    out = run([os.path.join(a.build, "bin", "map_store_benchmark"), "--submaps", submaps, "--repeat", "3",
+               "--store", os.path.join(work, "store")])
+    print(out, end="")
+    mpts = float(re.search(r"([\d.]+) million points per second", out).group(1))
+    bits = float(re.search(r"level 0: .* ([\d.]+) bits per point", out).group(1))
+    error_mm = float(re.search(r"position error: largest ([\d.]+) mm", out).group(1))
+    print(f"   ingest {mpts:.2f} Mpt/s (target >= 2), {bits:.2f} bits/point (<= 24), "
+          f"error {error_mm:.2f} mm (<= 5)")
+    shutil.rmtree(os.path.join(work, "store"), ignore_errors=True)
+    return mpts >= 2.0 and bits <= 24.0 and error_mm <= 5.0
+
+
+def bench_tiles(a, work, port, token, submaps):
+    """Part 2: the run ingested over HTTP, its tiles fetched by wrk; True if p99 <= 10 ms."""
+    print("2. tile serving ...", flush=True)
+    run_id, paths = ingest_run(port, token, submaps)
+    p, rps, errors, raw = wrk_tiles(port, paths, a.seconds, work)
+    print(f"   {len(paths)} tiles, 64 connections, {rps:.0f} requests/s, latency p50 {p['50']:.2f} ms, "
+          f"p90 {p['90']:.2f} ms, p99 {p['99']:.2f} ms (target <= 10), errors {errors}")
+    return p["99"] <= 10.0 and sum(errors) == 0
+
+
+def bench_live(a, port, ws_port, token):
+    """Part 3: poses at 10 Hz to the WebSocket subscribers; True if all got every pose within
+    p99 50 ms."""
+    print(f"3. live: {a.subscribers} WebSocket subscribers, poses at 10 Hz ...", flush=True)
+    status_conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    status, body = request(status_conn, "POST", "/api/v1/runs", token, json.dumps({"line": "bench", "vehicle": "RLM-2"}))
+    live_run = json.loads(body)["id"]
+    n, complete, p50, p99, worst = asyncio.run(live(ws_port, port, token, live_run, a.subscribers, a.seconds))
+    print(f"   {n} poses, {complete}/{a.subscribers} subscribers got every one, latency p50 {p50:.2f} ms, "
+          f"p99 {p99:.2f} ms (target <= 50), max {worst:.2f} ms")
+    return complete == a.subscribers and p99 <= 50.0
+
+
+def main():
+    a = parse_args()
     work = a.work or tempfile.mkdtemp(prefix="raillomer_server_bench_")
     os.makedirs(work, exist_ok=True)
     ok = True
     server = None
     try:
-        submaps = a.submaps
-        if not submaps:
-            print("estimating reverse_running for its submaps ...", flush=True)
-            out = os.path.join(work, "estimate")
-            run([os.path.join(a.build, "bin", "raillomer-estimator"), "--sim", "reverse_running", "--out", out,
-                 "--quiet", "--no-keyframes"])
-            submaps = os.path.join(out, "submaps")
-
+        submaps = estimated_submaps(a, work)
         if not a.skip_ingest:
-            print("1. ingest into the map store ...", flush=True)
-            out = run([os.path.join(a.build, "bin", "map_store_benchmark"), "--submaps", submaps, "--repeat", "3",
-                       "--store", os.path.join(work, "store")])
-            print(out, end="")
-            mpts = float(re.search(r"([\d.]+) million points per second", out).group(1))
-            bits = float(re.search(r"level 0: .* ([\d.]+) bits per point", out).group(1))
-            error_mm = float(re.search(r"position error: largest ([\d.]+) mm", out).group(1))
-            print(f"   ingest {mpts:.2f} Mpt/s (target >= 2), {bits:.2f} bits/point (<= 24), "
-                  f"error {error_mm:.2f} mm (<= 5)")
-            ok &= mpts >= 2.0 and bits <= 24.0 and error_mm <= 5.0
-            shutil.rmtree(os.path.join(work, "store"), ignore_errors=True)
-
-        print("2. tile serving ...", flush=True)
-        data = os.path.join(work, "server")
-        server, port, ws_port, token = start_server(a.build, data, a.server_config)
-        run_id, paths = ingest_run(port, token, submaps)
-        p, rps, errors, raw = wrk_tiles(port, paths, a.seconds, work)
-        print(f"   {len(paths)} tiles, 64 connections, {rps:.0f} requests/s, latency p50 {p['50']:.2f} ms, "
-              f"p90 {p['90']:.2f} ms, p99 {p['99']:.2f} ms (target <= 10), errors {errors}")
-        ok &= p["99"] <= 10.0 and sum(errors) == 0
-
-        print(f"3. live: {a.subscribers} WebSocket subscribers, poses at 10 Hz ...", flush=True)
-        status_conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-        status, body = request(status_conn, "POST", "/api/v1/runs", token, json.dumps({"line": "bench", "vehicle": "RLM-2"}))
-        live_run = json.loads(body)["id"]
-        n, complete, p50, p99, worst = asyncio.run(live(ws_port, port, token, live_run, a.subscribers, a.seconds))
-        print(f"   {n} poses, {complete}/{a.subscribers} subscribers got every one, latency p50 {p50:.2f} ms, "
-              f"p99 {p99:.2f} ms (target <= 50), max {worst:.2f} ms")
-        ok &= complete == a.subscribers and p99 <= 50.0
+            ok &= bench_ingest(a, work, submaps)
+        server, port, ws_port, token = start_server(a.build, os.path.join(work, "server"),
+                                                    a.server_config)
+        ok &= bench_tiles(a, work, port, token, submaps)
+        ok &= bench_live(a, port, ws_port, token)
     finally:
         if server:
             server.send_signal(signal.SIGTERM)

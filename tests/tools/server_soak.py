@@ -100,7 +100,7 @@ def memory_sampler(server, stop, stats):
         stats["rss_mb"] = max(stats["rss_mb"], server.status("VmRSS"))
 
 
-def main():
+def parse_args():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(harness.ROOT, "build"))
@@ -109,57 +109,80 @@ def main():
     ap.add_argument("--readers", type=int, default=64)
     ap.add_argument("--memory-mb", type=float, default=200.0)
     ap.add_argument("--check", action="store_true")
-    a = ap.parse_args()
+    return ap.parse_args()
+
+
+def ingest_run(server):
+    """A finished run of 12 submaps; the URLs of its tiles at every level."""
+    run = server.create_run(line="Soak")
+    for i in range(12):
+        status, _, body = server.request("POST", "/api/v1/runs/%d/submaps" % run,
+                                         harness.submap_pcd(i), server.token)
+        if status != 201:
+            sys.exit("server_soak: ingesting submap %d: %d %s" % (i, status, body[:200]))
+    server.write("POST", "/api/v1/runs/%d/finish" % run, {})
+    paths = []
+    for level in range(4):
+        _, body = server.json("GET", "/api/v1/runs/%d/tiles?level=%d" % (run, level))
+        paths += [t["url"] for t in body["tiles"]]
+    return paths
+
+
+def soak(server, paths, a, start_mb):
+    """Slow clients, tile readers, a health prober and a memory sampler for a.seconds; their
+    tallies."""
+    stop = threading.Event()
+    lock = threading.Lock()
+    stats = {"opened": 0, "closed_by_server": 0, "latencies": [], "errors": 0, "health": [],
+             "health_errors": 0, "rss_mb": start_mb}
+    threads = [threading.Thread(target=slow_clients, args=(server.port, a.slow, stop, stats))]
+    threads += [threading.Thread(target=reader, args=(server.port, paths, k, stop, stats, lock))
+                for k in range(a.readers)]
+    threads += [threading.Thread(target=health_prober, args=(server, stop, stats)),
+                threading.Thread(target=memory_sampler, args=(server, stop, stats))]
+    for t in threads:
+        t.start()
+    time.sleep(a.seconds)
+    stop.set()
+    for t in threads:
+        t.join()
+    return stats
+
+
+def summary(server, stats, a, start_mb):
+    """The figures as printed (JSON)."""
+    lat = sorted(stats["latencies"])
+    pick = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] * 1000.0 if lat else float("nan")
+    worst_health = max(stats["health"]) if stats["health"] else float("inf")
+    return {
+        "seconds": a.seconds, "slow_clients": a.slow, "readers": a.readers,
+        "slow_connections_opened": stats["opened"],
+        "slow_connections_closed_by_server": stats["closed_by_server"],
+        "tile_requests": len(lat), "tile_errors": stats["errors"],
+        "tile_p50_ms": round(pick(0.5), 2), "tile_p99_ms": round(pick(0.99), 2),
+        "health_probes": len(stats["health"]), "health_errors": stats["health_errors"],
+        "health_worst_s": round(worst_health, 3),
+        "rss_start_mb": round(start_mb, 1), "rss_peak_mb": round(stats["rss_mb"], 1),
+        "memory_bound_mb": a.memory_mb,
+        "header_timeouts": server.metric("raillomer_http_header_timeouts_total"),
+    }
+
+
+def main():
+    a = parse_args()
     os.environ.setdefault("RAILLOMER_BIN", os.path.join(a.build, "bin"))
     server = harness.Server()
     try:
-        run = server.create_run(line="Soak")
-        for i in range(12):
-            status, _, body = server.request("POST", "/api/v1/runs/%d/submaps" % run,
-                                             harness.submap_pcd(i), server.token)
-            if status != 201:
-                sys.exit("server_soak: ingesting submap %d: %d %s" % (i, status, body[:200]))
-        server.write("POST", "/api/v1/runs/%d/finish" % run, {})
-        paths = []
-        for level in range(4):
-            _, body = server.json("GET", "/api/v1/runs/%d/tiles?level=%d" % (run, level))
-            paths += [t["url"] for t in body["tiles"]]
+        paths = ingest_run(server)
         start_mb = server.status("VmRSS")
         print("server_soak: %d tiles; %d slow clients and %d readers for %.0f s ..."
               % (len(paths), a.slow, a.readers, a.seconds), flush=True)
-        stop = threading.Event()
-        lock = threading.Lock()
-        stats = {"opened": 0, "closed_by_server": 0, "latencies": [], "errors": 0, "health": [],
-                 "health_errors": 0, "rss_mb": start_mb}
-        threads = [threading.Thread(target=slow_clients, args=(server.port, a.slow, stop, stats))]
-        threads += [threading.Thread(target=reader, args=(server.port, paths, k, stop, stats, lock))
-                    for k in range(a.readers)]
-        threads += [threading.Thread(target=health_prober, args=(server, stop, stats)),
-                    threading.Thread(target=memory_sampler, args=(server, stop, stats))]
-        for t in threads:
-            t.start()
-        time.sleep(a.seconds)
-        stop.set()
-        for t in threads:
-            t.join()
-        lat = sorted(stats["latencies"])
-        pick = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] * 1000.0 if lat else float("nan")
-        worst_health = max(stats["health"]) if stats["health"] else float("inf")
-        result = {
-            "seconds": a.seconds, "slow_clients": a.slow, "readers": a.readers,
-            "slow_connections_opened": stats["opened"],
-            "slow_connections_closed_by_server": stats["closed_by_server"],
-            "tile_requests": len(lat), "tile_errors": stats["errors"],
-            "tile_p50_ms": round(pick(0.5), 2), "tile_p99_ms": round(pick(0.99), 2),
-            "health_probes": len(stats["health"]), "health_errors": stats["health_errors"],
-            "health_worst_s": round(worst_health, 3),
-            "rss_start_mb": round(start_mb, 1), "rss_peak_mb": round(stats["rss_mb"], 1),
-            "memory_bound_mb": a.memory_mb,
-            "header_timeouts": server.metric("raillomer_http_header_timeouts_total"),
-        }
+        stats = soak(server, paths, a, start_mb)
+        result = summary(server, stats, a, start_mb)
         print(json.dumps(result, indent=1))
-        ok = (worst_health < 1.0 and stats["health_errors"] == 0 and stats["errors"] == 0 and
-              stats["rss_mb"] < a.memory_mb and server.alive())
+        worst_health = max(stats["health"]) if stats["health"] else float("inf")
+        ok = (worst_health < 1.0 and stats["health_errors"] == 0 and
+              stats["errors"] == 0 and stats["rss_mb"] < a.memory_mb and server.alive())
         print("server_soak: " + ("all targets met" if ok else "a target was missed"))
         if a.check and not ok:
             sys.exit(1)
