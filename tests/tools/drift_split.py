@@ -116,17 +116,18 @@ def wrap(a):
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def main():
+def parse_args():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run")
     ap.add_argument("--every", type=float, default=50.0, help="metres between printed rows")
     ap.add_argument("--csv", help="write every matched pose's split to this CSV")
     ap.add_argument("--biases", action="store_true",
                     help="add the IMU bias states' errors against the truth (needs imu_bias.csv)")
-    args = ap.parse_args()
-    bias_at = bias_errors(args.run) if args.biases else None
-    est = read_tum(f"{args.run}/trajectory.tum")
-    truth = read_tum(f"{args.run}/truth.tum")
+    return ap.parse_args()
+
+
+def truth_lookup(truth):
+    """t -> the truth row stamped within 5 ms of t, or None."""
     tstamps = [t for t, _, _ in truth]
 
     def truth_at(t):
@@ -135,21 +136,26 @@ def main():
             return None
         return truth[k]
 
-    first = None
+    return truth_at
+
+
+def frame_tie(est, truth_at):
+    """(yaw quaternion, translation) taking the estimate's frame onto the truth's. The
+    estimator's world is levelled on gravity: only yaw and position are free, so the frames are
+    tied by the yaw and position of the first matched pose (roll and pitch stay absolute)."""
     for t, p, q in est:
         tr = truth_at(t)
         if tr is not None:
-            first = (p, q, tr[1], tr[2])
-            break
-    if first is None:
-        sys.exit("drift_split: no estimated pose matches a truth stamp")
-    # The estimator's world is levelled on gravity: only yaw and position are free, so the
-    # frames are tied by the yaw and position of the first pose (roll and pitch stay absolute).
-    pe0, qe0, pt0, qt0 = first
-    dyaw = wrap(yaw_of(qt0) - yaw_of(qe0))
-    q_te = (0.0, 0.0, math.sin(0.5 * dyaw), math.cos(0.5 * dyaw))
-    t_te = [a - b for a, b in zip(pt0, qrot(q_te, pe0))]
+            dyaw = wrap(yaw_of(tr[2]) - yaw_of(q))
+            q_te = (0.0, 0.0, math.sin(0.5 * dyaw), math.cos(0.5 * dyaw))
+            return q_te, [a - b for a, b in zip(tr[1], qrot(q_te, p))]
+    sys.exit("drift_split: no estimated pose matches a truth stamp")
 
+
+def splits(est, truth_at):
+    """Per matched pose: (t, distance travelled, along, lateral, vertical error in the truth's
+    body frame, roll, pitch, yaw error)."""
+    q_te, t_te = frame_tie(est, truth_at)
     out = []
     dist = 0.0
     last_tp = None
@@ -168,7 +174,11 @@ def main():
         r_e, p_e, y_e = rpy_of(qw)
         r_t, p_t, y_t = rpy_of(tq)
         out.append((t, dist, e_body[0], e_body[1], e_body[2], wrap(r_e - r_t), wrap(p_e - p_t), wrap(y_e - y_t)))
+    return out
 
+
+def print_table(out, every, bias_at):
+    """A row every `every` metres and the last, with the bias errors when asked for."""
     header = (f"{'t_s':>8} {'dist_m':>8} {'along_m':>8} {'lat_m':>8} {'vert_m':>8} {'roll_deg':>8} "
               f"{'pitch_deg':>9} {'yaw_deg':>8}")
     if bias_at:
@@ -185,7 +195,15 @@ def main():
                 b = bias_at(r[0])
                 line += "".join(f"{x:8.1f}" for x in b[:3]) + "".join(f"{x:8.2f}" for x in b[3:])
             print(line)
-            next_d += args.every
+            next_d += every
+
+
+def main():
+    args = parse_args()
+    bias_at = bias_errors(args.run) if args.biases else None
+    est = read_tum(f"{args.run}/trajectory.tum")
+    out = splits(est, truth_lookup(read_tum(f"{args.run}/truth.tum")))
+    print_table(out, args.every, bias_at)
     if args.csv:
         with open(args.csv, "w") as f:
             f.write("t_s,dist_m,along_m,lateral_m,vertical_m,roll_rad,pitch_rad,yaw_rad\n")
