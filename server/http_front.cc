@@ -131,6 +131,7 @@ void HttpResponse::SetContent(std::string bytes, const std::string& type) {
   body = std::move(bytes);
   shared_body.reset();
   file_path.clear();
+  produce = nullptr;
   content_type = type;
 }
 
@@ -139,6 +140,7 @@ void HttpResponse::SetSharedContent(std::shared_ptr<const std::string> bytes,
   body.clear();
   shared_body = std::move(bytes);
   file_path.clear();
+  produce = nullptr;
   content_type = type;
 }
 
@@ -584,10 +586,13 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
       case RangeAnswer::kWhole:
         return;
       case RangeAnswer::kUnsatisfiable:
+        // The error replaces the body: what is sent is the error, whole.
         res.SetError(416,
                      "range_not_satisfiable",
                      "the range lies beyond the " + std::to_string(size) + " bytes there are");
         res.SetHeader("Content-Range", "bytes */" + std::to_string(size));
+        body_first_ = 0;
+        body_end_ = res.BodySize();
         return;
       case RangeAnswer::kPart:
         res.status = 206;

@@ -211,6 +211,9 @@ class Hardening(unittest.TestCase):
                                                     headers={"Range": "bytes=%d-" % size})
         self.assertEqual(status, 416)
         self.assertEqual(headers["content-range"], "bytes */%d" % size)
+        # The error replaces the tile: its length is the error's, not the tile's.
+        self.assertEqual(int(headers["content-length"]), len(body))
+        self.assertEqual(json.loads(body)["error"]["code"], "range_not_satisfiable")
         self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB)
 
     # 7. A run lies in one UTM zone: a pose in another is refused, with its whole batch.
