@@ -179,7 +179,7 @@ struct Options {
   bool save = false;
   int64_t run = 0, reference = 0;
   std::vector<double> explain_at;
-  double explain_radius_m = 5.0;
+  Explain explain;  ///< its radius from --explain-radius; the rest from --explain-at
   double from_km = -1e9, to_km = 1e9;
 };
 
@@ -199,7 +199,7 @@ void AddOptions(CLI::App* app, Options* o) {
       ->expected(2)
       ->delimiter(',');
   app->add_option(
-      "--explain-radius", o->explain_radius_m, "metres around --explain-at (default 5)");
+      "--explain-radius", o->explain.radius_m, "metres around --explain-at (default 5)");
   app->add_option(
       "--from-km", o->from_km, "compare from this kilometre of the line (default: start)");
   app->add_option("--to-km", o->to_km, "compare up to this kilometre (default: the line's end)");
@@ -250,8 +250,7 @@ int main(int argc, char** argv) {
   Result r = ResolveRuns(*store, o, &info, &reference);
   if (!r) return Fail(r.message);
   RunComparisonOptions options;
-  Explain explain;
-  explain.radius_m = o.explain_radius_m;
+  Explain explain = o.explain;
   if (o.explain_at.size() == 2) {
     explain.on = options.change.keep_rejected = true;
     explain.at = Eigen::Vector2d(o.explain_at[0], o.explain_at[1]);

@@ -568,48 +568,46 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     Answer(std::move(res));
   }
 
-  /// Serves one range of a whole GET answer when the route allows it and the client asks.
-  void ApplyRange(HttpResponse& res) {
+  /// Serves one range of a whole GET answer when the route allows it and the client asks: the
+  /// part of the body to send, or none for the whole body (or the error that replaced it).
+  std::optional<ByteRange> ApplyRange(HttpResponse& res) {
     const bool ranges = route_ ? route_->ranges : static_file_.has_value();
-    if (!ranges || res.status != 200) return;
+    if (!ranges || res.status != 200) return std::nullopt;
     const uint64_t size = res.BodySize();
     res.SetHeader("Accept-Ranges", "bytes");
     const std::string header = request_.Header("Range");
     const std::string if_range = request_.Header("If-Range");
-    if (header.empty()) return;
+    if (header.empty()) return std::nullopt;
     if (!if_range.empty()) {
       for (const auto& [k, v] : res.headers)
-        if (EqualsIgnoreCase(k, "ETag") && v != if_range) return;
+        if (EqualsIgnoreCase(k, "ETag") && v != if_range) return std::nullopt;
     }
     ByteRange range;
     switch (ParseRange(header, size, &range)) {
       case RangeAnswer::kWhole:
-        return;
+        return std::nullopt;
       case RangeAnswer::kUnsatisfiable:
-        // The error replaces the body: what is sent is the error, whole.
         res.SetError(416,
                      "range_not_satisfiable",
                      "the range lies beyond the " + std::to_string(size) + " bytes there are");
         res.SetHeader("Content-Range", "bytes */" + std::to_string(size));
-        body_first_ = 0;
-        body_end_ = res.BodySize();
-        return;
+        return std::nullopt;
       case RangeAnswer::kPart:
         res.status = 206;
         res.SetHeader("Content-Range",
                       "bytes " + std::to_string(range.first) + "-" + std::to_string(range.last) +
                           "/" + std::to_string(size));
-        body_first_ = range.first;
-        body_end_ = range.last + 1;
-        return;
+        return range;
     }
+    return std::nullopt;
   }
 
   void Answer(HttpResponse res) {
     response_ = std::move(res);
-    body_first_ = 0;
-    body_end_ = response_.BodySize();
-    ApplyRange(response_);
+    // The extent is taken after the range is applied: a 416's error replaces the body.
+    const std::optional<ByteRange> part = ApplyRange(response_);
+    body_first_ = part ? part->first : 0;
+    body_end_ = part ? part->last + 1 : response_.BodySize();
     if (front_->hooks_.observe)
       front_->hooks_.observe(route_name_,
                              response_.status,
