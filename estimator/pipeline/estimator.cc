@@ -80,6 +80,34 @@ FrameMotion GyroFrameMotion(const Preintegration& pre,
   return motion;
 }
 
+/// The body's horizontal axis `axis` (0 forward, 1 lateral) at pose T, levelled.
+Eigen::Vector3d HorizontalAxis(const Eigen::Isometry3d& T, int axis) {
+  Eigen::Vector3d v = T.linear().col(axis);
+  v.z() = 0.0;
+  return v.normalized();
+}
+
+/// A LiDAR's favour factors, eq. (24-26), recorded in `diag` (its degeneracy already set), and
+/// the weight they give its terms, 1 / sqrt(xi_failure xi_degeneracy xi_pose). `p_lidar` and
+/// `p_inertial`: the frame's translation by the LiDAR alone and by the inertial prediction.
+double FavourWeight(const EstimatorOptions& o,
+                    const FeatureSet& features,
+                    double p_lidar,
+                    double p_inertial,
+                    LidarDiagnostics* diag) {
+  const bool edges_ok = static_cast<int>(features.edges.size()) > o.failure_min_edges;
+  const bool planes_ok = static_cast<int>(features.planes.size()) > o.failure_min_planes;
+  diag->xi_failure = edges_ok && planes_ok ? 1.0 : (!edges_ok && !planes_ok ? 100.0 : 50.0);
+  diag->xi_degeneracy = diag->degeneracy <= o.degeneracy_threshold ? 10.0 : 1.0;
+  // Eq. (26) as a symmetric ratio: a LiDAR whose increment disagrees either way loses weight.
+  const double ratio = (p_lidar + 0.05) / (p_inertial + 0.05);
+  diag->xi_pose = std::clamp(std::max(ratio, 1.0 / ratio), 1.0, 10.0);
+  if (!o.switches.use_favour_factors || !o.switches.use_imu) {
+    diag->xi_failure = diag->xi_degeneracy = diag->xi_pose = 1.0;
+  }
+  return 1.0 / std::sqrt(diag->xi_failure * diag->xi_degeneracy * diag->xi_pose);
+}
+
 double StampSeconds(int64_t stamp_ns) { return static_cast<double>(stamp_ns) * 1e-9; }
 
 std::string Seconds(double t) {
@@ -140,6 +168,25 @@ struct Estimator::NodeExtras {
   /// Rail-head points of the down LiDAR (body frame), for the rail map.
   std::vector<Eigen::Vector3f> rail_points;
   bool in_map = false;
+};
+
+/// The prediction of a frame's state from the newest one (paper section IV-B).
+struct Estimator::Prediction {
+  bool first = false;   ///< the frame initialises the estimator: nothing is predicted
+  double t_end = 0.0;   ///< the frame end, the new state's time
+  NavState prev, pred;  ///< the newest state before the frame, and the new one predicted
+  Eigen::Isometry3d T_prev = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_pred = Eigen::Isometry3d::Identity();
+  std::shared_ptr<Preintegration> pre;  ///< IMU/odometer preintegration (null without the IMU)
+  bool odometer_ok = false;             ///< the odometer entered `pre`
+};
+
+/// One registration round's LiDAR terms, weighted, and the matches behind them.
+struct Estimator::RoundTerms {
+  std::vector<PlaneTerm> planes;
+  std::vector<LineTerm> lines;
+  LidarMatches all;       ///< both LiDARs' matches (rail heads apart), for the remapping
+  size_t rail_lines = 0;  ///< rail-head lines matched
 };
 
 Estimator::Estimator(const EstimatorConfig& config, EstimatorSinks sinks)
@@ -406,305 +453,373 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   const int64_t stamp_ns = static_cast<int64_t>(pending.frames.begin()->second.timebase_ns) +
                            static_cast<int64_t>(std::llround(period * 1e9));
   last_frame_start_s_ = pending.start_s;
-  if (pending.frames.size() < rig.lidars.size()) {
-    for (size_t i = 0; i < rig.lidars.size(); ++i) {
-      if (!pending.frames.count(static_cast<int>(i)) &&
-          warning_counts_["missing-" + rig.lidars[i].name]++ % 50 == 0) {
-        Warn("LiDAR '" + rig.lidars[i].name + "' has no frame for " + Seconds(pending.start_s) +
-             ": continuing with the others");
-      }
-    }
-  }
+  WarnMissingLidars(pending);
 
   const bool first = !initialized_;
   if (first && !Initialize(t_end)) return;
+  const Prediction prediction = Predict(first, t_end);
 
-  // Prediction: IMU/odometer preintegration, or constant velocity without the IMU.
-  const NavState prev = window_->Newest();
-  NavState pred = prev;
-  std::shared_ptr<Preintegration> pre;
-  bool odometer_ok = false;
-  if (!first) {
-    if (o.switches.use_imu) {
-      pre = Preintegrate(last_node_t_, t_end, prev, true, &odometer_ok);
-      pred = pre->Predict(prev);
-      if (odometer_ok && t_end - init_time_s_ > 1.0) {
-        // A slipping or sliding wheel disagrees with the inertial prediction: drop its reading.
-        // phi is integrated at the scale prev.c already: it is in metres.
-        const double dx_pred = (prev.q.conjugate() * (pred.p - prev.p)).x();
-        const double dx_odo = pre->phi().x();
-        if (std::abs(dx_odo - dx_pred) > 0.05 * std::abs(dx_pred) + 0.05) {
-          ++stats_.odometer_outliers;
-          if (warning_counts_["slip"]++ % 50 == 0) {
-            Warn("odometer disagrees with the IMU at " + Seconds(t_end) + " (" +
-                 std::to_string(dx_odo) + " m vs " + std::to_string(dx_pred) +
-                 " m): wheel slip or slide, reading not used");
-          }
-          pre = Preintegrate(last_node_t_, t_end, prev, false, &odometer_ok);
-          pred = pre->Predict(prev);
-        }
-      }
-    } else if (window_->size() >= 2) {
-      const NavState older = window_->State(window_->size() - 2);
-      const double dt_prev = last_node_t_ - window_->Time(window_->size() - 2);
-      const Eigen::Isometry3d delta = PoseOf(older).inverse() * PoseOf(prev);
-      const double s = dt_prev > 0.0 ? (t_end - last_node_t_) / dt_prev : 1.0;
-      const Eigen::Isometry3d step =
-          Interpolate(Eigen::Isometry3d::Identity(), delta, std::min(s, 3.0));
-      const Eigen::Isometry3d T = PoseOf(prev) * step;
-      pred.p = T.translation();
-      pred.q = Eigen::Quaterniond(T.linear());
-    }
-  }
-  const Eigen::Isometry3d T_prev = PoseOf(prev);
-  const Eigen::Isometry3d T_pred = PoseOf(pred);
-
-  // Frontend, one LiDAR per thread.
-  std::vector<FrontendResult> fronts(rig.lidars.size());
+  // Frontend, one LiDAR per thread, then what the frame measures beyond its features.
   const bool keep_cloud =
       o.write_keyframes || static_cast<bool>(sinks_.on_keyframe) || sinks_.stream != nullptr;
-  auto frontend = [&](int index) {
-    const io::LidarFrame& frame = pending.frames.at(index);
-    const LidarRig& lidar = rig.lidars[static_cast<size_t>(index)];
-    FrontendResult& out = fronts[static_cast<size_t>(index)];
-    out.present = true;
-    const double lidar_period = 1.0 / lidar.rate_hz;
-    Scan scan = ScanFromLidarFrame(frame, index, lidar_period);
-    out.stats = Preprocess(o.preprocess, &scan);
-    // Body motion over the frame: the pose at its start interpolated between the previous
-    // state and the prediction at the frame end.
-    const double start = static_cast<double>(frame.timebase_ns) * 1e-9;
-    Eigen::Isometry3d T_end_start = Eigen::Isometry3d::Identity();
-    if (!first && t_end > last_node_t_) {
-      const double s = std::clamp((start - last_node_t_) / (t_end - last_node_t_), -1.0, 1.0);
-      T_end_start = T_pred.inverse() * Interpolate(T_prev, T_pred, s);
-    } else if (first) {
-      T_end_start.translation() = -prev.v.norm() * lidar_period * Eigen::Vector3d::UnitX();
-    }
-    if (pre && o.deskew_step_s > 0.0) {
-      Deskew(
-          lidar.T_body_lidar,
-          GyroFrameMotion(
-              *pre, start - last_node_t_, lidar_period, o.deskew_step_s, T_end_start.translation()),
-          &scan);
-    } else {
-      Deskew(lidar.T_body_lidar, T_end_start, &scan);
-    }
-    out.features = ExtractLoamFeatures(o.loam, scan);
-    out.points_body.reserve(scan.points.size());
-    for (const ScanPoint& p : scan.points) out.points_body.push_back(p.p);
-    if (keep_cloud) {
-      out.intensities.reserve(scan.points.size());
-      for (const ScanPoint& p : scan.points) out.intensities.push_back(p.intensity);
-    }
-  };
-  std::vector<std::future<void>> jobs;
-  for (const auto& [index, frame] : pending.frames) {
-    jobs.push_back(std::async(std::launch::async, frontend, index));
-  }
-  for (auto& job : jobs) job.get();
-
+  const std::vector<FrontendResult> fronts = RunFrontends(pending, prediction, keep_cloud);
   auto extras = std::make_unique<NodeExtras>();
   extras->stamp_ns = stamp_ns;
-  if (gravity_pending_) extras->preintegration = pre;
+  if (gravity_pending_) extras->preintegration = prediction.pre;
   FrameResult& result = extras->result;
   result.stamp_ns = stamp_ns;
   result.lidars.resize(rig.lidars.size());
-  result.odometer_used = odometer_ok;
-
-  // Rail plane from the down LiDAR, height descriptor from the up LiDAR.
-  const bool links = o.switches.use_imu;
-  for (size_t i = 0; i < rig.lidars.size(); ++i) {
-    if (!fronts[i].present) continue;
-    if (rig.lidars[i].looks_down() && o.switches.use_rail_plane && links && !extras->has_rail) {
-      const RailExtraction rails = ExtractRails(o.rail, fronts[i].points_body);
-      if (rails.ok) {
-        extras->has_rail = true;
-        extras->rail_normal = rails.normal;
-        extras->rail_distance = rails.distance;
-        if (o.track_bed.sigma_m > 0.0) {
-          extras->bed = SelectTrackBed(o.track_bed, rails, fronts[i].points_body);
-        }
-        if (o.rail_line_sigma_m > 0.0) {
-          const float reach = o.rail_line_max_forward_m > 0.0
-                                  ? static_cast<float>(o.rail_line_max_forward_m)
-                                  : std::numeric_limits<float>::infinity();
-          for (const std::vector<Eigen::Vector3f>* side : {&rails.left_points, &rails.right_points})
-            for (const Eigen::Vector3f& q : *side)
-              if (q.x() < reach) extras->rail_points.push_back(q);
-        }
-      }
-    }
-    if (!rig.lidars[i].looks_down() && o.switches.use_height_descriptor && links &&
-        !extras->has_descriptor) {
-      extras->descriptor = ComputeHeightDescriptor(o.height, fronts[i].points_body);
-      extras->has_descriptor = true;
-    }
-  }
-  if (keep_cloud) {
-    for (FrontendResult& f : fronts) {
-      extras->cloud.insert(extras->cloud.end(), f.points_body.begin(), f.points_body.end());
-      extras->intensities.insert(
-          extras->intensities.end(), f.intensities.begin(), f.intensities.end());
-    }
-  }
+  result.odometer_used = prediction.odometer_ok;
+  ExtractFrameCues(fronts, extras.get());
+  if (keep_cloud) CollectCloud(fronts, extras.get());
   const Clock::time_point t_frontend = Clock::now();
   result.frontend_ms = Ms(t_begin, t_frontend);
 
   // Backend: the new state, its pair factors, then rounds of matching and optimisation.
-  if (!first) {
-    window_->Push(t_end, pred, pre);
-    if (o.switches.use_imu && o.straight_track.sigma_rad > 0.0)
-      HoldStraightHeading(prev, pred, &result);
-    NodeExtras* before = extras_.empty() ? nullptr : extras_.back().get();
-    if (before && before->has_rail && extras->has_rail) {
-      window_->AddNewestPairFactor(std::make_shared<RailPlaneFactor>(before->rail_normal,
-                                                                     before->rail_distance,
-                                                                     extras->rail_normal,
-                                                                     extras->rail_distance,
-                                                                     1.0 / o.rail_normal_sigma_rad,
-                                                                     1.0 / o.rail_distance_sigma_m),
-                                   std::make_shared<ceres::HuberLoss>(3.0));
-      result.rail_plane = true;
-    }
-    if (before && before->has_descriptor && extras->has_descriptor) {
-      const double dx_pred = (T_prev.inverse() * T_pred).translation().x();
-      const LongitudinalShift shift =
-          EstimateLongitudinalShift(o.height, before->descriptor, extras->descriptor, dx_pred);
-      if (shift.ok) {
-        window_->AddNewestPairFactor(
-            std::make_shared<LongitudinalShiftFactor>(shift.dx_m, std::max(shift.sigma_m, 0.05)),
-            std::make_shared<ceres::HuberLoss>(2.0));
-        result.height_shift = true;
-      }
-    }
-    if (o.track_bed.sigma_m > 0.0 && !extras->bed.empty()) AddTrackBedFactor(*extras, &result);
-  }
-
+  if (!first) AddNewState(prediction, extras.get());
   const bool have_map = !plane_map_->empty();
-  for (int round = 0; round < o.registration_rounds && have_map && !first; ++round) {
-    const NavState current = window_->Newest();
-    const Eigen::Isometry3d T_current = PoseOf(current);
-    std::vector<PlaneTerm> plane_terms;
-    std::vector<LineTerm> line_terms;
-    LidarMatches all;
-    // The body's horizontal axes: soft edges (down_edge_soft_spread_m) say nothing along the
-    // lateral one, rail-head lines nothing along the forward one.
-    const auto horizontal = [&](int axis) {
-      Eigen::Vector3d v = T_current.linear().col(axis);
-      v.z() = 0.0;
-      return v.normalized();
-    };
-    const Eigen::Vector3d forward = horizontal(0), lateral = horizontal(1);
-    for (size_t i = 0; i < fronts.size(); ++i) {
-      if (!fronts[i].present) continue;
-      LidarDiagnostics& diag = result.lidars[i];
-      // The down LiDAR's soft edges (creases, not corners): see down_edge_soft_spread_m.
-      const LidarMatches matches = MatchFeatures(LidarMatchOptions(o, rig.lidars[i].looks_down()),
-                                                 fronts[i].features,
-                                                 T_current,
-                                                 *edge_map_,
-                                                 *plane_map_);
-      const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
-      diag.matches = matches.size();
-      diag.degeneracy = lidar_only.degeneracy;
-      // Favour factors, eq. (24-26).
-      const bool edges_ok = static_cast<int>(fronts[i].features.edges.size()) > o.failure_min_edges;
-      const bool planes_ok =
-          static_cast<int>(fronts[i].features.planes.size()) > o.failure_min_planes;
-      diag.xi_failure = edges_ok && planes_ok ? 1.0 : (!edges_ok && !planes_ok ? 100.0 : 50.0);
-      diag.xi_degeneracy = lidar_only.degeneracy <= o.degeneracy_threshold ? 10.0 : 1.0;
-      const double p_lidar = (T_prev.inverse() * lidar_only.T_world_body).translation().norm();
-      const double p_inertial = (T_prev.inverse() * T_pred).translation().norm();
-      // Eq. (26) as a symmetric ratio: a LiDAR whose increment disagrees either way loses weight.
-      const double ratio = (p_lidar + 0.05) / (p_inertial + 0.05);
-      diag.xi_pose = std::clamp(std::max(ratio, 1.0 / ratio), 1.0, 10.0);
-      if (!o.switches.use_favour_factors || !o.switches.use_imu) {
-        diag.xi_failure = diag.xi_degeneracy = diag.xi_pose = 1.0;
-      }
-      const double favour = 1.0 / std::sqrt(diag.xi_failure * diag.xi_degeneracy * diag.xi_pose);
-      const double w_plane = favour / o.plane_sigma_m;
-      const double w_edge = favour / o.edge_sigma_m;
-      all.planes.insert(all.planes.end(), matches.planes.begin(), matches.planes.end());
-      all.lines.insert(all.lines.end(), matches.lines.begin(), matches.lines.end());
-      for (const PlaneMatch& m : matches.planes) {
-        plane_terms.push_back({m.p_body, m.normal, m.d, w_plane});
-      }
-      for (const LineMatch& m : matches.lines) {
-        line_terms.emplace_back(m.p_body, m.point, m.direction, w_edge);
-        if (m.soft) line_terms.back().Ignore(lateral);
-      }
+  if (have_map && !first) {
+    for (int round = 0; round < o.registration_rounds; ++round) {
+      RegisterRound(fronts, prediction, extras.get());
     }
-    // Rail heads against the rail map: lines along the track that hold the frame sideways and
-    // in heading where the LiDARs' other features are soft or few.
-    size_t rail_lines = 0;
-    if (!extras->rail_points.empty() && !rail_map_->empty()) {
-      FeatureSet rail;
-      rail.edges = extras->rail_points;
-      // Edges only: with no plane features the plane map is never searched.
-      const LidarMatches matches =
-          MatchFeatures(LidarMatchOptions(o, true), rail, T_current, *rail_map_, *rail_map_);
-      for (const LineMatch& m : matches.lines) {
-        line_terms.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
-        line_terms.back().Ignore(forward);
-        line_terms.back().Ignore(Eigen::Vector3d::UnitZ());
-      }
-      rail_lines = matches.lines.size();
-    }
-    // Solution remapping: what neither LiDAR observes is left to the other factors.
-    const LidarOnlySolution frame = SolveLidarOnly(all, T_current, 1);
-    result.degeneracy = frame.degeneracy;
-    // Where the sleepers measured the frame, a weak direction along the track (within 30 deg)
-    // is theirs below a higher bar: the LiDARs' few cues there (a tunnel's lamps and refuges)
-    // pull each frame back.
-    const bool along_track = result.bed_shift_m.has_value() &&
-                             std::fabs(frame.weakest_direction.dot(forward)) > std::cos(M_PI / 6.0);
-    const double projection = along_track
-                                  ? std::max(o.degeneracy_projection, o.degeneracy_projection_along)
-                                  : o.degeneracy_projection;
-    result.projected = projection > 0.0 && all.size() >= 6 && frame.degeneracy < projection;
-    result.heading_information = frame.heading_information;
-    // The rail-head lines, when matched, hold the heading themselves; without the IMU there is
-    // no gyro to carry it.
-    result.heading_projected = o.heading_projection > 0.0 && o.switches.use_imu &&
-                               all.size() >= 6 && rail_lines == 0 &&
-                               frame.heading_information < o.heading_projection;
-    // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
-    std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
-        std::move(plane_terms), std::move(line_terms), kLidarHuber);
-    if (result.projected || result.heading_projected) {
-      PoseRemapping remapping;
-      if (result.projected) {
-        remapping.direction = frame.weakest_direction;
-        remapping.p0 = T_current.translation();
-      }
-      if (result.heading_projected) {
-        // The profile is about the pose it was linearised at (T_current, one iteration).
-        remapping.q0 = Eigen::Quaterniond(frame.T_linearized.linear());
-        remapping.heading_z0 = frame.heading_z0;
-        remapping.heading_gain = frame.heading_gain;
-        remapping.heading_p_ref = frame.T_linearized.translation();
-      }
-      cost = std::make_shared<RemappedPoseCost>(std::move(cost), remapping);
-    }
-    window_->SetNewestLidarFactor(std::move(cost));
-    const WindowSummary summary = window_->Optimize();
-    result.solver_iterations += summary.iterations;
   }
   if (!have_map && !first && o.switches.use_imu) window_->Optimize();
-
   for (size_t i = 0; i < fronts.size(); ++i) {
     result.lidars[i].present = fronts[i].present;
     result.lidars[i].points = fronts[i].points_body.size();
     result.lidars[i].edges = fronts[i].features.edges.size();
     result.lidars[i].planes = fronts[i].features.planes.size();
   }
+  InsertIntoLocalMap(fronts, std::move(extras));
+  FinishFrame(t_end, t_frontend);
+}
 
+void Estimator::WarnMissingLidars(const PendingFrame& pending) {
+  const RigConfig& rig = config_.rig;
+  for (size_t i = 0; i < rig.lidars.size(); ++i) {
+    if (!pending.frames.count(static_cast<int>(i)) &&
+        warning_counts_["missing-" + rig.lidars[i].name]++ % 50 == 0) {
+      Warn("LiDAR '" + rig.lidars[i].name + "' has no frame for " + Seconds(pending.start_s) +
+           ": continuing with the others");
+    }
+  }
+}
+
+Estimator::Prediction Estimator::Predict(bool first, double t_end) {
+  Prediction p;
+  p.first = first;
+  p.t_end = t_end;
+  p.prev = window_->Newest();
+  p.pred = p.prev;
+  if (!first) {
+    if (config_.options.switches.use_imu) {
+      PredictInertial(&p);
+    } else if (window_->size() >= 2) {
+      PredictConstantVelocity(&p);
+    }
+  }
+  p.T_prev = PoseOf(p.prev);
+  p.T_pred = PoseOf(p.pred);
+  return p;
+}
+
+void Estimator::PredictInertial(Prediction* p) {
+  p->pre = Preintegrate(last_node_t_, p->t_end, p->prev, true, &p->odometer_ok);
+  p->pred = p->pre->Predict(p->prev);
+  if (!p->odometer_ok || p->t_end - init_time_s_ <= 1.0) return;
+  // A slipping or sliding wheel disagrees with the inertial prediction: drop its reading.
+  // phi is integrated at the scale prev.c already: it is in metres.
+  const double dx_pred = (p->prev.q.conjugate() * (p->pred.p - p->prev.p)).x();
+  const double dx_odo = p->pre->phi().x();
+  if (std::abs(dx_odo - dx_pred) <= 0.05 * std::abs(dx_pred) + 0.05) return;
+  ++stats_.odometer_outliers;
+  if (warning_counts_["slip"]++ % 50 == 0) {
+    Warn("odometer disagrees with the IMU at " + Seconds(p->t_end) + " (" + std::to_string(dx_odo) +
+         " m vs " + std::to_string(dx_pred) + " m): wheel slip or slide, reading not used");
+  }
+  p->pre = Preintegrate(last_node_t_, p->t_end, p->prev, false, &p->odometer_ok);
+  p->pred = p->pre->Predict(p->prev);
+}
+
+void Estimator::PredictConstantVelocity(Prediction* p) const {
+  const NavState older = window_->State(window_->size() - 2);
+  const double dt_prev = last_node_t_ - window_->Time(window_->size() - 2);
+  const Eigen::Isometry3d delta = PoseOf(older).inverse() * PoseOf(p->prev);
+  const double s = dt_prev > 0.0 ? (p->t_end - last_node_t_) / dt_prev : 1.0;
+  const Eigen::Isometry3d step =
+      Interpolate(Eigen::Isometry3d::Identity(), delta, std::min(s, 3.0));
+  const Eigen::Isometry3d T = PoseOf(p->prev) * step;
+  p->pred.p = T.translation();
+  p->pred.q = Eigen::Quaterniond(T.linear());
+}
+
+std::vector<Estimator::FrontendResult> Estimator::RunFrontends(const PendingFrame& pending,
+                                                               const Prediction& prediction,
+                                                               bool keep_cloud) const {
+  std::vector<FrontendResult> fronts(config_.rig.lidars.size());
+  std::vector<std::future<void>> jobs;
+  for (const auto& entry : pending.frames) {
+    const int index = entry.first;
+    const io::LidarFrame* frame = &entry.second;
+    jobs.push_back(std::async(std::launch::async, [&, index, frame] {
+      fronts[static_cast<size_t>(index)] = RunFrontend(*frame, index, prediction, keep_cloud);
+    }));
+  }
+  for (auto& job : jobs) job.get();
+  return fronts;
+}
+
+Estimator::FrontendResult Estimator::RunFrontend(const io::LidarFrame& frame,
+                                                 int index,
+                                                 const Prediction& prediction,
+                                                 bool keep_cloud) const {
+  const EstimatorOptions& o = config_.options;
+  const LidarRig& lidar = config_.rig.lidars[static_cast<size_t>(index)];
+  FrontendResult out;
+  out.present = true;
+  const double lidar_period = 1.0 / lidar.rate_hz;
+  Scan scan = ScanFromLidarFrame(frame, index, lidar_period);
+  out.stats = Preprocess(o.preprocess, &scan);
+  const double start = static_cast<double>(frame.timebase_ns) * 1e-9;
+  const Eigen::Isometry3d T_end_start = BodyMotionOverFrame(start, lidar_period, prediction);
+  if (prediction.pre && o.deskew_step_s > 0.0) {
+    Deskew(lidar.T_body_lidar,
+           GyroFrameMotion(*prediction.pre,
+                           start - last_node_t_,
+                           lidar_period,
+                           o.deskew_step_s,
+                           T_end_start.translation()),
+           &scan);
+  } else {
+    Deskew(lidar.T_body_lidar, T_end_start, &scan);
+  }
+  out.features = ExtractLoamFeatures(o.loam, scan);
+  out.points_body.reserve(scan.points.size());
+  for (const ScanPoint& p : scan.points) out.points_body.push_back(p.p);
+  if (keep_cloud) {
+    out.intensities.reserve(scan.points.size());
+    for (const ScanPoint& p : scan.points) out.intensities.push_back(p.intensity);
+  }
+  return out;
+}
+
+Eigen::Isometry3d Estimator::BodyMotionOverFrame(double start_s,
+                                                 double lidar_period,
+                                                 const Prediction& p) const {
+  Eigen::Isometry3d T_end_start = Eigen::Isometry3d::Identity();
+  if (!p.first && p.t_end > last_node_t_) {
+    // The pose at the frame start, interpolated between the previous state and the prediction.
+    const double s = std::clamp((start_s - last_node_t_) / (p.t_end - last_node_t_), -1.0, 1.0);
+    T_end_start = p.T_pred.inverse() * Interpolate(p.T_prev, p.T_pred, s);
+  } else if (p.first) {
+    T_end_start.translation() = -p.prev.v.norm() * lidar_period * Eigen::Vector3d::UnitX();
+  }
+  return T_end_start;
+}
+
+void Estimator::ExtractFrameCues(const std::vector<FrontendResult>& fronts,
+                                 NodeExtras* extras) const {
+  const EstimatorOptions& o = config_.options;
+  const bool links = o.switches.use_imu;
+  for (size_t i = 0; i < fronts.size(); ++i) {
+    if (!fronts[i].present) continue;
+    const bool down = config_.rig.lidars[i].looks_down();
+    if (down && o.switches.use_rail_plane && links && !extras->has_rail) {
+      ExtractRailCues(fronts[i].points_body, extras);
+    }
+    if (!down && o.switches.use_height_descriptor && links && !extras->has_descriptor) {
+      extras->descriptor = ComputeHeightDescriptor(o.height, fronts[i].points_body);
+      extras->has_descriptor = true;
+    }
+  }
+}
+
+void Estimator::ExtractRailCues(const std::vector<Eigen::Vector3f>& points_body,
+                                NodeExtras* extras) const {
+  const EstimatorOptions& o = config_.options;
+  const RailExtraction rails = ExtractRails(o.rail, points_body);
+  if (!rails.ok) return;
+  extras->has_rail = true;
+  extras->rail_normal = rails.normal;
+  extras->rail_distance = rails.distance;
+  if (o.track_bed.sigma_m > 0.0) extras->bed = SelectTrackBed(o.track_bed, rails, points_body);
+  if (o.rail_line_sigma_m > 0.0) {
+    const float reach = o.rail_line_max_forward_m > 0.0
+                            ? static_cast<float>(o.rail_line_max_forward_m)
+                            : std::numeric_limits<float>::infinity();
+    for (const std::vector<Eigen::Vector3f>* side : {&rails.left_points, &rails.right_points})
+      for (const Eigen::Vector3f& q : *side)
+        if (q.x() < reach) extras->rail_points.push_back(q);
+  }
+}
+
+void Estimator::CollectCloud(const std::vector<FrontendResult>& fronts, NodeExtras* extras) {
+  for (const FrontendResult& f : fronts) {
+    extras->cloud.insert(extras->cloud.end(), f.points_body.begin(), f.points_body.end());
+    extras->intensities.insert(
+        extras->intensities.end(), f.intensities.begin(), f.intensities.end());
+  }
+}
+
+void Estimator::AddNewState(const Prediction& p, NodeExtras* extras) {
+  const EstimatorOptions& o = config_.options;
+  window_->Push(p.t_end, p.pred, p.pre);
+  if (o.switches.use_imu && o.straight_track.sigma_rad > 0.0)
+    HoldStraightHeading(p.prev, p.pred, &extras->result);
+  if (!extras_.empty()) AddPairFactors(*extras_.back(), p, extras);
+  if (o.track_bed.sigma_m > 0.0 && !extras->bed.empty())
+    AddTrackBedFactor(*extras, &extras->result);
+}
+
+void Estimator::AddPairFactors(const NodeExtras& before, const Prediction& p, NodeExtras* extras) {
+  const EstimatorOptions& o = config_.options;
+  if (before.has_rail && extras->has_rail) {
+    window_->AddNewestPairFactor(std::make_shared<RailPlaneFactor>(before.rail_normal,
+                                                                   before.rail_distance,
+                                                                   extras->rail_normal,
+                                                                   extras->rail_distance,
+                                                                   1.0 / o.rail_normal_sigma_rad,
+                                                                   1.0 / o.rail_distance_sigma_m),
+                                 std::make_shared<ceres::HuberLoss>(3.0));
+    extras->result.rail_plane = true;
+  }
+  if (before.has_descriptor && extras->has_descriptor) {
+    const double dx_pred = (p.T_prev.inverse() * p.T_pred).translation().x();
+    const LongitudinalShift shift =
+        EstimateLongitudinalShift(o.height, before.descriptor, extras->descriptor, dx_pred);
+    if (shift.ok) {
+      window_->AddNewestPairFactor(
+          std::make_shared<LongitudinalShiftFactor>(shift.dx_m, std::max(shift.sigma_m, 0.05)),
+          std::make_shared<ceres::HuberLoss>(2.0));
+      extras->result.height_shift = true;
+    }
+  }
+}
+
+void Estimator::RegisterRound(const std::vector<FrontendResult>& fronts,
+                              const Prediction& p,
+                              NodeExtras* extras) {
+  const Eigen::Isometry3d T_current = PoseOf(window_->Newest());
+  // The body's horizontal axes: soft edges (down_edge_soft_spread_m) say nothing along the
+  // lateral one, rail-head lines nothing along the forward one.
+  const Eigen::Vector3d forward = HorizontalAxis(T_current, 0);
+  const Eigen::Vector3d lateral = HorizontalAxis(T_current, 1);
+  RoundTerms terms;
+  for (size_t i = 0; i < fronts.size(); ++i) {
+    if (!fronts[i].present) continue;
+    AddLidarTerms(fronts[i],
+                  config_.rig.lidars[i].looks_down(),
+                  T_current,
+                  lateral,
+                  p,
+                  &extras->result.lidars[i],
+                  &terms);
+  }
+  AddRailLineTerms(*extras, T_current, forward, &terms);
+  window_->SetNewestLidarFactor(FrameCost(T_current, forward, std::move(terms), &extras->result));
+  const WindowSummary summary = window_->Optimize();
+  extras->result.solver_iterations += summary.iterations;
+}
+
+void Estimator::AddLidarTerms(const FrontendResult& front,
+                              bool looks_down,
+                              const Eigen::Isometry3d& T_current,
+                              const Eigen::Vector3d& lateral,
+                              const Prediction& p,
+                              LidarDiagnostics* diag,
+                              RoundTerms* terms) const {
+  const EstimatorOptions& o = config_.options;
+  // The down LiDAR's soft edges (creases, not corners): see down_edge_soft_spread_m.
+  const LidarMatches matches = MatchFeatures(
+      LidarMatchOptions(o, looks_down), front.features, T_current, *edge_map_, *plane_map_);
+  const LidarOnlySolution lidar_only = SolveLidarOnly(matches, T_current, 4);
+  diag->matches = matches.size();
+  diag->degeneracy = lidar_only.degeneracy;
+  const double p_lidar = (p.T_prev.inverse() * lidar_only.T_world_body).translation().norm();
+  const double p_inertial = (p.T_prev.inverse() * p.T_pred).translation().norm();
+  const double favour = FavourWeight(o, front.features, p_lidar, p_inertial, diag);
+  const double w_plane = favour / o.plane_sigma_m;
+  const double w_edge = favour / o.edge_sigma_m;
+  terms->all.planes.insert(terms->all.planes.end(), matches.planes.begin(), matches.planes.end());
+  terms->all.lines.insert(terms->all.lines.end(), matches.lines.begin(), matches.lines.end());
+  for (const PlaneMatch& m : matches.planes) {
+    terms->planes.push_back({m.p_body, m.normal, m.d, w_plane});
+  }
+  for (const LineMatch& m : matches.lines) {
+    terms->lines.emplace_back(m.p_body, m.point, m.direction, w_edge);
+    if (m.soft) terms->lines.back().Ignore(lateral);
+  }
+}
+
+void Estimator::AddRailLineTerms(const NodeExtras& extras,
+                                 const Eigen::Isometry3d& T_current,
+                                 const Eigen::Vector3d& forward,
+                                 RoundTerms* terms) const {
+  // Rail heads against the rail map: lines along the track that hold the frame sideways and
+  // in heading where the LiDARs' other features are soft or few.
+  if (extras.rail_points.empty() || rail_map_->empty()) return;
+  const EstimatorOptions& o = config_.options;
+  FeatureSet rail;
+  rail.edges = extras.rail_points;
+  // Edges only: with no plane features the plane map is never searched.
+  const LidarMatches matches =
+      MatchFeatures(LidarMatchOptions(o, true), rail, T_current, *rail_map_, *rail_map_);
+  for (const LineMatch& m : matches.lines) {
+    terms->lines.emplace_back(m.p_body, m.point, m.direction, 1.0 / o.rail_line_sigma_m);
+    terms->lines.back().Ignore(forward);
+    terms->lines.back().Ignore(Eigen::Vector3d::UnitZ());
+  }
+  terms->rail_lines = matches.lines.size();
+}
+
+std::shared_ptr<ceres::CostFunction> Estimator::FrameCost(const Eigen::Isometry3d& T_current,
+                                                          const Eigen::Vector3d& forward,
+                                                          RoundTerms terms,
+                                                          FrameResult* result) const {
+  const EstimatorOptions& o = config_.options;
+  // Solution remapping: what neither LiDAR observes is left to the other factors.
+  const LidarOnlySolution frame = SolveLidarOnly(terms.all, T_current, 1);
+  result->degeneracy = frame.degeneracy;
+  // Where the sleepers measured the frame, a weak direction along the track (within 30 deg)
+  // is theirs below a higher bar: the LiDARs' few cues there (a tunnel's lamps and refuges)
+  // pull each frame back.
+  const bool along_track = result->bed_shift_m.has_value() &&
+                           std::fabs(frame.weakest_direction.dot(forward)) > std::cos(M_PI / 6.0);
+  const double projection = along_track
+                                ? std::max(o.degeneracy_projection, o.degeneracy_projection_along)
+                                : o.degeneracy_projection;
+  const size_t matched = terms.all.size();
+  result->projected = projection > 0.0 && matched >= 6 && frame.degeneracy < projection;
+  result->heading_information = frame.heading_information;
+  // The rail-head lines, when matched, hold the heading themselves; without the IMU there is
+  // no gyro to carry it.
+  result->heading_projected = o.heading_projection > 0.0 && o.switches.use_imu && matched >= 6 &&
+                              terms.rail_lines == 0 &&
+                              frame.heading_information < o.heading_projection;
+  // Both LiDARs' terms, each under a Huber loss, as one residual block on the pose.
+  std::shared_ptr<ceres::CostFunction> cost = std::make_shared<LidarFrameCost>(
+      std::move(terms.planes), std::move(terms.lines), kLidarHuber);
+  if (!result->projected && !result->heading_projected) return cost;
+  PoseRemapping remapping;
+  if (result->projected) {
+    remapping.direction = frame.weakest_direction;
+    remapping.p0 = T_current.translation();
+  }
+  if (result->heading_projected) {
+    // The profile is about the pose it was linearised at (T_current, one iteration).
+    remapping.q0 = Eigen::Quaterniond(frame.T_linearized.linear());
+    remapping.heading_z0 = frame.heading_z0;
+    remapping.heading_gain = frame.heading_gain;
+    remapping.heading_p_ref = frame.T_linearized.translation();
+  }
+  return std::make_shared<RemappedPoseCost>(std::move(cost), remapping);
+}
+
+void Estimator::InsertIntoLocalMap(const std::vector<FrontendResult>& fronts,
+                                   std::unique_ptr<NodeExtras> extras) {
   // The local map takes each frame once it is `map_insert_lag` states old in the window (its
   // pose refined by that many later frames; by default at once), and every frame while the map
   // is empty.
-  const NavState newest = window_->Newest();
-  const Eigen::Isometry3d T_newest = PoseOf(newest);
   FeatureSet& pending_map = extras->map_features;
   for (const FrontendResult& f : fronts) {
     pending_map.edges.insert(
@@ -714,23 +829,30 @@ void Estimator::ProcessFrame(const PendingFrame& pending) {
   }
   extras_.push_back(std::move(extras));
   // extras_[i] belongs to the window's state i (both gain the frame and lose the oldest together).
-  const int lag = plane_map_->empty() ? 0 : o.map_insert_lag;
+  const int lag = plane_map_->empty() ? 0 : config_.options.map_insert_lag;
   for (int i = 0; i + lag < static_cast<int>(extras_.size()); ++i) {
     AddToMap(extras_[static_cast<size_t>(i)].get(), PoseOf(window_->State(i)));
   }
   if (stats_.frames % 10 == 0) {
-    edge_map_->RemoveFar(newest.p, o.map_radius_m);
-    plane_map_->RemoveFar(newest.p, o.map_radius_m);
-    rail_map_->RemoveFar(newest.p, o.map_radius_m);
+    const Eigen::Vector3d centre = window_->Newest().p;
+    const double radius = config_.options.map_radius_m;
+    edge_map_->RemoveFar(centre, radius);
+    plane_map_->RemoveFar(centre, radius);
+    rail_map_->RemoveFar(centre, radius);
   }
+}
+
+void Estimator::FinishFrame(double t_end, Clock::time_point t_frontend) {
   last_node_t_ = t_end;
   ++stats_.frames;
+  const NavState newest = window_->Newest();
+  FrameResult& result = extras_.back()->result;
   result.backend_ms = Ms(t_frontend, Clock::now());
-  result.T_world_body = T_newest;
+  result.T_world_body = PoseOf(newest);
   result.v_world = newest.v;
   result.odometer_scale = newest.c;
   result.odometer_misalignment = newest.m;
-  latest_ = extras_.back()->result;
+  latest_ = result;
   if (gravity_pending_ && t_end >= next_gravity_try_s_) AlignGravity(false);
   while (window_->Full()) {
     const Clock::time_point t_pop = Clock::now();

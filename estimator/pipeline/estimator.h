@@ -1,5 +1,6 @@
 #pragma once
 
+#include <chrono>
 #include <deque>
 #include <functional>
 #include <map>
@@ -21,6 +22,10 @@
 #include "estimator/pipeline/inertial_buffer.h"
 #include "estimator/pipeline/straight_track.h"
 #include "estimator/pipeline/submap_worker.h"
+
+namespace ceres {
+class CostFunction;
+}
 
 namespace raillomer {
 
@@ -151,7 +156,62 @@ class Estimator {
   void AddImu(const io::ImuSample& sample);
   void AddOdometer(const io::WheelOdometry& reading);
   void ProcessReady(bool flush);
+  struct Prediction;
+  struct RoundTerms;
+  /// One synchronised frame of every LiDAR: predict, run the frontends, add the new state and
+  /// its factors, register against the local map, then update the map and emit what is final.
   void ProcessFrame(const PendingFrame& pending);
+  void WarnMissingLidars(const PendingFrame& pending);
+  /// The new state at t_end from the newest: preintegrated (IMU, and the odometer unless it
+  /// disagrees), or at constant velocity without the IMU.
+  Prediction Predict(bool first, double t_end);
+  void PredictInertial(Prediction* p);
+  void PredictConstantVelocity(Prediction* p) const;
+  /// Preprocesses, deskews and extracts features of each LiDAR's frame, one thread each.
+  std::vector<FrontendResult> RunFrontends(const PendingFrame& pending,
+                                           const Prediction& prediction,
+                                           bool keep_cloud) const;
+  FrontendResult RunFrontend(const io::LidarFrame& frame,
+                             int index,
+                             const Prediction& prediction,
+                             bool keep_cloud) const;
+  /// The body's motion from a frame's end back to its start (`start_s`), for deskewing.
+  Eigen::Isometry3d BodyMotionOverFrame(double start_s,
+                                        double lidar_period,
+                                        const Prediction& p) const;
+  /// The rail plane and rail heads of the down LiDAR, the height descriptor of the up one.
+  void ExtractFrameCues(const std::vector<FrontendResult>& fronts, NodeExtras* extras) const;
+  void ExtractRailCues(const std::vector<Eigen::Vector3f>& points_body, NodeExtras* extras) const;
+  static void CollectCloud(const std::vector<FrontendResult>& fronts, NodeExtras* extras);
+  /// Pushes the predicted state with its links to the previous one: preintegration, heading
+  /// hold, rail plane, height-descriptor shift and sleeper match.
+  void AddNewState(const Prediction& p, NodeExtras* extras);
+  void AddPairFactors(const NodeExtras& before, const Prediction& p, NodeExtras* extras);
+  /// One round of matching both LiDARs (and the rail heads) against the local map, then an
+  /// optimisation of the window.
+  void RegisterRound(const std::vector<FrontendResult>& fronts,
+                     const Prediction& p,
+                     NodeExtras* extras);
+  void AddLidarTerms(const FrontendResult& front,
+                     bool looks_down,
+                     const Eigen::Isometry3d& T_current,
+                     const Eigen::Vector3d& lateral,
+                     const Prediction& p,
+                     LidarDiagnostics* diag,
+                     RoundTerms* terms) const;
+  void AddRailLineTerms(const NodeExtras& extras,
+                        const Eigen::Isometry3d& T_current,
+                        const Eigen::Vector3d& forward,
+                        RoundTerms* terms) const;
+  /// The round's terms as one cost on the newest pose, remapped where the LiDARs are blind.
+  std::shared_ptr<ceres::CostFunction> FrameCost(const Eigen::Isometry3d& T_current,
+                                                 const Eigen::Vector3d& forward,
+                                                 RoundTerms terms,
+                                                 FrameResult* result) const;
+  void InsertIntoLocalMap(const std::vector<FrontendResult>& fronts,
+                          std::unique_ptr<NodeExtras> extras);
+  /// Records the newest state in the frame's result, then emits the states leaving the window.
+  void FinishFrame(double t_end, std::chrono::steady_clock::time_point t_frontend);
   bool Initialize(double t_end);
   /// IMU (and, when use_odometer, odometer) preintegration over [t0, t1] from `start`'s biases.
   std::shared_ptr<Preintegration> Preintegrate(
