@@ -5,7 +5,9 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <random>
+#include <string>
 
 #include <Eigen/Eigenvalues>
 
@@ -207,33 +209,194 @@ struct Seeds {
 
 std::string SideName(int r) { return r == 0 ? "left rail" : "right rail"; }
 
+/// The bands around both nominal rails in which the seeds are sought.
+struct RailBands {
+  std::array<double, 2> nominal;  ///< y of the left and right rail
+  double half;                    ///< half-width of each band
+
+  /// The rail (0 left, 1 right) whose band holds p, or -1.
+  int Of(const Point& p) const {
+    for (int r = 0; r < 2; ++r) {
+      if (std::fabs(p.y - nominal[r]) <= half) return r;
+    }
+    return -1;
+  }
+};
+
+/// The slice of the kSeedRobustCount-th nearest track-bed return in a rail band, or -1.
+int FirstBedSlice(const Slices& slices, const RailBands& bands) {
+  int seen = 0;
+  for (int k = 0; k < slices.count(); ++k) {
+    for (int i = slices.begin[k]; i < slices.begin[k + 1]; ++i) {
+      if (bands.Of(slices.points[i]) >= 0 && ++seen >= kSeedRobustCount) return k;
+    }
+  }
+  return -1;
+}
+
+/// Each rail's candidates in slices [first, end): points within kLocalMaxToleranceM of the
+/// highest in their band over +-kLocalMaxHalfWindow slices. The rail head stands 0.17 m above
+/// the sleepers, and the window spans several slices so that slices without a rail return add
+/// no sleeper tops.
+std::array<std::vector<Point>, 2> LocalMaxCandidates(const Slices& slices,
+                                                     const RailBands& bands,
+                                                     int first,
+                                                     int end) {
+  const int n_seed = end - first;
+  std::array<std::vector<float>, 2> slice_max;
+  for (auto& m : slice_max) m.assign(n_seed, -std::numeric_limits<float>::infinity());
+  for (int k = 0; k < n_seed; ++k) {
+    for (int i = slices.begin[first + k]; i < slices.begin[first + k + 1]; ++i) {
+      const int r = bands.Of(slices.points[i]);
+      if (r >= 0) slice_max[r][k] = std::max(slice_max[r][k], slices.points[i].z);
+    }
+  }
+  std::array<std::vector<Point>, 2> candidates;
+  for (int k = 0; k < n_seed; ++k) {
+    std::array<float, 2> z_max;
+    for (int r = 0; r < 2; ++r) {
+      const auto from = slice_max[r].begin() + std::max(0, k - kLocalMaxHalfWindow);
+      const auto to = slice_max[r].begin() + std::min(n_seed - 1, k + kLocalMaxHalfWindow) + 1;
+      z_max[r] = *std::max_element(from, to);
+    }
+    for (int i = slices.begin[first + k]; i < slices.begin[first + k + 1]; ++i) {
+      const Point& p = slices.points[i];
+      const int r = bands.Of(p);
+      if (r >= 0 && p.z >= z_max[r] - kLocalMaxToleranceM) candidates[r].push_back(p);
+    }
+  }
+  return candidates;
+}
+
+/// The best line pair of the RANSAC: `side`'s line y = a + b u, z = d + e u (u = x - x0), the
+/// other rail on its parallel one gauge across; score < 0 when none was found.
+struct SeedPair {
+  int score = -1;
+  int side = 0;
+  double a = 0.0, b = 0.0, d = 0.0, e = 0.0;
+
+  /// The lateral offset from `side`'s line to rail r's.
+  double Across(int r, double rail_y) const {
+    if (r == side) return 0.0;
+    return (side == 0 ? -2.0 : 2.0) * rail_y * std::sqrt(1.0 + b * b);
+  }
+};
+
+/// RANSAC over line pairs: two candidates of one rail give its line, the other rail's line is
+/// its parallel one gauge across. Residuals are lateral and vertical offsets (the rails run
+/// nearly along x, so these are within 2 % of the perpendicular distance).
+SeedPair RansacSeedPair(const RailExtractionOptions& options,
+                        const std::array<std::vector<Point>, 2>& candidates,
+                        double x0,
+                        double rail_y,
+                        int min_seed,
+                        std::mt19937* rng) {
+  const double w2 = options.rail_head_width_m * options.rail_head_width_m;
+  auto inliers_of = [&](const std::vector<Point>& points, const SeedPair& line, bool free_height) {
+    int count = 0;
+    for (const Point& p : points) {
+      const double u = p.x - x0;
+      const double dy = p.y - (line.a + line.b * u), dz = p.z - (line.d + line.e * u);
+      count += free_height ? (dy * dy < w2 && std::fabs(dz) < kMaxCrossLevelM)
+                           : (dy * dy + dz * dz < w2);
+    }
+    return count;
+  };
+  SeedPair best;
+  for (int it = 0; it < options.ransac_iterations; ++it) {
+    const int r = it % 2;
+    const std::vector<Point>& c = candidates[r];
+    std::uniform_int_distribution<size_t> pick(0, c.size() - 1);
+    const Point& p = c[pick(*rng)];
+    const Point& q = c[pick(*rng)];
+    const double dx = q.x - p.x;
+    if (std::fabs(dx) < 0.5) continue;
+    SeedPair line;
+    line.side = r;
+    line.b = (q.y - p.y) / dx;
+    line.e = (q.z - p.z) / dx;
+    if (std::fabs(line.b) > kMaxSeedSlope || std::fabs(line.e) > kMaxSeedSlope) continue;
+    line.a = p.y + line.b * (x0 - p.x);
+    line.d = p.z + line.e * (x0 - p.x);
+    const int own = inliers_of(c, line, false);
+    if (own < min_seed) continue;
+    SeedPair other = line;
+    other.a += line.Across(1 - r, rail_y);
+    line.score = own + inliers_of(candidates[1 - r], other, true);
+    if (line.score > best.score) best = line;
+  }
+  return best;
+}
+
+/// Rail r's seed line: least squares on its candidates near the pair's line, then a second pass
+/// with the rail's own height. Returns the failure, or an empty string.
+std::string FitSeedLine(const RailExtractionOptions& options,
+                        const std::vector<Point>& candidates,
+                        int r,
+                        const SeedPair& pair,
+                        double rail_y,
+                        int min_seed,
+                        SeedLine* line) {
+  const double width = options.rail_head_width_m;
+  SeedLine guess = *line;
+  guess.Set(pair.a + pair.Across(r, rail_y), pair.b, pair.d, pair.e);
+  SeedLine refit = *line;
+  int inliers = 0;
+  for (const Point& p : candidates) {
+    const double dy = p.y - guess.Y(p.x), dz = p.z - guess.Z(p.x);
+    if (dy * dy < width * width && std::fabs(dz) < (r == pair.side ? width : kMaxCrossLevelM)) {
+      refit.Add(p);
+      ++inliers;
+    }
+  }
+  if (inliers < min_seed) {
+    return SideName(r) + ": the seed line has " + std::to_string(inliers) + " inliers (need " +
+           std::to_string(min_seed) + ")";
+  }
+  if (!refit.Fit()) refit = guess;
+  inliers = 0;
+  for (const Point& p : candidates) {
+    if (refit.Distance(p) < width) {
+      line->Add(p);
+      ++inliers;
+    }
+  }
+  if (inliers < min_seed || !line->Fit()) *line = refit;
+  return "";
+}
+
+/// The median height of a seed line above the track bed beside it (returns 0.12 m to `half`
+/// aside, in the seed area), if there are at least five such returns.
+std::optional<double> MedianBedDrop(const Slices& slices,
+                                    const Seeds& seeds,
+                                    const SeedLine& line,
+                                    double half) {
+  std::vector<float> drop;
+  for (int i = slices.begin[seeds.first_slice]; i < slices.begin[seeds.end_slice]; ++i) {
+    const Point& p = slices.points[i];
+    const double dy = std::fabs(p.y - line.Y(p.x));
+    if (dy > 0.12 && dy < half) drop.push_back(static_cast<float>(line.Z(p.x) - p.z));
+  }
+  if (drop.size() < 5) return std::nullopt;
+  std::nth_element(drop.begin(), drop.begin() + drop.size() / 2, drop.end());
+  return drop[drop.size() / 2];
+}
+
+std::string Millimetres(double m) {
+  return std::to_string(static_cast<int>(std::lround(m * 1000.0)));
+}
+
 /// Seeds both rails: local-maximum-height candidates near each nominal rail in the seed area,
-/// then a RANSAC line pair one gauge apart (a line through two candidates of one rail and its
-/// parallel at the other rail), then a least-squares line per rail on its inliers.
+/// then a RANSAC line pair one gauge apart, then a least-squares line per rail on its inliers,
+/// which must stand above the track bed around it (not a line through flat ballast).
 Seeds FindSeeds(const RailExtractionOptions& options,
                 const Slices& slices,
                 double rail_y,
                 std::mt19937* rng) {
   Seeds seeds;
-  const double half = options.candidate_half_width_m;
-  const std::array<double, 2> nominal = {rail_y, -rail_y};
-  auto band_of = [&](const Point& p) {
-    for (int r = 0; r < 2; ++r) {
-      if (std::fabs(p.y - nominal[r]) <= half) return r;
-    }
-    return -1;
-  };
-
+  const RailBands bands{{rail_y, -rail_y}, options.candidate_half_width_m};
   // The seed area starts at the nearest track-bed returns near the rails.
-  int seen = 0, first = -1;
-  for (int k = 0; k < slices.count() && first < 0; ++k) {
-    for (int i = slices.begin[k]; i < slices.begin[k + 1]; ++i) {
-      if (band_of(slices.points[i]) >= 0 && ++seen >= kSeedRobustCount) {
-        first = k;
-        break;
-      }
-    }
-  }
+  const int first = FirstBedSlice(slices, bands);
   if (first < 0) {
     seeds.failure = "no track-bed returns near the nominal rails";
     return seeds;
@@ -244,36 +407,8 @@ Seeds FindSeeds(const RailExtractionOptions& options,
   seeds.end_slice = std::min(slices.count(), first + seed_slices);
   seeds.x0 = slices.x_min + first * kSliceM;
 
-  // Local maximum height along the track: the rail head stands 0.17 m above the sleepers, and
-  // the window spans several slices so that slices without a rail return add no sleeper tops.
-  const int n_seed = seeds.end_slice - seeds.first_slice;
-  std::array<std::vector<float>, 2> slice_max;
-  for (auto& m : slice_max) m.assign(n_seed, -std::numeric_limits<float>::infinity());
-  for (int k = 0; k < n_seed; ++k) {
-    const int slice = seeds.first_slice + k;
-    for (int i = slices.begin[slice]; i < slices.begin[slice + 1]; ++i) {
-      const int r = band_of(slices.points[i]);
-      if (r >= 0) slice_max[r][k] = std::max(slice_max[r][k], slices.points[i].z);
-    }
-  }
-  std::array<std::vector<Point>, 2> candidates;
-  for (int k = 0; k < n_seed; ++k) {
-    std::array<float, 2> z_max;
-    for (int r = 0; r < 2; ++r) {
-      z_max[r] = -std::numeric_limits<float>::infinity();
-      for (int j = std::max(0, k - kLocalMaxHalfWindow);
-           j <= std::min(n_seed - 1, k + kLocalMaxHalfWindow);
-           ++j) {
-        z_max[r] = std::max(z_max[r], slice_max[r][j]);
-      }
-    }
-    const int slice = seeds.first_slice + k;
-    for (int i = slices.begin[slice]; i < slices.begin[slice + 1]; ++i) {
-      const Point& p = slices.points[i];
-      const int r = band_of(p);
-      if (r >= 0 && p.z >= z_max[r] - kLocalMaxToleranceM) candidates[r].push_back(p);
-    }
-  }
+  const std::array<std::vector<Point>, 2> candidates =
+      LocalMaxCandidates(slices, bands, seeds.first_slice, seeds.end_slice);
   const int min_seed = std::max(3, options.min_rail_points / 4);
   for (int r = 0; r < 2; ++r) {
     if (static_cast<int>(candidates[r].size()) < min_seed) {
@@ -283,113 +418,21 @@ Seeds FindSeeds(const RailExtractionOptions& options,
       return seeds;
     }
   }
-
-  // RANSAC over line pairs: two candidates of one rail give its line, the other rail's line is
-  // its parallel one gauge across. Residuals are lateral and vertical offsets (the rails run
-  // nearly along x, so these are within 2 % of the perpendicular distance).
-  const double w2 = options.rail_head_width_m * options.rail_head_width_m;
-  const double cross_level_tolerance = kMaxCrossLevelM;
-  auto inliers_of = [&](const std::vector<Point>& points,
-                        double a,
-                        double b,
-                        double d,
-                        double e,
-                        bool free_height) {
-    int count = 0;
-    for (const Point& p : points) {
-      const double u = p.x - seeds.x0;
-      const double dy = p.y - (a + b * u), dz = p.z - (d + e * u);
-      count += free_height ? (dy * dy < w2 && std::fabs(dz) < cross_level_tolerance)
-                           : (dy * dy + dz * dz < w2);
-    }
-    return count;
-  };
-  int best_score = -1, best_side = 0;
-  double best_a = 0.0, best_b = 0.0, best_d = 0.0, best_e = 0.0;
-  for (int it = 0; it < options.ransac_iterations; ++it) {
-    const int r = it % 2;
-    const std::vector<Point>& c = candidates[r];
-    std::uniform_int_distribution<size_t> pick(0, c.size() - 1);
-    const Point& p = c[pick(*rng)];
-    const Point& q = c[pick(*rng)];
-    const double dx = q.x - p.x;
-    if (std::fabs(dx) < 0.5) continue;
-    const double b = (q.y - p.y) / dx, e = (q.z - p.z) / dx;
-    if (std::fabs(b) > kMaxSeedSlope || std::fabs(e) > kMaxSeedSlope) continue;
-    const double a = p.y + b * (seeds.x0 - p.x), d = p.z + e * (seeds.x0 - p.x);
-    const double across = (r == 0 ? -2.0 : 2.0) * rail_y * std::sqrt(1.0 + b * b);
-    const int own = inliers_of(c, a, b, d, e, false);
-    if (own < min_seed) continue;
-    const int score = own + inliers_of(candidates[1 - r], a + across, b, d, e, true);
-    if (score > best_score) {
-      best_score = score;
-      best_side = r;
-      best_a = a;
-      best_b = b;
-      best_d = d;
-      best_e = e;
-    }
-  }
-  if (best_score < 0) {
+  const SeedPair pair = RansacSeedPair(options, candidates, seeds.x0, rail_y, min_seed, rng);
+  if (pair.score < 0) {
     seeds.failure = "no seed line with " + std::to_string(min_seed) + " inliers";
     return seeds;
   }
-
-  // Per rail: least squares on the inliers, then the rail head must stand above the track bed
-  // around it (not a line through flat ballast).
   for (int r = 0; r < 2; ++r) {
-    const double across =
-        r == best_side ? 0.0
-                       : (best_side == 0 ? -2.0 : 2.0) * rail_y * std::sqrt(1.0 + best_b * best_b);
-    SeedLine guess(seeds.x0);
-    guess.Set(best_a + across, best_b, best_d, best_e);
-    SeedLine refit(seeds.x0);
-    int inliers = 0;
-    for (const Point& p : candidates[r]) {
-      const double dy = p.y - guess.Y(p.x), dz = p.z - guess.Z(p.x);
-      if (dy * dy < w2 &&
-          std::fabs(dz) < (r == best_side ? options.rail_head_width_m : cross_level_tolerance)) {
-        refit.Add(p);
-        ++inliers;
-      }
-    }
-    if (inliers < min_seed) {
-      seeds.failure = SideName(r) + ": the seed line has " + std::to_string(inliers) +
-                      " inliers (need " + std::to_string(min_seed) + ")";
-      return seeds;
-    }
-    if (!refit.Fit()) refit = guess;
-    // A second pass with the rail's own height.
     SeedLine line(seeds.x0);
-    inliers = 0;
-    for (const Point& p : candidates[r]) {
-      if (refit.Distance(p) < options.rail_head_width_m) {
-        line.Add(p);
-        ++inliers;
-      }
-    }
-    if (inliers < min_seed || !line.Fit()) line = refit;
-
-    std::vector<float> drop;
-    for (int k = seeds.first_slice; k < seeds.end_slice; ++k) {
-      for (int i = slices.begin[k]; i < slices.begin[k + 1]; ++i) {
-        const Point& p = slices.points[i];
-        const double dy = std::fabs(p.y - line.Y(p.x));
-        if (dy > 0.12 && dy < half) drop.push_back(static_cast<float>(line.Z(p.x) - p.z));
-      }
-    }
-    if (drop.size() >= 5) {
-      std::nth_element(drop.begin(), drop.begin() + drop.size() / 2, drop.end());
-      const double median = drop[drop.size() / 2];
-      if (median < options.min_rail_height_m) {
-        seeds.failure =
-            SideName(r) + ": the seed line stands " +
-            std::to_string(static_cast<int>(std::lround(median * 1000.0))) +
-            " mm above the track bed (need " +
-            std::to_string(static_cast<int>(std::lround(options.min_rail_height_m * 1000))) +
-            " mm)";
-        return seeds;
-      }
+    seeds.failure = FitSeedLine(options, candidates[r], r, pair, rail_y, min_seed, &line);
+    if (!seeds.failure.empty()) return seeds;
+    const std::optional<double> drop = MedianBedDrop(slices, seeds, line, bands.half);
+    if (drop && *drop < options.min_rail_height_m) {
+      seeds.failure = SideName(r) + ": the seed line stands " + Millimetres(*drop) +
+                      " mm above the track bed (need " + Millimetres(options.min_rail_height_m) +
+                      " mm)";
+      return seeds;
     }
     seeds.a[r] = line.Y(seeds.x0);
     seeds.b[r] = line.y_slope();
@@ -413,6 +456,199 @@ bool FitPlane(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, do
   *n = solver.eigenvectors().col(0);
   if (n->z() < 0.0) *n = -*n;
   *d = -n->dot(mean);
+  return true;
+}
+
+/// The points of the track-bed band, from the mounting height and widened with distance for
+/// roll and pitch, sorted into slices along the track.
+Slices TrackBedSlices(const RailExtractionOptions& options,
+                      const std::vector<Eigen::Vector3f>& points_body,
+                      double rail_y) {
+  const double z_rail = -options.body_above_rail_top_m;
+  const double tilt = std::tan(options.max_tilt_deg * M_PI / 180.0);
+  Slices slices;
+  slices.x_min = options.min_forward_m;
+  const int n_slices =
+      static_cast<int>(std::ceil((options.max_forward_m - options.min_forward_m) / kSliceM));
+  const double corridor_y =
+      rail_y + options.candidate_half_width_m +
+      0.5 * options.max_forward_m * options.max_forward_m / (2.0 * kMinCurveRadiusM);
+  std::vector<int> slice_of(points_body.size(), -1);
+  std::vector<int> counts(n_slices + 1, 0);
+  for (size_t i = 0; i < points_body.size(); ++i) {
+    const Eigen::Vector3f& p = points_body[i];
+    if (!p.allFinite() || p.x() < options.min_forward_m || p.x() >= options.max_forward_m) continue;
+    const double allowance = tilt * std::hypot(p.x(), p.y());
+    if (p.z() < z_rail - 0.6 - allowance || p.z() > z_rail + 0.3 + allowance) continue;
+    if (std::fabs(p.y()) > corridor_y) continue;
+    const int k = std::min(n_slices - 1, static_cast<int>((p.x() - slices.x_min) / kSliceM));
+    slice_of[i] = k;
+    ++counts[k + 1];
+  }
+  slices.begin.assign(n_slices + 1, 0);
+  for (int k = 0; k < n_slices; ++k) slices.begin[k + 1] = slices.begin[k] + counts[k + 1];
+  slices.points.resize(slices.begin[n_slices]);
+  std::vector<int> fill(slices.begin.begin(), slices.begin.end() - 1);
+  for (size_t i = 0; i < points_body.size(); ++i) {
+    if (slice_of[i] < 0) continue;
+    const Eigen::Vector3f& p = points_body[i];
+    slices.points[fill[slice_of[i]]++] = {p.x(), p.y(), p.z()};
+  }
+  return slices;
+}
+
+/// Region growing from the seeds: both rails step outward together, accept points within
+/// rail_head_width_m of their current model and refit (a quadratic once long enough, so curves
+/// are followed). A step that breaks the gauge or the cross level is undone and ends the growth.
+std::array<std::vector<Point>, 2> GrowRails(const RailExtractionOptions& options,
+                                            const Slices& slices,
+                                            const Seeds& seeds,
+                                            double rail_y,
+                                            TrackModel* track) {
+  std::array<std::vector<Point>, 2> grown;
+  const double width = options.rail_head_width_m;
+  const int end_slice = std::min(slices.count(), slices.SliceOf(seeds.x0 + options.max_length_m));
+  const int chunk = std::max(1, static_cast<int>(std::lround(kChunkM / kSliceM)));
+  std::array<bool, 2> active = {true, true};
+  std::array<double, 2> last_x = {seeds.x0, seeds.x0};
+  // The first step covers the seed area.
+  int k = seeds.first_slice;
+  int step_end = seeds.end_slice;
+  while (k < end_slice && (active[0] || active[1])) {
+    step_end = std::min(step_end, end_slice);
+    const TrackModel saved = *track;
+    const std::array<size_t, 2> saved_size = {grown[0].size(), grown[1].size()};
+    for (int r = 0; r < 2; ++r) {
+      if (!active[r]) continue;
+      for (int i = slices.begin[k]; i < slices.begin[step_end]; ++i) {
+        const Point& p = slices.points[i];
+        if (track->Distance(r, p) < width) {
+          grown[r].push_back(p);
+          last_x[r] = std::max(last_x[r], static_cast<double>(p.x));
+        }
+      }
+    }
+    if (grown[0].size() + grown[1].size() > saved_size[0] + saved_size[1]) track->Fit(grown);
+    const double x_end = slices.x_min + step_end * kSliceM;
+    // Consistency: the rails stay one gauge apart and at similar heights (a wrong rail or a
+    // turnout breaks this).
+    const double cross_level = track->Z(0, x_end) - track->Z(1, x_end);
+    if (std::fabs(2.0 * track->half_separation() - 2.0 * rail_y) > kGaugeToleranceM ||
+        std::fabs(cross_level) > kMaxCrossLevelM) {
+      *track = saved;
+      for (int r = 0; r < 2; ++r) grown[r].resize(saved_size[r]);
+      break;
+    }
+    for (int r = 0; r < 2; ++r) {
+      if (active[r] && x_end - last_x[r] > kMaxGapM) active[r] = false;
+    }
+    k = step_end;
+    step_end = k + chunk;
+  }
+  return grown;
+}
+
+/// The rail plane n . x + d = 0 (the ground plane m = [n_p; d_p] of eqs. (28)-(30)).
+struct RailPlane {
+  Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+  double d = 0.0;
+};
+
+/// A rail-top point of the plane: returns from the sides of the rail head lie up to 5 cm lower,
+/// more of them on the rail seen from further aside, and would roll the plane.
+bool OnRailTop(const RailPlane& plane, const Eigen::Vector3d& p) {
+  const double r = plane.n.dot(p) + plane.d;
+  return r < kPlaneInlierM && r > -kRailTopBelowM;
+}
+
+/// RANSAC over planes through two points of one rail and one of the other; nullopt when no
+/// hypothesis was possible.
+std::optional<RailPlane> RansacRailPlane(const RailExtractionOptions& options,
+                                         const std::array<std::vector<Eigen::Vector3d>, 2>& rail,
+                                         std::mt19937* rng) {
+  std::optional<RailPlane> best;
+  int best_inliers = -1;
+  for (int it = 0; it < options.ransac_iterations; ++it) {
+    const std::vector<Eigen::Vector3d>& pair_rail = rail[it % 2];
+    const std::vector<Eigen::Vector3d>& single_rail = rail[1 - it % 2];
+    std::uniform_int_distribution<size_t> pick_pair(0, pair_rail.size() - 1);
+    std::uniform_int_distribution<size_t> pick_single(0, single_rail.size() - 1);
+    const Eigen::Vector3d& a = pair_rail[pick_pair(*rng)];
+    const Eigen::Vector3d& b = pair_rail[pick_pair(*rng)];
+    const Eigen::Vector3d& c = single_rail[pick_single(*rng)];
+    if (std::fabs(a.x() - b.x()) < 1.0) continue;
+    RailPlane plane;
+    plane.n = (b - a).cross(c - a);
+    if (plane.n.norm() < 1e-9) continue;
+    plane.n.normalize();
+    if (plane.n.z() < 0.0) plane.n = -plane.n;
+    if (plane.n.z() < std::cos(kMaxPlaneTiltRad)) continue;
+    plane.d = -plane.n.dot(a);
+    int inliers = 0;
+    for (const auto& points : rail) {
+      for (const Eigen::Vector3d& p : points) {
+        inliers += std::fabs(plane.n.dot(p) + plane.d) < kPlaneInlierM;
+      }
+    }
+    if (inliers > best_inliers) {
+      best_inliers = inliers;
+      best = plane;
+    }
+  }
+  return best;
+}
+
+/// Refits the plane by least squares to its inliers, then twice to the rail tops; false if a
+/// fit is degenerate or tilts too far. `inliers` receives the final fit's points.
+bool RefineRailPlane(const std::array<std::vector<Eigen::Vector3d>, 2>& rail,
+                     RailPlane* plane,
+                     std::vector<Eigen::Vector3d>* inliers) {
+  for (int pass = 0; pass < 3; ++pass) {
+    inliers->clear();
+    for (int r = 0; r < 2; ++r) {
+      for (const Eigen::Vector3d& p : rail[r]) {
+        const bool in = pass == 0 ? std::fabs(plane->n.dot(p) + plane->d) < kPlaneInlierM
+                                  : OnRailTop(*plane, p);
+        if (in) inliers->push_back(p);
+      }
+    }
+    if (!FitPlane(*inliers, &plane->n, &plane->d) || plane->n.z() < std::cos(kMaxPlaneTiltRad)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+/// The result's rail points (those on the rail top) and each rail's line at their centroid;
+/// false, with the failure set, when a rail keeps too few.
+bool OutputRails(const RailExtractionOptions& options,
+                 const std::array<std::vector<Eigen::Vector3d>, 2>& rail,
+                 const TrackModel& track,
+                 const RailPlane& plane,
+                 RailExtraction* result) {
+  for (int r = 0; r < 2; ++r) {
+    std::vector<Eigen::Vector3f>& out = r == 0 ? result->left_points : result->right_points;
+    double x_sum = 0.0;
+    for (const Eigen::Vector3d& p : rail[r]) {
+      if (!OnRailTop(plane, p)) continue;
+      out.push_back(p.cast<float>());
+      x_sum += p.x();
+    }
+    if (static_cast<int>(out.size()) < options.min_rail_points) {
+      result->failure = SideName(r) + ": " + std::to_string(out.size()) +
+                        " points on the rail plane (need " +
+                        std::to_string(options.min_rail_points) + ")";
+      result->left_points.clear();
+      result->right_points.clear();
+      return false;
+    }
+    const double xc = x_sum / static_cast<double>(out.size());
+    const Eigen::Vector3d point(xc, track.Y(r, xc), track.Z(r, xc));
+    const Eigen::Vector3d direction =
+        Eigen::Vector3d(1.0, track.Slope(xc), track.z_slope(r)).normalized();
+    (r == 0 ? result->left_point : result->right_point) = point;
+    (r == 0 ? result->left_direction : result->right_direction) = direction;
+  }
   return true;
 }
 
@@ -450,38 +686,7 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
     return result;
   }
   const double rail_y = 0.5 * options.gauge_m + kRailHeadHalfWidthM;
-  const double z_rail = -options.body_above_rail_top_m;
-  const double tilt = std::tan(options.max_tilt_deg * M_PI / 180.0);
-
-  // Track-bed band from the mounting height, widened with distance for roll and pitch.
-  Slices slices;
-  slices.x_min = options.min_forward_m;
-  const int n_slices =
-      static_cast<int>(std::ceil((options.max_forward_m - options.min_forward_m) / kSliceM));
-  const double corridor_y =
-      rail_y + options.candidate_half_width_m +
-      0.5 * options.max_forward_m * options.max_forward_m / (2.0 * kMinCurveRadiusM);
-  std::vector<int> slice_of(points_body.size(), -1);
-  std::vector<int> counts(n_slices + 1, 0);
-  for (size_t i = 0; i < points_body.size(); ++i) {
-    const Eigen::Vector3f& p = points_body[i];
-    if (!p.allFinite() || p.x() < options.min_forward_m || p.x() >= options.max_forward_m) continue;
-    const double allowance = tilt * std::hypot(p.x(), p.y());
-    if (p.z() < z_rail - 0.6 - allowance || p.z() > z_rail + 0.3 + allowance) continue;
-    if (std::fabs(p.y()) > corridor_y) continue;
-    const int k = std::min(n_slices - 1, static_cast<int>((p.x() - slices.x_min) / kSliceM));
-    slice_of[i] = k;
-    ++counts[k + 1];
-  }
-  slices.begin.assign(n_slices + 1, 0);
-  for (int k = 0; k < n_slices; ++k) slices.begin[k + 1] = slices.begin[k] + counts[k + 1];
-  slices.points.resize(slices.begin[n_slices]);
-  std::vector<int> fill(slices.begin.begin(), slices.begin.end() - 1);
-  for (size_t i = 0; i < points_body.size(); ++i) {
-    if (slice_of[i] < 0) continue;
-    const Eigen::Vector3f& p = points_body[i];
-    slices.points[fill[slice_of[i]]++] = {p.x(), p.y(), p.z()};
-  }
+  const Slices slices = TrackBedSlices(options, points_body, rail_y);
   if (static_cast<int>(slices.points.size()) < 2 * options.min_rail_points) {
     result.failure = "only " + std::to_string(slices.points.size()) +
                      " points in the track-bed band (need " +
@@ -496,56 +701,14 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
     result.failure = seeds.failure;
     return result;
   }
-
-  // Region growing: both rails step outward together, accept points within rail_head_width_m
-  // of their current model and refit (a quadratic once long enough, so curves are followed).
-  const double x0 = seeds.x0;
   const double seed_slope = 0.5 * (seeds.b[0] + seeds.b[1]);
-  TrackModel track(x0,
+  TrackModel track(seeds.x0,
                    0.5 * (seeds.a[0] + seeds.a[1]),
                    seed_slope,
                    0.5 * (seeds.a[0] - seeds.a[1]) / std::sqrt(1.0 + seed_slope * seed_slope));
   for (int r = 0; r < 2; ++r) track.SetHeight(r, seeds.d[r], seeds.e[r]);
-  std::array<std::vector<Point>, 2> grown;
-  const double width = options.rail_head_width_m;
-  const int end_slice = std::min(slices.count(), slices.SliceOf(x0 + options.max_length_m));
-  const int chunk = std::max(1, static_cast<int>(std::lround(kChunkM / kSliceM)));
-  std::array<bool, 2> active = {true, true};
-  std::array<double, 2> last_x = {x0, x0};
-  // The first step covers the seed area.
-  int k = seeds.first_slice;
-  int step_end = seeds.end_slice;
-  while (k < end_slice && (active[0] || active[1])) {
-    step_end = std::min(step_end, end_slice);
-    const TrackModel saved = track;
-    const std::array<size_t, 2> saved_size = {grown[0].size(), grown[1].size()};
-    for (int r = 0; r < 2; ++r) {
-      if (!active[r]) continue;
-      for (int i = slices.begin[k]; i < slices.begin[step_end]; ++i) {
-        const Point& p = slices.points[i];
-        if (track.Distance(r, p) < width) {
-          grown[r].push_back(p);
-          last_x[r] = std::max(last_x[r], static_cast<double>(p.x));
-        }
-      }
-    }
-    if (grown[0].size() + grown[1].size() > saved_size[0] + saved_size[1]) track.Fit(grown);
-    const double x_end = slices.x_min + step_end * kSliceM;
-    // Consistency: the rails stay one gauge apart and at similar heights (a wrong rail or a
-    // turnout breaks this): undo the step and stop.
-    const double cross_level = track.Z(0, x_end) - track.Z(1, x_end);
-    if (std::fabs(2.0 * track.half_separation() - 2.0 * rail_y) > kGaugeToleranceM ||
-        std::fabs(cross_level) > kMaxCrossLevelM) {
-      track = saved;
-      for (int r = 0; r < 2; ++r) grown[r].resize(saved_size[r]);
-      break;
-    }
-    for (int r = 0; r < 2; ++r) {
-      if (active[r] && x_end - last_x[r] > kMaxGapM) active[r] = false;
-    }
-    k = step_end;
-    step_end = k + chunk;
-  }
+  const std::array<std::vector<Point>, 2> grown = GrowRails(options, slices, seeds, rail_y, &track);
+  std::array<std::vector<Eigen::Vector3d>, 2> rail;
   for (int r = 0; r < 2; ++r) {
     if (static_cast<int>(grown[r].size()) < options.min_rail_points) {
       result.failure = SideName(r) + ": " + std::to_string(grown[r].size()) +
@@ -553,102 +716,28 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
                        std::to_string(options.min_rail_points) + ")";
       return result;
     }
-  }
-
-  // Rail plane m = [n_p; d_p] (the ground plane of eqs. (28)-(30)) through both rails: RANSAC,
-  // then least squares on the inliers.
-  std::array<std::vector<Eigen::Vector3d>, 2> rail;
-  for (int r = 0; r < 2; ++r) {
     rail[r].reserve(grown[r].size());
     for (const Point& p : grown[r]) rail[r].emplace_back(p.x, p.y, p.z);
   }
-  Eigen::Vector3d best_n = Eigen::Vector3d::UnitZ();
-  double best_d = -z_rail;
-  int best_inliers = -1;
-  auto count_inliers = [&](const Eigen::Vector3d& n, double d) {
-    int inliers = 0;
-    for (const auto& points : rail) {
-      for (const Eigen::Vector3d& p : points) inliers += std::fabs(n.dot(p) + d) < kPlaneInlierM;
-    }
-    return inliers;
-  };
-  for (int it = 0; it < options.ransac_iterations; ++it) {
-    const std::vector<Eigen::Vector3d>& pair_rail = rail[it % 2];
-    const std::vector<Eigen::Vector3d>& single_rail = rail[1 - it % 2];
-    std::uniform_int_distribution<size_t> pick_pair(0, pair_rail.size() - 1);
-    std::uniform_int_distribution<size_t> pick_single(0, single_rail.size() - 1);
-    const Eigen::Vector3d& a = pair_rail[pick_pair(rng)];
-    const Eigen::Vector3d& b = pair_rail[pick_pair(rng)];
-    const Eigen::Vector3d& c = single_rail[pick_single(rng)];
-    if (std::fabs(a.x() - b.x()) < 1.0) continue;
-    Eigen::Vector3d n = (b - a).cross(c - a);
-    if (n.norm() < 1e-9) continue;
-    n.normalize();
-    if (n.z() < 0.0) n = -n;
-    if (n.z() < std::cos(kMaxPlaneTiltRad)) continue;
-    const double d = -n.dot(a);
-    const int inliers = count_inliers(n, d);
-    if (inliers > best_inliers) {
-      best_inliers = inliers;
-      best_n = n;
-      best_d = d;
-    }
-  }
-  if (best_inliers < 0) {
+
+  // The rail plane through both rails: RANSAC, then least squares on the rail tops.
+  std::optional<RailPlane> plane = RansacRailPlane(options, rail, &rng);
+  if (!plane) {
     result.failure = "no rail plane hypothesis (rails too short)";
     return result;
   }
-  // The plane is refitted to the rail tops: returns from the sides of the rail head lie up to
-  // 5 cm lower, more of them on the rail seen from further aside, and would roll the plane.
-  auto on_plane = [](const Eigen::Vector3d& n, double d, const Eigen::Vector3d& p) {
-    const double r = n.dot(p) + d;
-    return r < kPlaneInlierM && r > -kRailTopBelowM;
-  };
-  Eigen::Vector3d n = best_n;
-  double d = best_d;
   std::vector<Eigen::Vector3d> inliers;
-  for (int pass = 0; pass < 3; ++pass) {
-    inliers.clear();
-    for (int r = 0; r < 2; ++r) {
-      for (const Eigen::Vector3d& p : rail[r]) {
-        if (pass == 0 ? std::fabs(n.dot(p) + d) < kPlaneInlierM : on_plane(n, d, p))
-          inliers.push_back(p);
-      }
-    }
-    if (!FitPlane(inliers, &n, &d) || n.z() < std::cos(kMaxPlaneTiltRad)) {
-      result.failure = "the rail plane fit is degenerate";
-      return result;
-    }
+  if (!RefineRailPlane(rail, &*plane, &inliers)) {
+    result.failure = "the rail plane fit is degenerate";
+    return result;
   }
+  if (!OutputRails(options, rail, track, *plane, &result)) return result;
   double sum_sq = 0.0;
-  for (const Eigen::Vector3d& p : inliers) sum_sq += (n.dot(p) + d) * (n.dot(p) + d);
-
-  // Output: rail points on the plane, each rail's line at its centroid.
-  for (int r = 0; r < 2; ++r) {
-    std::vector<Eigen::Vector3f>& out = r == 0 ? result.left_points : result.right_points;
-    double x_sum = 0.0;
-    for (const Eigen::Vector3d& p : rail[r]) {
-      if (!on_plane(n, d, p)) continue;
-      out.push_back(p.cast<float>());
-      x_sum += p.x();
-    }
-    if (static_cast<int>(out.size()) < options.min_rail_points) {
-      result.failure = SideName(r) + ": " + std::to_string(out.size()) +
-                       " points on the rail plane (need " +
-                       std::to_string(options.min_rail_points) + ")";
-      result.left_points.clear();
-      result.right_points.clear();
-      return result;
-    }
-    const double xc = x_sum / static_cast<double>(out.size());
-    const Eigen::Vector3d point(xc, track.Y(r, xc), track.Z(r, xc));
-    const Eigen::Vector3d direction =
-        Eigen::Vector3d(1.0, track.Slope(xc), track.z_slope(r)).normalized();
-    (r == 0 ? result.left_point : result.right_point) = point;
-    (r == 0 ? result.left_direction : result.right_direction) = direction;
+  for (const Eigen::Vector3d& p : inliers) {
+    sum_sq += (plane->n.dot(p) + plane->d) * (plane->n.dot(p) + plane->d);
   }
-  result.normal = n;
-  result.distance = d;
+  result.normal = plane->n;
+  result.distance = plane->d;
   result.plane_rms_m = std::sqrt(sum_sq / static_cast<double>(inliers.size()));
   result.ok = true;
   return result;
