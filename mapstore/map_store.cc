@@ -919,20 +919,9 @@ Result MapStore::PinKmPost(const std::string& name,
 
 Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, IngestReceipt* receipt) {
   api::Submap s;
-  std::string error;
-  if (!api::DecodeSubmapPcd(payload, &s, &error)) {
-    std::lock_guard<std::mutex> lock(mu_);
-    ++stats_.submaps_rejected;
-    return Fail(Outcome::kInvalid, error);
-  }
-  if (!ValidSubmap(s, options_, &error)) {
-    std::lock_guard<std::mutex> lock(mu_);
-    ++stats_.submaps_rejected;
-    return Fail(Outcome::kInvalid, "submap " + std::to_string(s.sequence) + ": " + error);
-  }
+  const Result decoded = DecodeIngested(payload, &s);
+  if (!decoded) return decoded;
   const std::string hash = Hex64(Fnv1a(payload));
-  Eigen::AlignedBox3d box;
-  for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
 
   std::unique_lock<std::mutex> lock(mu_);
   RunInfo run;
@@ -941,46 +930,8 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
     ++stats_.submaps_rejected;
     return r;
   }
-  Statement existing(*writer_,
-                     "SELECT payload_hash, tiled FROM submaps WHERE run_id = ? AND sequence = ?");
-  existing.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence));
-  if (existing.Step()) {
-    if (existing.Text(0) == hash && existing.Int(1) == -1) {
-      // Its payload was lost before its tiles were written (a power cut): the same bytes sent
-      // again restore it.
-      const std::string incoming = IncomingPath(run_id, s.sequence);
-      if (!api::WriteFileAtomically(incoming, payload, &error))
-        return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
-      Transaction t(*writer_);
-      Statement again(*writer_, "UPDATE submaps SET tiled = 0 WHERE run_id = ? AND sequence = ?");
-      Statement count(*writer_,
-                      "UPDATE runs SET submaps = submaps + 1, submaps_lost = submaps_lost - 1, "
-                      "points = points + ? WHERE id = ?");
-      if (!t.ok() || !again.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).Run() ||
-          !count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, run_id).Run() ||
-          !t.Commit(&error))
-        return Fail(Outcome::kError, "cannot restore the submap: " + writer_->Message());
-      IngestReceipt restored;
-      Merge(run_id, s, &restored);
-      unflushed_.emplace_back(run_id, s.sequence);
-      dirty_points_ += restored.points_new;
-      if (receipt) *receipt = restored;
-      return {};
-    }
-    if (existing.Text(0) == hash) {
-      ++stats_.submaps_duplicate;
-      if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0, s.last_stamp_ns};
-      return {Outcome::kDuplicate,
-              "submap " + std::to_string(s.sequence) + " of run " + std::to_string(run_id) +
-                  " was stored before"};
-    }
-    ++stats_.submaps_rejected;
-    return Fail(Outcome::kConflict,
-                "run " + std::to_string(run_id) +
-                    " already has a different submap under "
-                    "sequence " +
-                    std::to_string(s.sequence));
-  }
+  const std::optional<Result> resent = ResentSubmapLocked(run_id, s, payload, hash, receipt);
+  if (resent) return *resent;
   if (run.status != "live") {
     ++stats_.submaps_rejected;
     return Fail(Outcome::kConflict, "run " + std::to_string(run_id) + " is finished");
@@ -991,49 +942,8 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
                 "submap " + std::to_string(s.sequence) + " is in UTM zone " + s.utm_zone +
                     ", run " + std::to_string(run_id) + " in " + run.utm_zone);
   }
-  // The payload waits in the incoming folder until its points are in written tiles; it is
-  // there before the submap is committed, so an acknowledged submap always has it.
-  const std::string incoming = IncomingPath(run_id, s.sequence);
-  if (!api::WriteFileAtomically(incoming, payload, &error))
-    return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
-  {
-    auto forget = [&](const std::string& message) {
-      std::error_code ec;
-      std::filesystem::remove(incoming, ec);
-      return Fail(Outcome::kError, message);
-    };
-    Transaction t(*writer_);
-    if (!t.ok()) return forget(writer_->Message());
-    Statement insert(*writer_,
-                     "INSERT INTO submaps (run_id, sequence, idx, first_stamp_ns, last_stamp_ns, "
-                     "utm_zone, origin_x, origin_y, origin_z, min_x, min_y, max_x, max_y, "
-                     "points, keyframes, payload_hash, received_ns) VALUES "
-                     "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-    insert.Bind(1, run_id)
-        .Bind(2, static_cast<int64_t>(s.sequence))
-        .Bind(3, s.index)
-        .Bind(4, s.first_stamp_ns)
-        .Bind(5, s.last_stamp_ns)
-        .Bind(6, s.utm_zone)
-        .Bind(7, s.origin.x())
-        .Bind(8, s.origin.y())
-        .Bind(9, s.origin.z())
-        .Bind(10, box.min().x())
-        .Bind(11, box.min().y())
-        .Bind(12, box.max().x())
-        .Bind(13, box.max().y())
-        .Bind(14, static_cast<int64_t>(s.points.size()))
-        .Bind(15, static_cast<int64_t>(s.keyframes.size()))
-        .Bind(16, hash)
-        .Bind(17, NowNs());
-    Statement count(*writer_,
-                    "UPDATE runs SET submaps = submaps + 1, points = points + ?, utm_zone = ? "
-                    "WHERE id = ?");
-    count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, s.utm_zone).Bind(3, run_id);
-    if (!insert.Run()) return forget(insert.error());
-    if (!count.Run()) return forget(count.error());
-    if (!t.Commit(&error)) return forget(error);
-  }
+  r = StoreSubmapLocked(run_id, s, payload, hash);
+  if (!r) return r;
   ++stats_.submaps_stored;
   IngestReceipt local;
   Merge(run_id, s, &local);
@@ -1048,6 +958,123 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
     lock.lock();
     if (flushed) EvictLocked();
   }
+  return {};
+}
+
+Result MapStore::DecodeIngested(const std::string& payload, api::Submap* s) {
+  std::string error;
+  if (!api::DecodeSubmapPcd(payload, s, &error)) {
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kInvalid, error);
+  }
+  if (!ValidSubmap(*s, options_, &error)) {
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.submaps_rejected;
+    return Fail(Outcome::kInvalid, "submap " + std::to_string(s->sequence) + ": " + error);
+  }
+  return {};
+}
+
+std::optional<Result> MapStore::ResentSubmapLocked(int64_t run_id,
+                                                   const api::Submap& s,
+                                                   const std::string& payload,
+                                                   const std::string& hash,
+                                                   IngestReceipt* receipt) {
+  Statement existing(*writer_,
+                     "SELECT payload_hash, tiled FROM submaps WHERE run_id = ? AND sequence = ?");
+  existing.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence));
+  if (!existing.Step()) return std::nullopt;
+  if (existing.Text(0) == hash && existing.Int(1) == -1) {
+    // Its payload was lost before its tiles were written (a power cut): the same bytes sent
+    // again restore it.
+    return RestoreSubmapLocked(run_id, s, payload, receipt);
+  }
+  if (existing.Text(0) == hash) {
+    ++stats_.submaps_duplicate;
+    if (receipt) *receipt = IngestReceipt{s.points.size(), 0, 0, s.last_stamp_ns};
+    return Result{Outcome::kDuplicate,
+                  "submap " + std::to_string(s.sequence) + " of run " + std::to_string(run_id) +
+                      " was stored before"};
+  }
+  ++stats_.submaps_rejected;
+  return Fail(Outcome::kConflict,
+              "run " + std::to_string(run_id) + " already has a different submap under sequence " +
+                  std::to_string(s.sequence));
+}
+
+Result MapStore::RestoreSubmapLocked(int64_t run_id,
+                                     const api::Submap& s,
+                                     const std::string& payload,
+                                     IngestReceipt* receipt) {
+  std::string error;
+  if (!api::WriteFileAtomically(IncomingPath(run_id, s.sequence), payload, &error))
+    return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
+  Transaction t(*writer_);
+  Statement again(*writer_, "UPDATE submaps SET tiled = 0 WHERE run_id = ? AND sequence = ?");
+  Statement count(*writer_,
+                  "UPDATE runs SET submaps = submaps + 1, submaps_lost = submaps_lost - 1, "
+                  "points = points + ? WHERE id = ?");
+  if (!t.ok() || !again.Bind(1, run_id).Bind(2, static_cast<int64_t>(s.sequence)).Run() ||
+      !count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, run_id).Run() ||
+      !t.Commit(&error))
+    return Fail(Outcome::kError, "cannot restore the submap: " + writer_->Message());
+  IngestReceipt restored;
+  Merge(run_id, s, &restored);
+  unflushed_.emplace_back(run_id, s.sequence);
+  dirty_points_ += restored.points_new;
+  if (receipt) *receipt = restored;
+  return {};
+}
+
+Result MapStore::StoreSubmapLocked(int64_t run_id,
+                                   const api::Submap& s,
+                                   const std::string& payload,
+                                   const std::string& hash) {
+  // The payload waits in the incoming folder until its points are in written tiles; it is
+  // there before the submap is committed, so an acknowledged submap always has it.
+  const std::string incoming = IncomingPath(run_id, s.sequence);
+  std::string error;
+  if (!api::WriteFileAtomically(incoming, payload, &error))
+    return Fail(Outcome::kError, "cannot keep the submap's payload: " + error);
+  auto forget = [&](const std::string& message) {
+    std::error_code ec;
+    std::filesystem::remove(incoming, ec);
+    return Fail(Outcome::kError, message);
+  };
+  Eigen::AlignedBox3d box;
+  for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
+  Transaction t(*writer_);
+  if (!t.ok()) return forget(writer_->Message());
+  Statement insert(*writer_,
+                   "INSERT INTO submaps (run_id, sequence, idx, first_stamp_ns, last_stamp_ns, "
+                   "utm_zone, origin_x, origin_y, origin_z, min_x, min_y, max_x, max_y, "
+                   "points, keyframes, payload_hash, received_ns) VALUES "
+                   "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  insert.Bind(1, run_id)
+      .Bind(2, static_cast<int64_t>(s.sequence))
+      .Bind(3, s.index)
+      .Bind(4, s.first_stamp_ns)
+      .Bind(5, s.last_stamp_ns)
+      .Bind(6, s.utm_zone)
+      .Bind(7, s.origin.x())
+      .Bind(8, s.origin.y())
+      .Bind(9, s.origin.z())
+      .Bind(10, box.min().x())
+      .Bind(11, box.min().y())
+      .Bind(12, box.max().x())
+      .Bind(13, box.max().y())
+      .Bind(14, static_cast<int64_t>(s.points.size()))
+      .Bind(15, static_cast<int64_t>(s.keyframes.size()))
+      .Bind(16, hash)
+      .Bind(17, NowNs());
+  Statement count(*writer_,
+                  "UPDATE runs SET submaps = submaps + 1, points = points + ?, utm_zone = ? "
+                  "WHERE id = ?");
+  count.Bind(1, static_cast<int64_t>(s.points.size())).Bind(2, s.utm_zone).Bind(3, run_id);
+  if (!insert.Run()) return forget(insert.error());
+  if (!count.Run()) return forget(count.error());
+  if (!t.Commit(&error)) return forget(error);
   return {};
 }
 
@@ -1160,147 +1187,170 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
   stats_.points_off_grid += receipt->points_off_grid;
 }
 
+/// One changed tile of a flush: its snapshot, then its encoding.
+struct MapStore::FlushTile {
+  HotKey key;
+  TileKey tile;
+  TilePoints points;
+  TileQuantization quantization;
+  int64_t version = 0;
+  size_t points_count = 0;
+  std::string bytes, error;
+  bool ok = false;
+};
+
+/// What a flush writes: the changed tiles, and the submaps whose points they hold.
+struct MapStore::FlushSnapshot {
+  std::vector<FlushTile> tiles;
+  std::vector<std::pair<int64_t, uint64_t>> submaps;
+};
+
 Result MapStore::Flush(std::vector<TileUpdate>* updated) {
   // One flush at a time, so tiles are written in the order their snapshots were taken.
   std::lock_guard<std::mutex> serial(flush_mu_);
-  struct Pending {
-    HotKey key;
-    TileKey tile;
-    TilePoints points;
-    TileQuantization quantization;
-    int64_t version = 0;
-    size_t points_count = 0;
-    std::string bytes, error;
-    bool ok = false;
-  };
-  std::vector<Pending> pending;
-  std::vector<std::pair<int64_t, uint64_t>> submaps;
-  {
-    // The snapshot: copies of the changed tiles, and the submaps whose points they hold.
-    std::lock_guard<std::mutex> lock(mu_);
-    for (auto& [k, tile] : hot_) {
-      if (!tile->dirty) continue;
-      Pending p;
-      p.key = k;
-      p.tile = tile->key;
-      p.points = tile->points;
-      p.points_count = tile->points.points.size();
-      p.quantization = tile->quantization;
-      p.version = ++tile->version;
-      tile->dirty = false;
-      ++tile->in_flight;
-      pending.push_back(std::move(p));
-    }
-    submaps.swap(unflushed_);
-    dirty_points_ = 0;
-  }
-  if (pending.empty() && submaps.empty()) return {};
-  // Encode in parallel, with ingest going on: Draco is the slow part.
-  const int threads = std::max(1, std::min<int>(options_.encode_threads, pending.size()));
-  std::vector<std::future<void>> workers;
-  for (int w = 0; w < threads; ++w) {
-    workers.push_back(std::async(std::launch::async, [&, w]() {
-      for (size_t i = w; i < pending.size(); i += threads) {
-        Pending& p = pending[i];
-        p.ok = EncodeTile(p.points, p.quantization, options_.draco_speed, &p.bytes, &p.error);
-        p.points = TilePoints();  // let the copy go early
-      }
-    }));
-  }
-  for (auto& w : workers) w.get();
+  FlushSnapshot snapshot = TakeSnapshot();
+  if (snapshot.tiles.empty() && snapshot.submaps.empty()) return {};
+  EncodeSnapshot(&snapshot);
 
   std::unique_lock<std::mutex> lock(mu_);
-  // On failure the tiles are changed again and the submaps still unwritten: the next flush
-  // retries, and a restart would merge the submaps again.
-  auto undo = [&](const std::string& message) {
-    for (Pending& p : pending) {
-      auto it = hot_.find(p.key);
-      if (it == hot_.end()) continue;
-      it->second->dirty = true;
-      --it->second->in_flight;
-    }
-    unflushed_.insert(unflushed_.end(), submaps.begin(), submaps.end());
-    return Fail(Outcome::kError, message);
-  };
-  for (const Pending& p : pending) {
-    if (!p.ok) return undo("tile " + p.tile.ToString() + ": " + p.error);
+  for (const FlushTile& p : snapshot.tiles) {
+    if (!p.ok) return UndoFlushLocked(snapshot, "tile " + p.tile.ToString() + ": " + p.error);
   }
   // A tile that could not be read back when it was reopened is never written over: the
   // submaps of this snapshot keep their payloads (a restart merges them again).
   const bool poisoned =
       std::any_of(hot_.begin(), hot_.end(), [](const auto& h) { return h.second->unreadable; });
   std::vector<TileUpdate> done;
-  const Result written = [&]() -> Result {
-    // Every statement lives and dies inside this block, under the lock: the writer
-    // connection is not thread-safe.
-    Transaction t(*writer_);
-    if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
-    Statement put(*writer_,
-                  "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
-                  "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
-                  "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-    const int64_t now = NowNs();
-    for (const Pending& p : pending) {
-      const HotTile& tile = *hot_.at(p.key);
-      if (tile.unreadable) continue;
-      put.Reset();
-      put.Bind(1, std::get<0>(p.key))
-          .Bind(2, p.tile.level)
-          .Bind(3, p.tile.ix)
-          .Bind(4, p.tile.iy)
-          .Bind(5, tile.points.utm_zone)
-          .Bind(6, tile.points.origin.x())
-          .Bind(7, tile.points.origin.y())
-          .Bind(8, tile.points.origin.z())
-          .Bind(9, static_cast<int64_t>(p.points_count))
-          .Bind(10, p.quantization.MaxErrorM())
-          .Bind(11, p.version)
-          .Bind(12, "\"" + std::to_string(p.version) + "-" + Hex64(Fnv1a(p.bytes)) + "\"")
-          .Bind(13, now)
-          .BindBlob(14, p.bytes);
-      if (!put.Run()) return Fail(Outcome::kError, put.error());
-      done.push_back({std::get<0>(p.key), p.tile, p.version});
-    }
-    if (!poisoned) {
-      // Every submap of the snapshot is in written tiles now: its payload can go.
-      Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
-      for (const auto& [run, sequence] : submaps) {
-        mark.Reset();
-        if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
-          return Fail(Outcome::kError, mark.error());
-      }
-    }
-    std::string error;
-    if (!t.Commit(&error)) return Fail(Outcome::kError, error);
-    return {};
-  }();
-  if (!written) return undo(written.message);
-  for (const Pending& p : pending) --hot_.at(p.key)->in_flight;
+  const Result written = WriteSnapshotLocked(snapshot, poisoned, &done);
+  if (!written) return UndoFlushLocked(snapshot, written.message);
+  for (const FlushTile& p : snapshot.tiles) --hot_.at(p.key)->in_flight;
   stats_.tiles_written += done.size();
-  for (const Pending& p : pending) stats_.points_encoded += p.points_count;
+  for (const FlushTile& p : snapshot.tiles) stats_.points_encoded += p.points_count;
   ++stats_.flushes;
   if (poisoned) {
     // Keep the payloads; let the unreadable tiles go, so the next touch tries to read them again.
-    unflushed_.insert(unflushed_.end(), submaps.begin(), submaps.end());
-    submaps.clear();
-    for (auto it = hot_.begin(); it != hot_.end();) {
-      if (it->second->unreadable && it->second->in_flight == 0) {
-        hot_points_ -= it->second->points.points.size();
-        it = hot_.erase(it);
-      } else {
-        ++it;
-      }
-    }
+    unflushed_.insert(unflushed_.end(), snapshot.submaps.begin(), snapshot.submaps.end());
+    snapshot.submaps.clear();
+    DropUnreadableLocked();
   }
   if (updated) *updated = done;
   const auto listener = listener_;
   lock.unlock();
-  for (const auto& [run, sequence] : submaps) {
+  for (const auto& [run, sequence] : snapshot.submaps) {
     std::error_code ec;
     std::filesystem::remove(IncomingPath(run, sequence), ec);
   }
   if (listener && !done.empty()) listener(done);
   return {};
+}
+
+MapStore::FlushSnapshot MapStore::TakeSnapshot() {
+  std::lock_guard<std::mutex> lock(mu_);
+  FlushSnapshot snapshot;
+  for (auto& [k, tile] : hot_) {
+    if (!tile->dirty) continue;
+    FlushTile p;
+    p.key = k;
+    p.tile = tile->key;
+    p.points = tile->points;
+    p.points_count = tile->points.points.size();
+    p.quantization = tile->quantization;
+    p.version = ++tile->version;
+    tile->dirty = false;
+    ++tile->in_flight;
+    snapshot.tiles.push_back(std::move(p));
+  }
+  snapshot.submaps.swap(unflushed_);
+  dirty_points_ = 0;
+  return snapshot;
+}
+
+void MapStore::EncodeSnapshot(FlushSnapshot* snapshot) const {
+  // In parallel, with ingest going on: Draco is the slow part.
+  std::vector<FlushTile>& tiles = snapshot->tiles;
+  const int threads = std::max(1, std::min<int>(options_.encode_threads, tiles.size()));
+  std::vector<std::future<void>> workers;
+  for (int w = 0; w < threads; ++w) {
+    workers.push_back(std::async(std::launch::async, [&, w]() {
+      for (size_t i = w; i < tiles.size(); i += threads) {
+        FlushTile& p = tiles[i];
+        p.ok = EncodeTile(p.points, p.quantization, options_.draco_speed, &p.bytes, &p.error);
+        p.points = TilePoints();  // let the copy go early
+      }
+    }));
+  }
+  for (auto& w : workers) w.get();
+}
+
+Result MapStore::UndoFlushLocked(const FlushSnapshot& snapshot, const std::string& message) {
+  // The tiles are changed again and the submaps still unwritten: the next flush retries, and a
+  // restart would merge the submaps again.
+  for (const FlushTile& p : snapshot.tiles) {
+    auto it = hot_.find(p.key);
+    if (it == hot_.end()) continue;
+    it->second->dirty = true;
+    --it->second->in_flight;
+  }
+  unflushed_.insert(unflushed_.end(), snapshot.submaps.begin(), snapshot.submaps.end());
+  return Fail(Outcome::kError, message);
+}
+
+Result MapStore::WriteSnapshotLocked(const FlushSnapshot& snapshot,
+                                     bool poisoned,
+                                     std::vector<TileUpdate>* done) {
+  // Every statement lives and dies inside this function, under the lock: the writer
+  // connection is not thread-safe.
+  Transaction t(*writer_);
+  if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
+  Statement put(*writer_,
+                "INSERT OR REPLACE INTO tiles (run_id, level, ix, iy, utm_zone, origin_x, "
+                "origin_y, origin_z, points, max_error_m, version, etag, updated_ns, bytes) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  const int64_t now = NowNs();
+  for (const FlushTile& p : snapshot.tiles) {
+    const HotTile& tile = *hot_.at(p.key);
+    if (tile.unreadable) continue;
+    put.Reset();
+    put.Bind(1, std::get<0>(p.key))
+        .Bind(2, p.tile.level)
+        .Bind(3, p.tile.ix)
+        .Bind(4, p.tile.iy)
+        .Bind(5, tile.points.utm_zone)
+        .Bind(6, tile.points.origin.x())
+        .Bind(7, tile.points.origin.y())
+        .Bind(8, tile.points.origin.z())
+        .Bind(9, static_cast<int64_t>(p.points_count))
+        .Bind(10, p.quantization.MaxErrorM())
+        .Bind(11, p.version)
+        .Bind(12, "\"" + std::to_string(p.version) + "-" + Hex64(Fnv1a(p.bytes)) + "\"")
+        .Bind(13, now)
+        .BindBlob(14, p.bytes);
+    if (!put.Run()) return Fail(Outcome::kError, put.error());
+    done->push_back({std::get<0>(p.key), p.tile, p.version});
+  }
+  if (!poisoned) {
+    // Every submap of the snapshot is in written tiles now: its payload can go.
+    Statement mark(*writer_, "UPDATE submaps SET tiled = 1 WHERE run_id = ? AND sequence = ?");
+    for (const auto& [run, sequence] : snapshot.submaps) {
+      mark.Reset();
+      if (!mark.Bind(1, run).Bind(2, static_cast<int64_t>(sequence)).Run())
+        return Fail(Outcome::kError, mark.error());
+    }
+  }
+  std::string error;
+  if (!t.Commit(&error)) return Fail(Outcome::kError, error);
+  return {};
+}
+
+void MapStore::DropUnreadableLocked() {
+  for (auto it = hot_.begin(); it != hot_.end();) {
+    if (it->second->unreadable && it->second->in_flight == 0) {
+      hot_points_ -= it->second->points.points.size();
+      it = hot_.erase(it);
+    } else {
+      ++it;
+    }
+  }
 }
 
 bool MapStore::OverBudgetLocked() const {

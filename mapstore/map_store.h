@@ -6,6 +6,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <tuple>
@@ -308,6 +309,38 @@ class MapStore {
   bool OverBudgetLocked() const;
   void EvictLocked();
   void FlushLoop();
+  struct FlushTile;
+  struct FlushSnapshot;
+  /// Copies the changed tiles (marked in flight) and takes the submaps they hold.
+  FlushSnapshot TakeSnapshot();
+  /// Encodes the snapshot's tiles on encode_threads threads, without the lock.
+  void EncodeSnapshot(FlushSnapshot* snapshot) const;
+  /// Writes the encoded tiles and, unless `poisoned`, marks the submaps tiled: one transaction.
+  Result WriteSnapshotLocked(const FlushSnapshot& snapshot,
+                             bool poisoned,
+                             std::vector<TileUpdate>* done);
+  /// Puts a failed flush's tiles and submaps back for the next one; returns the error.
+  Result UndoFlushLocked(const FlushSnapshot& snapshot, const std::string& message);
+  /// Lets the unreadable hot tiles go that no flush holds.
+  void DropUnreadableLocked();
+  /// Decodes and checks an ingested submap; counts a rejection.
+  Result DecodeIngested(const std::string& payload, api::Submap* s);
+  /// The answer to a submap whose sequence the run has already: restored (its payload was
+  /// lost), a duplicate or a conflict; nullopt for a new one.
+  std::optional<Result> ResentSubmapLocked(int64_t run_id,
+                                           const api::Submap& s,
+                                           const std::string& payload,
+                                           const std::string& hash,
+                                           IngestReceipt* receipt);
+  Result RestoreSubmapLocked(int64_t run_id,
+                             const api::Submap& s,
+                             const std::string& payload,
+                             IngestReceipt* receipt);
+  /// Keeps a new submap's payload in the incoming folder and commits its row and counts.
+  Result StoreSubmapLocked(int64_t run_id,
+                           const api::Submap& s,
+                           const std::string& payload,
+                           const std::string& hash);
   Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
   /// Marks an acknowledged submap whose payload is gone as lost, and takes it out of its run's
   /// counts.
