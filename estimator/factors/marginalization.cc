@@ -2,8 +2,10 @@
 
 #include <cmath>
 #include <cstdint>
+#include <unordered_map>
 #include <unordered_set>
 #include <utility>
+#include <vector>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
@@ -60,50 +62,48 @@ bool ApplyLoss(const ceres::LossFunction& loss, Eigen::VectorXd* residual, Eigen
   return true;
 }
 
-}  // namespace
+/// The blocks of a marginalisation in order [dropped..., kept...], each group in order of first
+/// appearance, with their sizes and offsets in the tangent space.
+struct BlockLayout {
+  std::vector<double*> blocks;
+  std::vector<int> ambient_sizes;
+  std::unordered_map<double*, int> index;  ///< address -> position in `blocks`
+  std::vector<int> tangent_offsets;
+  int num_dropped_blocks = 0;
+  int dropped_size = 0;  ///< tangent size of the dropped blocks
+  int total_size = 0;
 
-void MarginalizationInfo::AddTerm(MarginalizationTerm term) { terms_.push_back(std::move(term)); }
+  int kept_size() const { return total_size - dropped_size; }
+};
 
-bool MarginalizationInfo::Marginalize() {
-  kept_blocks_.clear();
-  kept_sizes_.clear();
-  kept_offsets_.clear();
-  kept_values_.clear();
-  kept_tangent_size_ = 0;
-  linearized_jacobian_.resize(0, 0);
-  linearized_residual_.resize(0);
-
+/// Orders the terms' blocks (a block dropped by any term is dropped everywhere); false when a
+/// term is malformed, an address comes with two sizes, or nothing is kept.
+bool LayOutBlocks(const std::vector<MarginalizationTerm>& terms, BlockLayout* layout) {
   // Every term names as many blocks as its cost function takes.
-  for (const MarginalizationTerm& term : terms_) {
+  for (const MarginalizationTerm& term : terms) {
     if (term.cost_function == nullptr ||
         term.cost_function->parameter_block_sizes().size() != term.parameter_blocks.size()) {
       return false;
     }
   }
-
-  // Order the blocks [dropped..., kept...], each group in order of first appearance. A block
-  // dropped by any term is dropped everywhere.
   std::unordered_set<double*> dropped_set;
-  for (const MarginalizationTerm& term : terms_) {
+  for (const MarginalizationTerm& term : terms) {
     for (int index : term.drop_indices) {
       if (index < 0 || index >= static_cast<int>(term.parameter_blocks.size())) return false;
       dropped_set.insert(term.parameter_blocks[index]);
     }
   }
-  std::unordered_map<double*, int> block_index;  // address -> position in `blocks`
-  std::vector<double*> blocks;
-  std::vector<int> ambient_sizes;
   auto add_blocks = [&](bool dropped) {
-    for (const MarginalizationTerm& term : terms_) {
+    for (const MarginalizationTerm& term : terms) {
       const std::vector<int32_t>& sizes = term.cost_function->parameter_block_sizes();
       for (size_t k = 0; k < term.parameter_blocks.size(); ++k) {
         double* block = term.parameter_blocks[k];
         if ((dropped_set.count(block) > 0) != dropped) continue;
-        auto [it, inserted] = block_index.emplace(block, static_cast<int>(blocks.size()));
+        auto [it, inserted] = layout->index.emplace(block, static_cast<int>(layout->blocks.size()));
         if (inserted) {
-          blocks.push_back(block);
-          ambient_sizes.push_back(sizes[k]);
-        } else if (ambient_sizes[it->second] != sizes[k]) {
+          layout->blocks.push_back(block);
+          layout->ambient_sizes.push_back(sizes[k]);
+        } else if (layout->ambient_sizes[it->second] != sizes[k]) {
           return false;  // one address used with two sizes
         }
       }
@@ -111,70 +111,89 @@ bool MarginalizationInfo::Marginalize() {
     return true;
   };
   if (!add_blocks(true)) return false;
-  const int num_dropped_blocks = static_cast<int>(blocks.size());
+  layout->num_dropped_blocks = static_cast<int>(layout->blocks.size());
   if (!add_blocks(false)) return false;
-  if (static_cast<int>(blocks.size()) == num_dropped_blocks) return false;  // nothing kept
-
-  std::vector<int> tangent_offsets(blocks.size());
-  int total_size = 0;
-  int dropped_size = 0;
-  for (size_t k = 0; k < blocks.size(); ++k) {
-    tangent_offsets[k] = total_size;
-    total_size += TangentSize(ambient_sizes[k]);
-    if (static_cast<int>(k) + 1 == num_dropped_blocks) dropped_size = total_size;
-  }
-  const int kept_size = total_size - dropped_size;
-
-  // Eq. (2): H = sum J^T J, b = sum J^T r over every term, in tangent coordinates.
-  Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(total_size, total_size);
-  Eigen::VectorXd gradient = Eigen::VectorXd::Zero(total_size);
-  std::vector<RowMatrix> ambient_jacobians;
-  std::vector<double*> jacobian_pointers;
-  std::vector<int> term_offsets;
-  for (const MarginalizationTerm& term : terms_) {
-    const ceres::CostFunction& cost = *term.cost_function;
-    const std::vector<int32_t>& sizes = cost.parameter_block_sizes();
-    const int num_residuals = cost.num_residuals();
-    const size_t num_blocks = term.parameter_blocks.size();
-    ambient_jacobians.resize(num_blocks);
-    jacobian_pointers.resize(num_blocks);
-    term_offsets.resize(num_blocks);
-    int term_size = 0;
-    for (size_t k = 0; k < num_blocks; ++k) {
-      ambient_jacobians[k].resize(num_residuals, sizes[k]);
-      jacobian_pointers[k] = ambient_jacobians[k].data();
-      term_offsets[k] = term_size;
-      term_size += TangentSize(sizes[k]);
-    }
-    Eigen::VectorXd residual(num_residuals);
-    std::vector<const double*> values(term.parameter_blocks.begin(), term.parameter_blocks.end());
-    if (!cost.Evaluate(values.data(), residual.data(), jacobian_pointers.data())) return false;
-
-    // Tangent Jacobian of the term: pose blocks keep their first 6 columns (PoseManifold).
-    Eigen::MatrixXd jacobian(num_residuals, term_size);
-    for (size_t k = 0; k < num_blocks; ++k) {
-      jacobian.middleCols(term_offsets[k], TangentSize(sizes[k])) =
-          ambient_jacobians[k].leftCols(TangentSize(sizes[k]));
-    }
-    if (term.loss_function != nullptr && !ApplyLoss(*term.loss_function, &residual, &jacobian)) {
-      continue;  // zero slope: the term carries no information
-    }
-    const Eigen::MatrixXd term_hessian = jacobian.transpose() * jacobian;
-    const Eigen::VectorXd term_gradient = jacobian.transpose() * residual;
-    for (size_t a = 0; a < num_blocks; ++a) {
-      const int row = tangent_offsets[block_index.at(term.parameter_blocks[a])];
-      const int rows = TangentSize(sizes[a]);
-      gradient.segment(row, rows) += term_gradient.segment(term_offsets[a], rows);
-      for (size_t c = 0; c < num_blocks; ++c) {
-        const int col = tangent_offsets[block_index.at(term.parameter_blocks[c])];
-        const int cols = TangentSize(sizes[c]);
-        hessian.block(row, col, rows, cols) +=
-            term_hessian.block(term_offsets[a], term_offsets[c], rows, cols);
-      }
+  if (static_cast<int>(layout->blocks.size()) == layout->num_dropped_blocks) return false;
+  layout->tangent_offsets.resize(layout->blocks.size());
+  for (size_t k = 0; k < layout->blocks.size(); ++k) {
+    layout->tangent_offsets[k] = layout->total_size;
+    layout->total_size += TangentSize(layout->ambient_sizes[k]);
+    if (static_cast<int>(k) + 1 == layout->num_dropped_blocks) {
+      layout->dropped_size = layout->total_size;
     }
   }
+  return true;
+}
 
-  // Schur complement onto the kept blocks, Hmm^-1 through a clipped eigen decomposition.
+/// One term evaluated at the blocks' values: its residual and tangent Jacobian (pose blocks keep
+/// their first 6 columns, PoseManifold), robustified, with each block's column offset.
+struct LinearizedTerm {
+  Eigen::VectorXd residual;
+  Eigen::MatrixXd jacobian;
+  std::vector<int> offsets;
+  bool informative = true;  ///< false where the loss has no slope
+};
+
+/// False if the cost function fails to evaluate.
+bool LinearizeTerm(const MarginalizationTerm& term, LinearizedTerm* out) {
+  const ceres::CostFunction& cost = *term.cost_function;
+  const std::vector<int32_t>& sizes = cost.parameter_block_sizes();
+  const int num_residuals = cost.num_residuals();
+  const size_t num_blocks = term.parameter_blocks.size();
+  std::vector<RowMatrix> ambient_jacobians(num_blocks);
+  std::vector<double*> jacobian_pointers(num_blocks);
+  out->offsets.resize(num_blocks);
+  int term_size = 0;
+  for (size_t k = 0; k < num_blocks; ++k) {
+    ambient_jacobians[k].resize(num_residuals, sizes[k]);
+    jacobian_pointers[k] = ambient_jacobians[k].data();
+    out->offsets[k] = term_size;
+    term_size += TangentSize(sizes[k]);
+  }
+  out->residual.resize(num_residuals);
+  std::vector<const double*> values(term.parameter_blocks.begin(), term.parameter_blocks.end());
+  if (!cost.Evaluate(values.data(), out->residual.data(), jacobian_pointers.data())) return false;
+  out->jacobian.resize(num_residuals, term_size);
+  for (size_t k = 0; k < num_blocks; ++k) {
+    out->jacobian.middleCols(out->offsets[k], TangentSize(sizes[k])) =
+        ambient_jacobians[k].leftCols(TangentSize(sizes[k]));
+  }
+  out->informative = term.loss_function == nullptr ||
+                     ApplyLoss(*term.loss_function, &out->residual, &out->jacobian);
+  return true;
+}
+
+/// Adds a linearised term's J^T J and J^T r to the blocks' H and b (eq. 2).
+void AccumulateTerm(const MarginalizationTerm& term,
+                    const LinearizedTerm& lin,
+                    const BlockLayout& layout,
+                    Eigen::MatrixXd* hessian,
+                    Eigen::VectorXd* gradient) {
+  const std::vector<int32_t>& sizes = term.cost_function->parameter_block_sizes();
+  const size_t num_blocks = term.parameter_blocks.size();
+  const Eigen::MatrixXd term_hessian = lin.jacobian.transpose() * lin.jacobian;
+  const Eigen::VectorXd term_gradient = lin.jacobian.transpose() * lin.residual;
+  for (size_t a = 0; a < num_blocks; ++a) {
+    const int row = layout.tangent_offsets[layout.index.at(term.parameter_blocks[a])];
+    const int rows = TangentSize(sizes[a]);
+    gradient->segment(row, rows) += term_gradient.segment(lin.offsets[a], rows);
+    for (size_t c = 0; c < num_blocks; ++c) {
+      const int col = layout.tangent_offsets[layout.index.at(term.parameter_blocks[c])];
+      const int cols = TangentSize(sizes[c]);
+      hessian->block(row, col, rows, cols) +=
+          term_hessian.block(lin.offsets[a], lin.offsets[c], rows, cols);
+    }
+  }
+}
+
+/// The Schur complement of H and b onto the kept blocks, Hmm^-1 through a clipped eigen
+/// decomposition.
+void SchurComplement(const Eigen::MatrixXd& hessian,
+                     const Eigen::VectorXd& gradient,
+                     int dropped_size,
+                     int kept_size,
+                     Eigen::MatrixXd* prior_hessian,
+                     Eigen::VectorXd* prior_gradient) {
   Eigen::MatrixXd hkm_hmm_inverse = Eigen::MatrixXd::Zero(kept_size, dropped_size);
   if (dropped_size > 0) {
     const Eigen::MatrixXd hmm =
@@ -188,11 +207,41 @@ bool MarginalizationInfo::Marginalize() {
                       hmm_solver.eigenvectors() * hmm_inverse_values.asDiagonal() *
                       hmm_solver.eigenvectors().transpose();
   }
-  Eigen::MatrixXd prior_hessian = hessian.bottomRightCorner(kept_size, kept_size) -
-                                  hkm_hmm_inverse * hessian.topRightCorner(dropped_size, kept_size);
-  prior_hessian = 0.5 * (prior_hessian + prior_hessian.transpose()).eval();
-  const Eigen::VectorXd prior_gradient =
-      gradient.tail(kept_size) - hkm_hmm_inverse * gradient.head(dropped_size);
+  *prior_hessian = hessian.bottomRightCorner(kept_size, kept_size) -
+                   hkm_hmm_inverse * hessian.topRightCorner(dropped_size, kept_size);
+  *prior_hessian = 0.5 * (*prior_hessian + prior_hessian->transpose()).eval();
+  *prior_gradient = gradient.tail(kept_size) - hkm_hmm_inverse * gradient.head(dropped_size);
+}
+
+}  // namespace
+
+void MarginalizationInfo::AddTerm(MarginalizationTerm term) { terms_.push_back(std::move(term)); }
+
+bool MarginalizationInfo::Marginalize() {
+  kept_blocks_.clear();
+  kept_sizes_.clear();
+  kept_offsets_.clear();
+  kept_values_.clear();
+  kept_tangent_size_ = 0;
+  linearized_jacobian_.resize(0, 0);
+  linearized_residual_.resize(0);
+  BlockLayout layout;
+  if (!LayOutBlocks(terms_, &layout)) return false;
+  const int kept_size = layout.kept_size();
+
+  // Eq. (2): H = sum J^T J, b = sum J^T r over every term, in tangent coordinates.
+  Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(layout.total_size, layout.total_size);
+  Eigen::VectorXd gradient = Eigen::VectorXd::Zero(layout.total_size);
+  for (const MarginalizationTerm& term : terms_) {
+    LinearizedTerm lin;
+    if (!LinearizeTerm(term, &lin)) return false;
+    if (!lin.informative) continue;  // zero slope: the term carries no information
+    AccumulateTerm(term, lin, layout, &hessian, &gradient);
+  }
+  Eigen::MatrixXd prior_hessian;
+  Eigen::VectorXd prior_gradient;
+  SchurComplement(
+      hessian, gradient, layout.dropped_size, kept_size, &prior_hessian, &prior_gradient);
 
   // H' = J^T J with J = S^1/2 V^T, and J^T r0 = b' gives r0 = S^-1/2 V^T b'.
   const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> prior_solver(prior_hessian);
@@ -206,11 +255,11 @@ bool MarginalizationInfo::Marginalize() {
       inverse_sqrt_values.asDiagonal() * prior_solver.eigenvectors().transpose() * prior_gradient;
 
   // The kept blocks, their sizes and their values as the linearisation point.
-  for (size_t k = num_dropped_blocks; k < blocks.size(); ++k) {
-    kept_blocks_.push_back(blocks[k]);
-    kept_sizes_.push_back(ambient_sizes[k]);
-    kept_offsets_.push_back(tangent_offsets[k] - dropped_size);
-    kept_values_.emplace_back(blocks[k], blocks[k] + ambient_sizes[k]);
+  for (size_t k = layout.num_dropped_blocks; k < layout.blocks.size(); ++k) {
+    kept_blocks_.push_back(layout.blocks[k]);
+    kept_sizes_.push_back(layout.ambient_sizes[k]);
+    kept_offsets_.push_back(layout.tangent_offsets[k] - layout.dropped_size);
+    kept_values_.emplace_back(layout.blocks[k], layout.blocks[k] + layout.ambient_sizes[k]);
   }
   kept_tangent_size_ = kept_size;
   // Release the terms: a term may be the previous prior, whose info holds its own terms, and

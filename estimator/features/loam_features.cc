@@ -66,6 +66,145 @@ std::vector<Eigen::Vector3f> VoxelThin(const std::vector<Candidate>& candidates,
   return out;
 }
 
+/// The thresholds of the extraction, from its options.
+struct Thresholds {
+  explicit Thresholds(const LoamFeatureOptions& options)
+      : k(options.curvature_half_window),
+        plane_suppression(std::max(1, k / 2)),
+        gap_angle(static_cast<float>(2.0 * std::sin(0.5 * options.gap_angle_deg * kDeg))),
+        occlusion_ratio(static_cast<float>(options.occlusion_depth_ratio)),
+        grazing_stretch(static_cast<float>(1.0 / std::cos(options.max_incidence_deg * kDeg))),
+        edge_min(static_cast<float>(options.edge_curvature_min)),
+        plane_max(static_cast<float>(options.plane_curvature_max)) {}
+
+  int k;  ///< curvature half window
+  int plane_suppression;
+  float gap_angle;  ///< chord of gap_angle_deg
+  float occlusion_ratio;
+  float grazing_stretch;
+  float edge_min, plane_max;
+};
+
+/// Per-line working arrays, reused from line to line. Step j joins points j and j + 1.
+struct LineWork {
+  std::vector<float> range, beam_angle, spacing, path, curvature;
+  std::vector<uint8_t> broken;   ///< step j is a gap or an occlusion
+  std::vector<uint8_t> blocked;  ///< point j is not selectable
+  std::vector<uint8_t> picked;   ///< point j is taken or suppressed
+  std::vector<Candidate> sector;
+};
+
+/// Ranges and steps along a line, and the gaps and occlusions no window may span. Within a few
+/// microseconds the sensor barely moves, so the two returns and the sensor form a triangle even
+/// after deskewing: the angle between the beams follows from the ranges and the distance.
+void MeasureSteps(const std::vector<ScanPoint>& points,
+                  const std::vector<uint32_t>& line,
+                  const Thresholds& t,
+                  LineWork* w) {
+  const int m = static_cast<int>(line.size());
+  const int k = t.k;
+  w->range.resize(m);
+  for (int j = 0; j < m; ++j) w->range[j] = std::max(Range(points[line[j]]), 1e-3f);
+  w->beam_angle.assign(m - 1, 0.f);
+  w->spacing.assign(m - 1, 0.f);
+  w->path.assign(m, 0.f);  // cumulative beam angle along the line
+  w->broken.assign(m - 1, 0);
+  w->blocked.assign(m, 0);
+  for (int j = 0; j + 1 < m; ++j) {
+    w->spacing[j] = (points[line[j + 1]].p - points[line[j]].p).norm();
+    w->beam_angle[j] = BeamChord(w->spacing[j], w->range[j], w->range[j + 1]);
+    w->path[j + 1] = w->path[j] + w->beam_angle[j];
+    const float dr = w->range[j + 1] - w->range[j];
+    int from = 0, to = -1;
+    if (w->beam_angle[j] > t.gap_angle) {
+      from = j - k + 1;  // a gap: no window may span it
+      to = j + k;
+    } else if (std::fabs(dr) > t.occlusion_ratio * std::min(w->range[j], w->range[j + 1])) {
+      // An occlusion: the far side's points are unstable (LOAM); the near side's outline is
+      // a real edge.
+      from = dr > 0.f ? j + 1 : j - k + 1;
+      to = dr > 0.f ? j + k : j;
+    } else {
+      continue;
+    }
+    w->broken[j] = 1;
+    for (int i = std::max(from, 0); i <= std::min(to, m - 1); ++i) w->blocked[i] = 1;
+  }
+}
+
+/// Smoothness (LOAM) of each selectable point: |sum of (p_j - p_i) over the window|^2 / range^2.
+/// Points at grazing incidence or whose window turns back are blocked.
+void MeasureCurvature(const std::vector<ScanPoint>& points,
+                      const std::vector<uint32_t>& line,
+                      const Thresholds& t,
+                      LineWork* w) {
+  const int m = static_cast<int>(line.size());
+  const int k = t.k;
+  w->curvature.assign(m, 0.f);
+  for (int j = k; j < m - k; ++j) {
+    if (w->blocked[j]) continue;
+    // Grazing incidence: both neighbours much farther than the beam angle explains.
+    const float face_on = w->range[j] * t.grazing_stretch;
+    if (w->spacing[j - 1] > face_on * w->beam_angle[j - 1] &&
+        w->spacing[j] > face_on * w->beam_angle[j]) {
+      w->blocked[j] = 1;
+      continue;
+    }
+    // The beams of the window must run on along the line, not turn back (the end of a sweep
+    // of the scan pattern): the chord of the window falls short of its path.
+    const int a = j - k, b = j + k;
+    const float span =
+        BeamChord((points[line[b]].p - points[line[a]].p).norm(), w->range[a], w->range[b]);
+    if (span < kStraightWindow * (w->path[b] - w->path[a])) {
+      w->blocked[j] = 1;
+      continue;
+    }
+    const Eigen::Vector3f& c = points[line[j]].p;
+    Eigen::Vector3f sum = -static_cast<float>(2 * k) * c;
+    for (int i = a; i <= b; ++i) {
+      if (i != j) sum += points[line[i]].p;
+    }
+    w->curvature[j] = sum.squaredNorm() / (w->range[j] * w->range[j]);
+  }
+}
+
+/// Takes up to `max_count` of the sector [begin, end)'s points that pass `accept`, best first
+/// under `better`, each suppressing `half` neighbours either side up to a broken step; appends
+/// them (scan indices) to `out`.
+template <typename Accept, typename Better>
+void PickInSector(const std::vector<uint32_t>& line,
+                  int begin,
+                  int end,
+                  int max_count,
+                  int half,
+                  Accept accept,
+                  Better better,
+                  LineWork* w,
+                  std::vector<Candidate>* out) {
+  const int m = static_cast<int>(line.size());
+  w->sector.clear();
+  for (int j = begin; j < end; ++j) {
+    if (!w->blocked[j] && accept(w->curvature[j])) {
+      w->sector.push_back({static_cast<uint32_t>(j), w->curvature[j]});
+    }
+  }
+  std::sort(w->sector.begin(), w->sector.end(), better);
+  int taken = 0;
+  for (const Candidate& c : w->sector) {
+    if (taken >= max_count) break;
+    if (w->picked[c.index]) continue;
+    const int j = static_cast<int>(c.index);
+    w->picked[j] = 1;
+    for (int i = 1; i <= half && j + i < m && !w->broken[j + i - 1]; ++i) w->picked[j + i] = 1;
+    for (int i = 1; i <= half && j - i >= 0 && !w->broken[j - i]; ++i) w->picked[j - i] = 1;
+    out->push_back({line[c.index], c.curvature});
+    ++taken;
+  }
+}
+
+bool Sharper(const Candidate& a, const Candidate& b) { return a.curvature > b.curvature; }
+bool Flatter(const Candidate& a, const Candidate& b) { return a.curvature < b.curvature; }
+
 }  // namespace
 
 bool LoamFeatureOptions::IsValid(std::string* error) const {
@@ -94,134 +233,45 @@ bool LoamFeatureOptions::IsValid(std::string* error) const {
 
 FeatureSet ExtractLoamFeatures(const LoamFeatureOptions& options, const Scan& scan) {
   const std::vector<ScanPoint>& points = scan.points;
-  const int k = options.curvature_half_window;
-  const int plane_suppression = std::max(1, k / 2);
-  const float gap_angle = static_cast<float>(2.0 * std::sin(0.5 * options.gap_angle_deg * kDeg));
-  const float occlusion_ratio = static_cast<float>(options.occlusion_depth_ratio);
-  const float grazing_stretch =
-      static_cast<float>(1.0 / std::cos(options.max_incidence_deg * kDeg));
-  const float edge_min = static_cast<float>(options.edge_curvature_min);
-  const float plane_max = static_cast<float>(options.plane_curvature_max);
-
-  std::vector<Candidate> edges, planes, sector;
-  std::vector<float> range, beam_angle, spacing, path, curvature;
-  std::vector<uint8_t> broken, blocked, picked;
+  const Thresholds t(options);
+  std::vector<Candidate> edges, planes;
+  LineWork w;
   for (const std::vector<uint32_t>& line : PositionsByLine(points)) {
     const int m = static_cast<int>(line.size());
-    if (m < 2 * k + 1) continue;
-    range.resize(m);
-    for (int j = 0; j < m; ++j) range[j] = std::max(Range(points[line[j]]), 1e-3f);
-    // Steps between neighbours (step j joins j and j + 1). Within a few microseconds the sensor
-    // barely moves, so the two returns and the sensor form a triangle even after deskewing: the
-    // angle between the beams follows from the ranges and the distance.
-    beam_angle.assign(m - 1, 0.f);
-    spacing.assign(m - 1, 0.f);
-    path.assign(m, 0.f);  // cumulative beam angle along the line
-    broken.assign(m - 1, 0);
-    blocked.assign(m, 0);
-    for (int j = 0; j + 1 < m; ++j) {
-      spacing[j] = (points[line[j + 1]].p - points[line[j]].p).norm();
-      beam_angle[j] = BeamChord(spacing[j], range[j], range[j + 1]);
-      path[j + 1] = path[j] + beam_angle[j];
-      const float dr = range[j + 1] - range[j];
-      int from = 0, to = -1;
-      if (beam_angle[j] > gap_angle) {
-        from = j - k + 1;  // a gap: no window may span it
-        to = j + k;
-      } else if (std::fabs(dr) > occlusion_ratio * std::min(range[j], range[j + 1])) {
-        // An occlusion: the far side's points are unstable (LOAM); the near side's outline is
-        // a real edge.
-        from = dr > 0.f ? j + 1 : j - k + 1;
-        to = dr > 0.f ? j + k : j;
-      } else {
-        continue;
-      }
-      broken[j] = 1;
-      for (int i = std::max(from, 0); i <= std::min(to, m - 1); ++i) blocked[i] = 1;
-    }
-    // Smoothness (LOAM): |sum of (p_j - p_i) over the window|^2 / range^2.
-    curvature.assign(m, 0.f);
-    for (int j = k; j < m - k; ++j) {
-      if (blocked[j]) continue;
-      // Grazing incidence: both neighbours much farther than the beam angle explains.
-      const float face_on = range[j] * grazing_stretch;
-      if (spacing[j - 1] > face_on * beam_angle[j - 1] && spacing[j] > face_on * beam_angle[j]) {
-        blocked[j] = 1;
-        continue;
-      }
-      // The beams of the window must run on along the line, not turn back (the end of a sweep
-      // of the scan pattern): the chord of the window falls short of its path.
-      const int a = j - k, b = j + k;
-      const float span =
-          BeamChord((points[line[b]].p - points[line[a]].p).norm(), range[a], range[b]);
-      if (span < kStraightWindow * (path[b] - path[a])) {
-        blocked[j] = 1;
-        continue;
-      }
-      const Eigen::Vector3f& c = points[line[j]].p;
-      Eigen::Vector3f sum = -static_cast<float>(2 * k) * c;
-      for (int i = a; i <= b; ++i) {
-        if (i != j) sum += points[line[i]].p;
-      }
-      curvature[j] = sum.squaredNorm() / (range[j] * range[j]);
-    }
+    if (m < 2 * t.k + 1) continue;
+    MeasureSteps(points, line, t, &w);
+    MeasureCurvature(points, line, t, &w);
     // Per sector: the sharpest edges and the flattest planes, each suppressing its neighbours.
-    picked.assign(m, 0);
-    auto suppress = [&](int j, int half) {
-      for (int i = 1; i <= half && j + i < m && !broken[j + i - 1]; ++i) picked[j + i] = 1;
-      for (int i = 1; i <= half && j - i >= 0 && !broken[j - i]; ++i) picked[j - i] = 1;
-    };
-    const int usable = m - 2 * k;
+    w.picked.assign(m, 0);
+    const int usable = m - 2 * t.k;
     for (int s = 0; s < options.sectors_per_line; ++s) {
-      const int begin = k + usable * s / options.sectors_per_line;
-      const int end = k + usable * (s + 1) / options.sectors_per_line;
-      sector.clear();
-      for (int j = begin; j < end; ++j) {
-        if (!blocked[j] && curvature[j] > edge_min) {
-          sector.push_back({static_cast<uint32_t>(j), curvature[j]});
-        }
-      }
-      std::sort(sector.begin(), sector.end(), [](const Candidate& a, const Candidate& b) {
-        return a.curvature > b.curvature;
-      });
-      int taken = 0;
-      for (const Candidate& c : sector) {
-        if (taken >= options.max_edges_per_sector) break;
-        if (picked[c.index]) continue;
-        picked[c.index] = 1;
-        suppress(c.index, k);
-        edges.push_back({line[c.index], c.curvature});
-        ++taken;
-      }
-      sector.clear();
-      for (int j = begin; j < end; ++j) {
-        if (!blocked[j] && curvature[j] < plane_max) {
-          sector.push_back({static_cast<uint32_t>(j), curvature[j]});
-        }
-      }
-      std::sort(sector.begin(), sector.end(), [](const Candidate& a, const Candidate& b) {
-        return a.curvature < b.curvature;
-      });
-      taken = 0;
-      for (const Candidate& c : sector) {
-        if (taken >= options.max_planes_per_sector) break;
-        if (picked[c.index]) continue;
-        picked[c.index] = 1;
-        suppress(c.index, plane_suppression);
-        planes.push_back({line[c.index], c.curvature});
-        ++taken;
-      }
+      const int begin = t.k + usable * s / options.sectors_per_line;
+      const int end = t.k + usable * (s + 1) / options.sectors_per_line;
+      PickInSector(
+          line,
+          begin,
+          end,
+          options.max_edges_per_sector,
+          t.k,
+          [&t](float curvature) { return curvature > t.edge_min; },
+          Sharper,
+          &w,
+          &edges);
+      PickInSector(
+          line,
+          begin,
+          end,
+          options.max_planes_per_sector,
+          t.plane_suppression,
+          [&t](float curvature) { return curvature < t.plane_max; },
+          Flatter,
+          &w,
+          &planes);
     }
   }
   FeatureSet features;
-  features.edges =
-      VoxelThin(edges, points, options.edge_voxel_m, [](const Candidate& a, const Candidate& b) {
-        return a.curvature > b.curvature;
-      });
-  features.planes =
-      VoxelThin(planes, points, options.plane_voxel_m, [](const Candidate& a, const Candidate& b) {
-        return a.curvature < b.curvature;
-      });
+  features.edges = VoxelThin(edges, points, options.edge_voxel_m, Sharper);
+  features.planes = VoxelThin(planes, points, options.plane_voxel_m, Flatter);
   return features;
 }
 

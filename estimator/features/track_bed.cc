@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
+#include <string>
 
 #include "estimator/features/rail_extraction.h"
 
@@ -57,6 +59,181 @@ std::vector<Eigen::Vector3f> SelectTrackBed(const TrackBedOptions& options,
   return out;
 }
 
+namespace {
+
+/// The reference's point density over (along-track bin, depth bin) cells, s_min the along
+/// coordinate of bin 0.
+struct BedGrid {
+  double s_min = 0.0;
+  int ns = 0, nd = 0;
+  std::vector<double> values;
+
+  double& at(int s, int d) { return values[static_cast<size_t>(s) * nd + d]; }
+  double at(int s, int d) const { return values[static_cast<size_t>(s) * nd + d]; }
+};
+
+/// A current point over the reference's span: fractional along bin and depth bin.
+struct BedCell {
+  double s;
+  int d;
+};
+
+/// The depth below the plane n . x + d = 0.
+struct PlaneDepth {
+  Eigen::Vector3d normal;
+  double distance;
+  double operator()(const Eigen::Vector3d& p) const { return -(normal.dot(p) + distance); }
+};
+
+/// The depth bin of `depth`, or nullopt outside the depth band.
+std::optional<int> DepthBin(const TrackBedOptions& options, double depth) {
+  if (depth < options.min_depth_m || depth > options.max_depth_m) return std::nullopt;
+  return static_cast<int>(std::lround((depth - options.min_depth_m) / options.depth_bin_m));
+}
+
+/// Point counts of the reference per cell, over its span widened by `margin` each way.
+BedGrid CountReference(const TrackBedOptions& options,
+                       const std::vector<Eigen::Vector3d>& reference,
+                       const PlaneDepth& depth_of,
+                       double s_min,
+                       int ns) {
+  BedGrid grid;
+  grid.s_min = s_min;
+  grid.ns = ns;
+  grid.nd = static_cast<int>(
+                std::ceil((options.max_depth_m - options.min_depth_m) / options.depth_bin_m)) +
+            1;
+  grid.values.assign(static_cast<size_t>(grid.ns) * grid.nd, 0.0);
+  for (const Eigen::Vector3d& p : reference) {
+    const std::optional<int> d = DepthBin(options, depth_of(p));
+    if (!d) continue;
+    const int s = static_cast<int>(std::lround((p.x() - s_min) / options.bin_m));
+    if (s >= 0 && s < grid.ns && *d >= 0 && *d < grid.nd) grid.at(s, *d) += 1.0;
+  }
+  return grid;
+}
+
+/// Smooths the counts along the track with a Gaussian of blur_m and across depth with
+/// [1 2 1] / 4; returns the densest cell's value.
+double SmoothGrid(const TrackBedOptions& options, BedGrid* grid) {
+  const int ns = grid->ns, nd = grid->nd;
+  const int radius = static_cast<int>(std::ceil(3.0 * options.blur_m / options.bin_m));
+  std::vector<double> kernel(static_cast<size_t>(2 * radius + 1), 0.0);
+  for (int k = -radius; k <= radius; ++k) {
+    const double x = k * options.bin_m / std::max(options.blur_m, 1e-9);
+    kernel[static_cast<size_t>(k + radius)] =
+        options.blur_m > 0.0 ? std::exp(-0.5 * x * x) : (k == 0 ? 1.0 : 0.0);
+  }
+  std::vector<double> smooth(grid->values.size(), 0.0);
+  for (int s = 0; s < ns; ++s) {
+    for (int d = 0; d < nd; ++d) {
+      double sum = 0.0;
+      for (int k = -radius; k <= radius; ++k) {
+        const int t = s + k;
+        if (t >= 0 && t < ns) sum += kernel[static_cast<size_t>(k + radius)] * grid->at(t, d);
+      }
+      smooth[static_cast<size_t>(s) * nd + d] = sum;
+    }
+  }
+  double peak = 0.0;
+  for (int s = 0; s < ns; ++s) {
+    for (int d = 0; d < nd; ++d) {
+      const double up = d > 0 ? smooth[static_cast<size_t>(s) * nd + d - 1] : 0.0;
+      const double down = d + 1 < nd ? smooth[static_cast<size_t>(s) * nd + d + 1] : 0.0;
+      grid->at(s, d) = 0.25 * up + 0.5 * smooth[static_cast<size_t>(s) * nd + d] + 0.25 * down;
+      peak = std::max(peak, grid->at(s, d));
+    }
+  }
+  return peak;
+}
+
+/// The current points within [lo, hi] along the track and in the depth band, as cells.
+std::vector<BedCell> CurrentCells(const TrackBedOptions& options,
+                                  const std::vector<Eigen::Vector3d>& current,
+                                  const PlaneDepth& depth_of,
+                                  double s_min,
+                                  double lo,
+                                  double hi) {
+  std::vector<BedCell> cells;
+  for (const Eigen::Vector3d& p : current) {
+    if (p.x() < lo || p.x() > hi) continue;
+    const std::optional<int> d = DepthBin(options, depth_of(p));
+    if (d) cells.push_back({(p.x() - s_min) / options.bin_m, *d});
+  }
+  return cells;
+}
+
+/// Turns the density into log-density relative to `peak`, only over the columns a search of
+/// +-steps bins reads, with bins to spare for rounding (the grid spans every reference frame,
+/// most of them behind what this frame sees).
+void ToLogDensity(const std::vector<BedCell>& cells, int steps, double peak, BedGrid* grid) {
+  double c_min = 1e300, c_max = -1e300;
+  for (const BedCell& c : cells) {
+    c_min = std::min(c_min, c.s);
+    c_max = std::max(c_max, c.s);
+  }
+  const int read_lo = std::clamp(static_cast<int>(std::floor(c_min)) - steps - 2, 0, grid->ns - 1);
+  const int read_hi = std::clamp(static_cast<int>(std::floor(c_max)) + steps + 2, 0, grid->ns - 1);
+  for (int t = read_lo; t <= read_hi; ++t) {
+    for (int d = 0; d < grid->nd; ++d) grid->at(t, d) = std::log(0.02 + grid->at(t, d) / peak);
+  }
+}
+
+/// The cells' mean log-density with every cell moved by `shift_bins`, interpolated along.
+double ShiftScore(const BedGrid& grid, const std::vector<BedCell>& cells, double shift_bins) {
+  double sum = 0.0;
+  for (const BedCell& c : cells) {
+    const double s = c.s + shift_bins;
+    const int s0 = static_cast<int>(std::floor(s));
+    const double f = s - s0;
+    const int s1 = std::clamp(s0 + 1, 0, grid.ns - 1);
+    const int sc = std::clamp(s0, 0, grid.ns - 1);
+    const int d = std::clamp(c.d, 0, grid.nd - 1);
+    sum += (1.0 - f) * grid.at(sc, d) + f * grid.at(s1, d);
+  }
+  return sum / static_cast<double>(cells.size());
+}
+
+/// Places the maximum of the scores of shifts -steps..steps bins (a parabola through the best
+/// and its neighbours) and its sigma into `out`; false, with the failure, when there is none.
+bool PlaceMaximum(const TrackBedOptions& options,
+                  const std::vector<double>& scores,
+                  int steps,
+                  size_t cells,
+                  TrackBedShift* out) {
+  int best = 0;
+  double mean = 0.0;
+  for (size_t k = 0; k < scores.size(); ++k) {
+    mean += scores[k];
+    if (scores[k] > scores[static_cast<size_t>(best)]) best = static_cast<int>(k);
+  }
+  mean /= static_cast<double>(scores.size());
+  out->gain = scores[static_cast<size_t>(best)] - mean;
+  if (best == 0 || best == 2 * steps) {
+    out->failure = "best shift at the edge of the search";
+    return false;
+  }
+  if (out->gain < options.min_gain) {
+    out->failure = "score too flat (gain " + std::to_string(out->gain) + "): no sleepers in view";
+    return false;
+  }
+  const double a = scores[static_cast<size_t>(best - 1)], b = scores[static_cast<size_t>(best)],
+               c = scores[static_cast<size_t>(best + 1)];
+  const double curvature = a - 2.0 * b + c;  // per bin^2, negative at a maximum
+  if (!(curvature < 0.0)) {
+    out->failure = "no maximum";
+    return false;
+  }
+  const double offset = std::clamp(0.5 * (a - c) / curvature, -0.5, 0.5);
+  out->shift_m = (best - steps + offset) * options.bin_m;
+  // Each point's mean log-density as its log-likelihood: the information is N |L''|.
+  const double info = static_cast<double>(cells) * -curvature / (options.bin_m * options.bin_m);
+  out->sigma_m = 1.0 / std::sqrt(info);
+  return true;
+}
+
+}  // namespace
+
 TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
                                     const std::vector<Eigen::Vector3d>& reference,
                                     const std::vector<Eigen::Vector3d>& current,
@@ -67,7 +244,7 @@ TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
     out.failure = "reference has " + std::to_string(reference.size()) + " bed points";
     return out;
   }
-  auto depth_of = [&](const Eigen::Vector3d& p) { return -(plane_normal.dot(p) + plane_distance); };
+  const PlaneDepth depth_of{plane_normal, plane_distance};
   double s_min = 1e9, s_max = -1e9;
   for (const Eigen::Vector3d& p : reference) {
     s_min = std::min(s_min, p.x());
@@ -77,137 +254,31 @@ TrackBedShift EstimateTrackBedShift(const TrackBedOptions& options,
   s_min -= margin;
   s_max += margin;
   const int ns = static_cast<int>(std::ceil((s_max - s_min) / options.bin_m)) + 1;
-  const int nd = static_cast<int>(
-                     std::ceil((options.max_depth_m - options.min_depth_m) / options.depth_bin_m)) +
-                 1;
   if (ns > 100000) {
     out.failure = "reference spans too far along the track";
     return out;
   }
-  // Point counts per (along, depth) cell, smoothed along the track with a Gaussian and across
-  // depth with [1 2 1] / 4, then taken relative to the densest cell.
-  std::vector<double> grid(static_cast<size_t>(ns) * nd, 0.0);
-  auto at = [&](int s, int d) -> double& { return grid[static_cast<size_t>(s) * nd + d]; };
-  for (const Eigen::Vector3d& p : reference) {
-    const double depth = depth_of(p);
-    if (depth < options.min_depth_m || depth > options.max_depth_m) continue;
-    const int s = static_cast<int>(std::lround((p.x() - s_min) / options.bin_m));
-    const int d =
-        static_cast<int>(std::lround((depth - options.min_depth_m) / options.depth_bin_m));
-    if (s >= 0 && s < ns && d >= 0 && d < nd) at(s, d) += 1.0;
-  }
-  const int radius = static_cast<int>(std::ceil(3.0 * options.blur_m / options.bin_m));
-  std::vector<double> kernel(static_cast<size_t>(2 * radius + 1), 0.0);
-  for (int k = -radius; k <= radius; ++k) {
-    const double x = k * options.bin_m / std::max(options.blur_m, 1e-9);
-    kernel[static_cast<size_t>(k + radius)] =
-        options.blur_m > 0.0 ? std::exp(-0.5 * x * x) : (k == 0 ? 1.0 : 0.0);
-  }
-  std::vector<double> smooth(grid.size(), 0.0);
-  for (int s = 0; s < ns; ++s) {
-    for (int d = 0; d < nd; ++d) {
-      double sum = 0.0;
-      for (int k = -radius; k <= radius; ++k) {
-        const int t = s + k;
-        if (t >= 0 && t < ns) sum += kernel[static_cast<size_t>(k + radius)] * at(t, d);
-      }
-      smooth[static_cast<size_t>(s) * nd + d] = sum;
-    }
-  }
-  double peak = 0.0;
-  for (int s = 0; s < ns; ++s) {
-    for (int d = 0; d < nd; ++d) {
-      const double up = d > 0 ? smooth[static_cast<size_t>(s) * nd + d - 1] : 0.0;
-      const double down = d + 1 < nd ? smooth[static_cast<size_t>(s) * nd + d + 1] : 0.0;
-      at(s, d) = 0.25 * up + 0.5 * smooth[static_cast<size_t>(s) * nd + d] + 0.25 * down;
-      peak = std::max(peak, at(s, d));
-    }
-  }
+  // The reference's density, relative to its densest cell.
+  BedGrid grid = CountReference(options, reference, depth_of, s_min, ns);
+  const double peak = SmoothGrid(options, &grid);
   if (!(peak > 0.0)) {
     out.failure = "reference has no points in the depth band";
     return out;
   }
-
-  // The current points over the reference's span, as (fractional along bin, depth bin).
-  struct Cell {
-    double s;
-    int d;
-  };
-  std::vector<Cell> cells;
-  const double lo = s_min + margin, hi = s_max - margin;
-  for (const Eigen::Vector3d& p : current) {
-    if (p.x() < lo || p.x() > hi) continue;
-    const double depth = depth_of(p);
-    if (depth < options.min_depth_m || depth > options.max_depth_m) continue;
-    cells.push_back(
-        {(p.x() - s_min) / options.bin_m,
-         static_cast<int>(std::lround((depth - options.min_depth_m) / options.depth_bin_m))});
-  }
+  const std::vector<BedCell> cells =
+      CurrentCells(options, current, depth_of, s_min, s_min + margin, s_max - margin);
   out.points = static_cast<int>(cells.size());
   if (out.points < options.min_points) {
     out.failure = "frame has " + std::to_string(out.points) + " bed points over the reference";
     return out;
   }
-  // Log-density, only over the columns the search reads, with bins to spare for rounding (the
-  // grid spans every reference frame, most of them behind what this frame sees).
   const int steps = static_cast<int>(std::lround(options.max_search_m / options.bin_m));
-  double c_min = 1e300, c_max = -1e300;
-  for (const Cell& c : cells) {
-    c_min = std::min(c_min, c.s);
-    c_max = std::max(c_max, c.s);
-  }
-  const int read_lo = std::clamp(static_cast<int>(std::floor(c_min)) - steps - 2, 0, ns - 1);
-  const int read_hi = std::clamp(static_cast<int>(std::floor(c_max)) + steps + 2, 0, ns - 1);
-  for (int t = read_lo; t <= read_hi; ++t) {
-    for (int d = 0; d < nd; ++d) at(t, d) = std::log(0.02 + at(t, d) / peak);
-  }
-  auto score = [&](double shift_bins) {
-    double sum = 0.0;
-    for (const Cell& c : cells) {
-      const double s = c.s + shift_bins;
-      const int s0 = static_cast<int>(std::floor(s));
-      const double f = s - s0;
-      const int s1 = std::clamp(s0 + 1, 0, ns - 1);
-      const int sc = std::clamp(s0, 0, ns - 1);
-      const int d = std::clamp(c.d, 0, nd - 1);
-      sum += (1.0 - f) * at(sc, d) + f * at(s1, d);
-    }
-    return sum / static_cast<double>(cells.size());
-  };
+  ToLogDensity(cells, steps, peak, &grid);
   std::vector<double> scores(static_cast<size_t>(2 * steps + 1));
-  int best = 0;
-  double mean = 0.0;
   for (int k = -steps; k <= steps; ++k) {
-    const double v = score(k);
-    scores[static_cast<size_t>(k + steps)] = v;
-    mean += v;
-    if (v > scores[static_cast<size_t>(best)]) best = k + steps;
+    scores[static_cast<size_t>(k + steps)] = ShiftScore(grid, cells, k);
   }
-  mean /= static_cast<double>(scores.size());
-  out.gain = scores[static_cast<size_t>(best)] - mean;
-  if (best == 0 || best == 2 * steps) {
-    out.failure = "best shift at the edge of the search";
-    return out;
-  }
-  if (out.gain < options.min_gain) {
-    out.failure = "score too flat (gain " + std::to_string(out.gain) + "): no sleepers in view";
-    return out;
-  }
-  // Parabola through the best bin and its neighbours.
-  const double a = scores[static_cast<size_t>(best - 1)], b = scores[static_cast<size_t>(best)],
-               c = scores[static_cast<size_t>(best + 1)];
-  const double curvature = a - 2.0 * b + c;  // per bin^2, negative at a maximum
-  if (!(curvature < 0.0)) {
-    out.failure = "no maximum";
-    return out;
-  }
-  const double offset = std::clamp(0.5 * (a - c) / curvature, -0.5, 0.5);
-  out.shift_m = (best - steps + offset) * options.bin_m;
-  // Each point's mean log-density as its log-likelihood: the information is N |L''|.
-  const double info =
-      static_cast<double>(cells.size()) * -curvature / (options.bin_m * options.bin_m);
-  out.sigma_m = 1.0 / std::sqrt(info);
-  out.ok = true;
+  out.ok = PlaceMaximum(options, scores, steps, cells.size(), &out);
   return out;
 }
 
