@@ -847,115 +847,105 @@ std::string FieldNames(const sensor_msgs::PointCloud2& cloud) {
   return names.empty() ? "(none)" : names;
 }
 
-// Converts a sensor_msgs/PointCloud2 to a LidarFrame. Accepted layout (little-endian):
-// - x, y, z: FLOAT32 or FLOAT64, metres. Points with a non-finite coordinate are dropped.
-// - per-point time, the first present of the fields "time", "t", "timestamp", "offset_time":
-//     FLOAT32/FLOAT64 = seconds relative to header.stamp (may be negative, as Velodyne stamps the
-//     header at the end of the sweep); UINT32 = nanoseconds relative to header.stamp (Ouster "t",
-//     Livox "offset_time"). Values above 1e6 s are absolute times (Hesai, livox_ros_driver2) and
-//     are rejected with a message rather than guessed at. The time field is required.
-// - optional "intensity" or "reflectivity" (any numeric type, rounded and clamped to 0..255),
-//   optional "line" or "ring" (laser index, clamped to 0..255), optional "tag" (UINT8).
-// The frame's timebase is the earliest point time, so offsets are non-negative; stamp_ns stays
-// the header stamp. Offsets must span less than 2^32 ns.
-bool ConvertPointCloud2(const sensor_msgs::PointCloud2& in,
-                        uint8_t lidar_id,
-                        LidarFrame* out,
-                        std::string* error) {
+/// The fields of a PointCloud2 that a LiDAR frame reads; i, l and g are optional.
+struct CloudFields {
+  const sensor_msgs::PointField *x, *y, *z, *t, *i, *l, *g;
+  bool time_is_seconds;  ///< FLOAT32/FLOAT64 seconds, else UINT32 nanoseconds
+};
+
+/// Finds and checks the fields (see ConvertPointCloud2); false with the error.
+bool FindCloudFields(const sensor_msgs::PointCloud2& in, CloudFields* f, std::string* error) {
   using sensor_msgs::PointField;
-  if (in.is_bigendian) {
-    *error = "big-endian PointCloud2 is not supported";
-    return false;
-  }
-  const PointField* fx = FindField(in, {"x"});
-  const PointField* fy = FindField(in, {"y"});
-  const PointField* fz = FindField(in, {"z"});
-  const PointField* ft = FindField(in, {"time", "t", "timestamp", "offset_time"});
-  const PointField* fi = FindField(in, {"intensity", "reflectivity"});
-  const PointField* fl = FindField(in, {"line", "ring"});
-  const PointField* fg = FindField(in, {"tag"});
-  if (!fx || !fy || !fz) {
+  *f = {FindField(in, {"x"}),
+        FindField(in, {"y"}),
+        FindField(in, {"z"}),
+        FindField(in, {"time", "t", "timestamp", "offset_time"}),
+        FindField(in, {"intensity", "reflectivity"}),
+        FindField(in, {"line", "ring"}),
+        FindField(in, {"tag"}),
+        false};
+  if (!f->x || !f->y || !f->z) {
     *error = "PointCloud2 lacks x, y or z (fields: " + FieldNames(in) + ")";
     return false;
   }
-  if (!ft) {
+  if (!f->t) {
     *error =
         "PointCloud2 has no per-point time field (looked for time, t, timestamp, offset_time; "
         "fields: " +
         FieldNames(in) + ")";
     return false;
   }
-  for (const PointField* f : {fx, fy, fz}) {
-    if (f->datatype != PointField::FLOAT32 && f->datatype != PointField::FLOAT64) {
-      *error = "PointCloud2 field " + f->name + " must be FLOAT32 or FLOAT64";
+  for (const PointField* xyz : {f->x, f->y, f->z}) {
+    if (xyz->datatype != PointField::FLOAT32 && xyz->datatype != PointField::FLOAT64) {
+      *error = "PointCloud2 field " + xyz->name + " must be FLOAT32 or FLOAT64";
       return false;
     }
   }
-  const bool time_is_seconds =
-      ft->datatype == PointField::FLOAT32 || ft->datatype == PointField::FLOAT64;
-  if (!time_is_seconds && ft->datatype != PointField::UINT32) {
-    *error = "PointCloud2 time field " + ft->name + " has datatype " +
-             std::to_string(ft->datatype) +
+  f->time_is_seconds =
+      f->t->datatype == PointField::FLOAT32 || f->t->datatype == PointField::FLOAT64;
+  if (!f->time_is_seconds && f->t->datatype != PointField::UINT32) {
+    *error = "PointCloud2 time field " + f->t->name + " has datatype " +
+             std::to_string(f->t->datatype) +
              "; accepted: FLOAT32/FLOAT64 seconds or UINT32 nanoseconds relative to header.stamp";
     return false;
   }
-  for (const PointField* f : {fx, fy, fz, ft, fi, fl, fg}) {
-    if (!f) continue;
-    const size_t size = ScalarSize(f->datatype);
-    if (size == 0 || f->offset + size > in.point_step) {
-      *error = "PointCloud2 field " + f->name + " has a bad datatype or lies outside point_step";
+  for (const PointField* field : {f->x, f->y, f->z, f->t, f->i, f->l, f->g}) {
+    if (!field) continue;
+    const size_t size = ScalarSize(field->datatype);
+    if (size == 0 || field->offset + size > in.point_step) {
+      *error =
+          "PointCloud2 field " + field->name + " has a bad datatype or lies outside point_step";
       return false;
     }
   }
-  const uint64_t width = in.width, height = in.height;
-  if (height > 0 &&
-      (uint64_t{in.row_step} < width * in.point_step ||
-       uint64_t{in.row_step} * (height - 1) + width * in.point_step > in.data.size())) {
-    *error = "PointCloud2 data holds " + std::to_string(in.data.size()) + " bytes, too few for " +
-             std::to_string(width) + "x" + std::to_string(height) + " points of " +
-             std::to_string(in.point_step) + " bytes";
-    return false;
-  }
-  const int64_t stamp_ns = ToNs(in.header.stamp);
-  std::vector<int64_t> rel_ns;
-  rel_ns.reserve(width * height);
-  out->points.clear();
-  out->points.reserve(width * height);
-  for (uint64_t r = 0; r < height; ++r) {
-    for (uint64_t c = 0; c < width; ++c) {
-      const uint8_t* p = in.data.data() + r * in.row_step + c * in.point_step;
-      const double x = ReadScalar(p + fx->offset, fx->datatype);
-      const double y = ReadScalar(p + fy->offset, fy->datatype);
-      const double z = ReadScalar(p + fz->offset, fz->datatype);
-      if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
-      const double t = ReadScalar(p + ft->offset, ft->datatype);
-      if (time_is_seconds) {
-        if (!std::isfinite(t) || std::fabs(t) > 1e6) {
-          *error = "PointCloud2 time field " + ft->name + " holds " + std::to_string(t) +
-                   ", not seconds relative to header.stamp (absolute times are not accepted)";
-          return false;
-        }
-        rel_ns.push_back(std::llround(t * 1e9));
-      } else {
-        rel_ns.push_back(static_cast<int64_t>(t));
-      }
-      LivoxPoint q;
-      q.x = static_cast<float>(x);
-      q.y = static_cast<float>(y);
-      q.z = static_cast<float>(z);
-      if (fi) {
-        const double v = ReadScalar(p + fi->offset, fi->datatype);
-        q.reflectivity =
-            static_cast<uint8_t>(std::isfinite(v) ? std::clamp(std::round(v), 0.0, 255.0) : 0.0);
-      }
-      if (fl) {
-        q.line =
-            static_cast<uint8_t>(std::clamp(ReadScalar(p + fl->offset, fl->datatype), 0.0, 255.0));
-      }
-      if (fg) q.tag = static_cast<uint8_t>(ReadScalar(p + fg->offset, fg->datatype));
-      out->points.push_back(q);
+  return true;
+}
+
+/// Reads the point at `p`: false with the error for a time that is not relative seconds; a point
+/// with a non-finite coordinate is skipped (nothing appended).
+bool ReadCloudPoint(const uint8_t* p,
+                    const CloudFields& f,
+                    std::vector<int64_t>* rel_ns,
+                    std::vector<LivoxPoint>* points,
+                    std::string* error) {
+  const double x = ReadScalar(p + f.x->offset, f.x->datatype);
+  const double y = ReadScalar(p + f.y->offset, f.y->datatype);
+  const double z = ReadScalar(p + f.z->offset, f.z->datatype);
+  if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) return true;
+  const double t = ReadScalar(p + f.t->offset, f.t->datatype);
+  if (f.time_is_seconds) {
+    if (!std::isfinite(t) || std::fabs(t) > 1e6) {
+      *error = "PointCloud2 time field " + f.t->name + " holds " + std::to_string(t) +
+               ", not seconds relative to header.stamp (absolute times are not accepted)";
+      return false;
     }
+    rel_ns->push_back(std::llround(t * 1e9));
+  } else {
+    rel_ns->push_back(static_cast<int64_t>(t));
   }
+  LivoxPoint q;
+  q.x = static_cast<float>(x);
+  q.y = static_cast<float>(y);
+  q.z = static_cast<float>(z);
+  if (f.i) {
+    const double v = ReadScalar(p + f.i->offset, f.i->datatype);
+    q.reflectivity =
+        static_cast<uint8_t>(std::isfinite(v) ? std::clamp(std::round(v), 0.0, 255.0) : 0.0);
+  }
+  if (f.l) {
+    q.line =
+        static_cast<uint8_t>(std::clamp(ReadScalar(p + f.l->offset, f.l->datatype), 0.0, 255.0));
+  }
+  if (f.g) q.tag = static_cast<uint8_t>(ReadScalar(p + f.g->offset, f.g->datatype));
+  points->push_back(q);
+  return true;
+}
+
+/// Makes the points' times offsets from the earliest, which becomes the frame's timebase.
+bool SetFrameTimes(const std::vector<int64_t>& rel_ns,
+                   int64_t stamp_ns,
+                   LidarFrame* out,
+                   std::string* error) {
   const int64_t min_rel = rel_ns.empty() ? 0 : *std::min_element(rel_ns.begin(), rel_ns.end());
   const int64_t max_rel = rel_ns.empty() ? 0 : *std::max_element(rel_ns.begin(), rel_ns.end());
   if (max_rel - min_rel > int64_t{std::numeric_limits<uint32_t>::max()}) {
@@ -971,8 +961,52 @@ bool ConvertPointCloud2(const sensor_msgs::PointCloud2& in,
     out->points[i].offset_time_ns = static_cast<uint32_t>(rel_ns[i] - min_rel);
   }
   out->stamp_ns = stamp_ns;
-  out->frame_id = in.header.frame_id;
   out->timebase_ns = static_cast<uint64_t>(stamp_ns + min_rel);
+  return true;
+}
+
+// Converts a sensor_msgs/PointCloud2 to a LidarFrame. Accepted layout (little-endian):
+// - x, y, z: FLOAT32 or FLOAT64, metres. Points with a non-finite coordinate are dropped.
+// - per-point time, the first present of the fields "time", "t", "timestamp", "offset_time":
+//     FLOAT32/FLOAT64 = seconds relative to header.stamp (may be negative, as Velodyne stamps the
+//     header at the end of the sweep); UINT32 = nanoseconds relative to header.stamp (Ouster "t",
+//     Livox "offset_time"). Values above 1e6 s are absolute times (Hesai, livox_ros_driver2) and
+//     are rejected with a message rather than guessed at. The time field is required.
+// - optional "intensity" or "reflectivity" (any numeric type, rounded and clamped to 0..255),
+//   optional "line" or "ring" (laser index, clamped to 0..255), optional "tag" (UINT8).
+// The frame's timebase is the earliest point time, so offsets are non-negative; stamp_ns stays
+// the header stamp. Offsets must span less than 2^32 ns.
+bool ConvertPointCloud2(const sensor_msgs::PointCloud2& in,
+                        uint8_t lidar_id,
+                        LidarFrame* out,
+                        std::string* error) {
+  if (in.is_bigendian) {
+    *error = "big-endian PointCloud2 is not supported";
+    return false;
+  }
+  CloudFields fields;
+  if (!FindCloudFields(in, &fields, error)) return false;
+  const uint64_t width = in.width, height = in.height;
+  if (height > 0 &&
+      (uint64_t{in.row_step} < width * in.point_step ||
+       uint64_t{in.row_step} * (height - 1) + width * in.point_step > in.data.size())) {
+    *error = "PointCloud2 data holds " + std::to_string(in.data.size()) + " bytes, too few for " +
+             std::to_string(width) + "x" + std::to_string(height) + " points of " +
+             std::to_string(in.point_step) + " bytes";
+    return false;
+  }
+  std::vector<int64_t> rel_ns;
+  rel_ns.reserve(width * height);
+  out->points.clear();
+  out->points.reserve(width * height);
+  for (uint64_t r = 0; r < height; ++r) {
+    for (uint64_t c = 0; c < width; ++c) {
+      const uint8_t* p = in.data.data() + r * in.row_step + c * in.point_step;
+      if (!ReadCloudPoint(p, fields, &rel_ns, &out->points, error)) return false;
+    }
+  }
+  if (!SetFrameTimes(rel_ns, ToNs(in.header.stamp), out, error)) return false;
+  out->frame_id = in.header.frame_id;
   out->lidar_id = lidar_id;
   return true;
 }
