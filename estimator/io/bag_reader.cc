@@ -1334,65 +1334,64 @@ BagReader::BagReader(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
 BagReader::~BagReader() = default;
 
-std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
-                                           const BagTopics& topics,
-                                           std::string* error) {
-  std::string ignored;
-  if (!error) error = &ignored;
-  if (!topics.IsValid(error)) return nullptr;
+namespace {
+
+/// Checks that `path` is a regular file; its size goes to `size`.
+bool StatBag(const std::string& path, uint64_t* size, std::string* error) {
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
     *error = errno == ENOENT ? "bag " + path + " does not exist"
                              : "cannot access bag " + path + ": " + std::strerror(errno);
-    return nullptr;
+    return false;
   }
   if (!S_ISREG(st.st_mode)) {
     *error = "bag " + path + " is not a regular file";
-    return nullptr;
+    return false;
   }
+  *size = static_cast<uint64_t>(st.st_size);
+  return true;
+}
 
-  auto impl = std::make_unique<Impl>();
-  BagSummary& summary = impl->summary;
-  summary.path = path;
-  summary.file_size_bytes = static_cast<uint64_t>(st.st_size);
-  if (!impl->file.Open(path, error)) return nullptr;
-
+/// The bag's topics, counts and time span from its index; without a usable index, from one scan
+/// of the whole bag, which also reports the damage (and leaves `index` empty).
+bool SummarizeBag(const std::string& path,
+                  BagFile& file,
+                  BagIndex* index,
+                  BagSummary* summary,
+                  std::string* error) {
   std::string why;
-  try {
-    summary.indexed = impl->index.Load(impl->file, &why);
-    if (summary.indexed) {
-      std::map<uint32_t, uint64_t> counts;
-      for (const IndexEntry& e : impl->index.entries) ++counts[e.connection];
-      summary.topics = TopicInfos(impl->index.connections, counts);
-      summary.message_count = impl->index.entries.size();
-      if (!impl->index.entries.empty()) {
-        summary.start_ns = impl->index.entries.front().time_ns;
-        summary.end_ns = impl->index.entries.back().time_ns;
-      }
-    } else {
-      // No usable index: scan the whole bag once for its connections, counts and damage.
-      impl->index = BagIndex();
-      BagScanner scanner;
-      if (!scanner.Open(path, error)) return nullptr;
-      std::map<uint32_t, uint64_t> counts;
-      RawMessage raw;
-      bool any = false;
-      while (scanner.Next(&raw)) {
-        ++counts[raw.connection];
-        ++summary.message_count;
-        if (!any || raw.time_ns < summary.start_ns) summary.start_ns = raw.time_ns;
-        if (!any || raw.time_ns > summary.end_ns) summary.end_ns = raw.time_ns;
-        any = true;
-      }
-      summary.topics = TopicInfos(scanner.connections(), counts);
-      summary.damage = why + (scanner.damage().empty() ? "" : "; " + scanner.damage());
+  summary->indexed = index->Load(file, &why);
+  if (summary->indexed) {
+    std::map<uint32_t, uint64_t> counts;
+    for (const IndexEntry& e : index->entries) ++counts[e.connection];
+    summary->topics = TopicInfos(index->connections, counts);
+    summary->message_count = index->entries.size();
+    if (!index->entries.empty()) {
+      summary->start_ns = index->entries.front().time_ns;
+      summary->end_ns = index->entries.back().time_ns;
     }
-  } catch (const std::bad_alloc&) {
-    *error = "bag " + path + ": out of memory while reading its index";
-    return nullptr;
+    return true;
   }
+  *index = BagIndex();
+  BagScanner scanner;
+  if (!scanner.Open(path, error)) return false;
+  std::map<uint32_t, uint64_t> counts;
+  RawMessage raw;
+  bool any = false;
+  while (scanner.Next(&raw)) {
+    ++counts[raw.connection];
+    ++summary->message_count;
+    if (!any || raw.time_ns < summary->start_ns) summary->start_ns = raw.time_ns;
+    if (!any || raw.time_ns > summary->end_ns) summary->end_ns = raw.time_ns;
+    any = true;
+  }
+  summary->topics = TopicInfos(scanner.connections(), counts);
+  summary->damage = why + (scanner.damage().empty() ? "" : "; " + scanner.damage());
+  return true;
+}
 
-  // Every configured topic must be present with an accepted type and md5.
+/// The configured topics with their roles.
+std::vector<std::pair<std::string, TopicRole>> WantedTopics(const BagTopics& topics) {
   std::vector<std::pair<std::string, TopicRole>> wanted;
   for (size_t i = 0; i < topics.lidar.size(); ++i) {
     wanted.push_back({topics.lidar[i], {Role::kLidar, static_cast<uint8_t>(i), "lidar"}});
@@ -1402,38 +1401,70 @@ std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
   if (!topics.odometer.empty()) {
     wanted.push_back({topics.odometer, {Role::kOdometer, 0, "odometer"}});
   }
-  for (const auto& [topic, role] : wanted) {
-    bool found = false;
-    for (const BagTopicInfo& info : summary.topics) {
-      if (info.topic != topic) continue;
-      found = true;
-      std::string names;
-      bool ok = false;
-      for (const ExpectedType& e : AcceptedTypes(role.role)) {
-        names += (names.empty() ? "" : " or ") + e.type;
-        if (e.type != info.type) continue;
-        if (e.md5sum != info.md5sum) {
-          *error = "bag " + path + ": topic " + topic + " has type " + info.type + " with md5 " +
-                   info.md5sum + ", expected md5 " + e.md5sum + " (a different message definition)";
-          return nullptr;
-        }
-        ok = true;
+  return wanted;
+}
+
+/// Checks that the bag has `topic` with a type and md5 its role accepts.
+bool CheckTopic(const std::string& path,
+                const std::string& topic,
+                const TopicRole& role,
+                const BagSummary& summary,
+                std::string* error) {
+  bool found = false;
+  for (const BagTopicInfo& info : summary.topics) {
+    if (info.topic != topic) continue;
+    found = true;
+    std::string names;
+    bool ok = false;
+    for (const ExpectedType& e : AcceptedTypes(role.role)) {
+      names += (names.empty() ? "" : " or ") + e.type;
+      if (e.type != info.type) continue;
+      if (e.md5sum != info.md5sum) {
+        *error = "bag " + path + ": topic " + topic + " has type " + info.type + " with md5 " +
+                 info.md5sum + ", expected md5 " + e.md5sum + " (a different message definition)";
+        return false;
       }
-      if (!ok) {
-        *error = "bag " + path + ": " + role.name + " topic " + topic + " has type " + info.type +
-                 ", expected " + names;
-        return nullptr;
-      }
+      ok = true;
     }
-    if (!found) {
-      *error = "bag " + path + " has no " + role.name + " topic " + topic +
-               "; it has: " + ListTopics(summary) +
-               (summary.damage.empty() ? "" : " (the bag is damaged: " + summary.damage + ")");
-      return nullptr;
+    if (!ok) {
+      *error = "bag " + path + ": " + role.name + " topic " + topic + " has type " + info.type +
+               ", expected " + names;
+      return false;
     }
+  }
+  if (!found) {
+    *error = "bag " + path + " has no " + role.name + " topic " + topic +
+             "; it has: " + ListTopics(summary) +
+             (summary.damage.empty() ? "" : " (the bag is damaged: " + summary.damage + ")");
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+std::unique_ptr<BagReader> BagReader::Open(const std::string& path,
+                                           const BagTopics& topics,
+                                           std::string* error) {
+  std::string ignored;
+  if (!error) error = &ignored;
+  if (!topics.IsValid(error)) return nullptr;
+  auto impl = std::make_unique<Impl>();
+  BagSummary& summary = impl->summary;
+  summary.path = path;
+  if (!StatBag(path, &summary.file_size_bytes, error)) return nullptr;
+  if (!impl->file.Open(path, error)) return nullptr;
+  try {
+    if (!SummarizeBag(path, impl->file, &impl->index, &summary, error)) return nullptr;
+  } catch (const std::bad_alloc&) {
+    *error = "bag " + path + ": out of memory while reading its index";
+    return nullptr;
+  }
+  // Every configured topic must be present with an accepted type and md5.
+  for (const auto& [topic, role] : WantedTopics(topics)) {
+    if (!CheckTopic(path, topic, role, summary, error)) return nullptr;
     impl->roles[topic] = role;
   }
-
   if (summary.indexed) {
     for (const IndexEntry& e : impl->index.entries) {
       if (impl->roles.count(impl->index.connections.at(e.connection).topic)) {
