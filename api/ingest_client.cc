@@ -339,36 +339,10 @@ bool IngestClient::SendOne(const std::string& path,
 
 void IngestClient::SenderLoop() {
   double backoff_s = 0.05;
-  auto warn = [&](const std::string& m) {
-    std::function<void(const std::string&)> w;
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      backlog_.last_error = m;
-      w = warn_;
-    }
-    if (w) w(m);
-  };
-  auto wait = [&](double s) {
-    std::unique_lock<std::mutex> lock(mu_);
-    wake_.wait_for(lock, std::chrono::duration<double>(s), [this] { return stopping_; });
-  };
   bool was_connected = true;
   while (true) {
-    {
-      std::string lost;
-      {
-        std::lock_guard<std::mutex> lock(mu_);
-        if (write_failed_) lost = backlog_.last_error;
-        write_failed_ = false;
-      }
-      if (!lost.empty()) warn(lost);
-    }
-    std::vector<fs::path> files = Pending(options_.outbox_dir);
-    // Provisional output is worth something only while it is new: it goes ahead of a backlog
-    // of final output (which the server prunes it by, whatever the order).
-    std::stable_partition(files.begin(), files.end(), [](const fs::path& f) {
-      return KindOf(f).rfind("provisional_", 0) == 0;
-    });
+    WarnOfLostWrite();
+    const std::vector<std::string> files = OutboxInSendingOrder();
     if (files.empty()) {
       std::unique_lock<std::mutex> lock(mu_);
       if (stopping_) return;
@@ -379,30 +353,10 @@ void IngestClient::SenderLoop() {
     bool rejected = false;
     const std::string bytes = ReadAll(files.front());
     bool ok = EnsureRun(&error);
-    if (ok) ok = SendOne(files.front().string(), bytes, &error, &rejected);
-    std::error_code ec;
-    const uint64_t size = bytes.size();
+    if (ok) ok = SendOne(files.front(), bytes, &error, &rejected);
     if (ok || rejected) {
-      RecordProgress(KindOf(files.front()), bytes);  // before the file goes
-      if (rejected) {
-        fs::rename(files.front(),
-                   fs::path(options_.outbox_dir) / "rejected" / files.front().filename(),
-                   ec);
-        warn("rejected, kept in " + options_.outbox_dir + "/rejected: " + error);
-      } else {
-        fs::remove(files.front(), ec);
-        if (KindOf(files.front()) == "finish.json")
-          fs::remove(fs::path(options_.outbox_dir) / "run.json", ec);  // the run is complete
-      }
-      {
-        std::lock_guard<std::mutex> lock(mu_);
-        if (backlog_.messages > 0) --backlog_.messages;
-        backlog_.bytes -= std::min<uint64_t>(backlog_.bytes, size);
-        ++(rejected ? backlog_.rejected : backlog_.sent);
-        backlog_.connected = true;
-      }
-      wake_.notify_all();
-      if (!was_connected) warn("the server is back; sending the backlog");
+      Delivered(files.front(), bytes, rejected, error);
+      if (!was_connected) SenderWarn("the server is back; sending the backlog");
       was_connected = true;
       backoff_s = 0.05;
       continue;
@@ -413,15 +367,72 @@ void IngestClient::SenderLoop() {
       backlog_.connected = false;
       if (stopping_ && !finishing_) return;  // the outbox keeps the rest for the next start
     }
-    if (was_connected) warn(error + "; buffering in " + options_.outbox_dir + " and retrying");
+    if (was_connected) {
+      SenderWarn(error + "; buffering in " + options_.outbox_dir + " and retrying");
+    }
     was_connected = false;
-    wait(backoff_s);
     {
-      std::lock_guard<std::mutex> lock(mu_);
+      std::unique_lock<std::mutex> lock(mu_);
+      wake_.wait_for(lock, std::chrono::duration<double>(backoff_s), [this] { return stopping_; });
       if (stopping_) return;
     }
     backoff_s = std::min(options_.retry_max_s, backoff_s * 2.0);
   }
+}
+
+void IngestClient::SenderWarn(const std::string& message) {
+  std::function<void(const std::string&)> w;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    backlog_.last_error = message;
+    w = warn_;
+  }
+  if (w) w(message);
+}
+
+void IngestClient::WarnOfLostWrite() {
+  std::string lost;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (write_failed_) lost = backlog_.last_error;
+    write_failed_ = false;
+  }
+  if (!lost.empty()) SenderWarn(lost);
+}
+
+std::vector<std::string> IngestClient::OutboxInSendingOrder() const {
+  std::vector<fs::path> files = Pending(options_.outbox_dir);
+  // Provisional output is worth something only while it is new: it goes ahead of a backlog
+  // of final output (which the server prunes it by, whatever the order).
+  std::stable_partition(files.begin(), files.end(), [](const fs::path& f) {
+    return KindOf(f).rfind("provisional_", 0) == 0;
+  });
+  return std::vector<std::string>(files.begin(), files.end());
+}
+
+void IngestClient::Delivered(const std::string& file,
+                             const std::string& bytes,
+                             bool rejected,
+                             const std::string& error) {
+  const fs::path path(file);
+  std::error_code ec;
+  RecordProgress(KindOf(path), bytes);  // before the file goes
+  if (rejected) {
+    fs::rename(path, fs::path(options_.outbox_dir) / "rejected" / path.filename(), ec);
+    SenderWarn("rejected, kept in " + options_.outbox_dir + "/rejected: " + error);
+  } else {
+    fs::remove(path, ec);
+    if (KindOf(path) == "finish.json")
+      fs::remove(fs::path(options_.outbox_dir) / "run.json", ec);  // the run is complete
+  }
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (backlog_.messages > 0) --backlog_.messages;
+    backlog_.bytes -= std::min<uint64_t>(backlog_.bytes, bytes.size());
+    ++(rejected ? backlog_.rejected : backlog_.sent);
+    backlog_.connected = true;
+  }
+  wake_.notify_all();
 }
 
 }  // namespace raillomer::api

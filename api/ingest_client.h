@@ -83,7 +83,20 @@ class IngestClient : public StreamSink {
   void WriteMessage(const std::string& name, const std::string& bytes);
   void FlushPosesLocked();
   void FlushProvisionalPosesLocked();
+  /// Sends the outbox's messages in order, each until the server takes or rejects it, with
+  /// exponential backoff while it cannot be reached.
   void SenderLoop();
+  /// Keeps `message` as the last error and passes it to the warning callback.
+  void SenderWarn(const std::string& message);
+  /// Warns once of a message the outbox refused to hold.
+  void WarnOfLostWrite();
+  /// The outbox's files: provisional output first, each group in outbox order.
+  std::vector<std::string> OutboxInSendingOrder() const;
+  /// Lets a sent (or rejected, kept aside) message go from the outbox and the backlog.
+  void Delivered(const std::string& file,
+                 const std::string& bytes,
+                 bool rejected,
+                 const std::string& error);
   bool SendOne(const std::string& name,
                const std::string& bytes,
                std::string* error,

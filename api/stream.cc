@@ -71,6 +71,106 @@ std::string EncodeSubmapPcd(const Submap& s) {
   return out;
 }
 
+namespace {
+
+/// What the header of a submap PCD has said so far.
+struct PcdHeader {
+  size_t points = 0;
+  bool have_points = false, have_origin = false, have_fields = false;
+  std::set<std::string> seen;  ///< single-valued raillomer lines
+};
+
+/// Reads one "# raillomer <what> ..." line (`in` after the "#") into the submap; returns why it
+/// is bad, or an empty string.
+std::string ParseRaillomerLine(std::istringstream& in,
+                               const std::string& line,
+                               PcdHeader* h,
+                               Submap* s) {
+  std::string tag, what;
+  in >> tag >> what;
+  if (tag != "raillomer") return "";
+  if (what != "keyframe" && !h->seen.insert(what).second)
+    return "the header has a second '" + what + "' line";
+  const std::string bad = "bad line '" + line + "'";
+  if (what == "sequence") {
+    // Whole numbers only: ">>" would read "-5" into an unsigned as 2^64 - 5.
+    std::string sequence, k1, index, k2, keyframes;
+    uint64_t n = 0;
+    if (!(in >> sequence >> k1 >> index >> k2 >> keyframes) || k1 != "index" || k2 != "keyframes" ||
+        !ParseWholeNumber(sequence, kMaxSequence, &s->sequence) ||
+        !ParseWholeNumber(index, UINT32_MAX, &n))
+      return bad + " (sequence below 2^63, index below 2^32)";
+    s->index = static_cast<uint32_t>(n);
+  } else if (what == "stamps") {
+    std::string a, b;
+    if (!(in >> a >> b) || !ParseStampSeconds(a, &s->first_stamp_ns) ||
+        !ParseStampSeconds(b, &s->last_stamp_ns))
+      return bad;
+  } else if (what == "zone") {
+    std::string zone;
+    in >> zone;
+    s->georeferenced = zone != "local";
+    if (s->georeferenced) {
+      int z = 0;
+      bool north = true;
+      if (!ParseUtmZoneName(zone, &z, &north)) return "bad UTM zone '" + zone + "'";
+      s->utm_zone = zone;
+    }
+  } else if (what == "origin") {
+    if (!(in >> s->origin.x() >> s->origin.y() >> s->origin.z())) return bad;
+    h->have_origin = true;
+  } else if (what == "placement") {
+    std::string placement;
+    uint64_t n = 0;
+    if (!(in >> placement) || !ParseWholeNumber(placement, UINT32_MAX, &n))
+      return bad + " (placement below 2^32)";
+    s->placement = static_cast<uint32_t>(n);
+  } else if (what == "keyframe") {
+    Trajectory t;
+    std::string rest, ignored;
+    std::getline(in, rest);
+    if (!ParseTum(rest, &t, &ignored) || t.poses.size() != 1) return bad;
+    s->keyframes.push_back(t.poses[0]);
+  }
+  return "";
+}
+
+/// Reads the header up to its DATA line, after which `pos` is the first byte of the points;
+/// returns why it is bad, or an empty string.
+std::string ReadPcdHeader(const std::string& bytes, size_t* pos, PcdHeader* h, Submap* s) {
+  while (*pos < bytes.size()) {
+    const size_t end = bytes.find('\n', *pos);
+    if (end == std::string::npos) return "the header has no DATA line";
+    const std::string line = bytes.substr(*pos, end - *pos);
+    *pos = end + 1;
+    std::istringstream in(line);
+    std::string key;
+    in >> key;
+    if (key == "#") {
+      const std::string why = ParseRaillomerLine(in, line, h, s);
+      if (!why.empty()) return why;
+    } else if (key == "FIELDS") {
+      std::string rest;
+      std::getline(in, rest);
+      if (rest != " x y z intensity") return "fields are '" + rest + "', not x y z intensity";
+      h->have_fields = true;
+    } else if (key == "POINTS") {
+      if (!(in >> h->points)) return "bad POINTS line";
+      h->have_points = true;
+    } else if (key == "DATA") {
+      std::string kind;
+      in >> kind;
+      if (kind != "binary") return "DATA is '" + kind + "', not binary";
+      break;
+    }
+  }
+  if (!h->have_fields || !h->have_points || !h->have_origin || !h->seen.count("sequence"))
+    return "the header lacks FIELDS, POINTS or the raillomer origin or sequence";
+  return "";
+}
+
+}  // namespace
+
 bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
   auto fail = [&](const std::string& m) {
     if (error) *error = "submap PCD: " + m;
@@ -78,82 +178,10 @@ bool DecodeSubmapPcd(const std::string& bytes, Submap* s, std::string* error) {
   };
   *s = Submap();
   size_t pos = 0;
-  size_t points = 0;
-  bool have_points = false, have_origin = false, have_fields = false;
-  std::set<std::string> seen;  // single-valued header lines
-  while (pos < bytes.size()) {
-    const size_t end = bytes.find('\n', pos);
-    if (end == std::string::npos) return fail("the header has no DATA line");
-    const std::string line = bytes.substr(pos, end - pos);
-    pos = end + 1;
-    std::istringstream in(line);
-    std::string key;
-    in >> key;
-    if (key == "#") {
-      std::string tag, what;
-      in >> tag >> what;
-      if (tag != "raillomer") continue;
-      if (what != "keyframe" && !seen.insert(what).second)
-        return fail("the header has a second '" + what + "' line");
-      if (what == "sequence") {
-        // Whole numbers only: ">>" would read "-5" into an unsigned as 2^64 - 5.
-        std::string sequence, k1, index, k2, keyframes;
-        uint64_t n = 0;
-        if (!(in >> sequence >> k1 >> index >> k2 >> keyframes) || k1 != "index" ||
-            k2 != "keyframes" || !ParseWholeNumber(sequence, kMaxSequence, &s->sequence) ||
-            !ParseWholeNumber(index, UINT32_MAX, &n))
-          return fail("bad line '" + line + "' (sequence below 2^63, index below 2^32)");
-        s->index = static_cast<uint32_t>(n);
-      } else if (what == "stamps") {
-        std::string a, b;
-        if (!(in >> a >> b) || !ParseStampSeconds(a, &s->first_stamp_ns) ||
-            !ParseStampSeconds(b, &s->last_stamp_ns))
-          return fail("bad line '" + line + "'");
-      } else if (what == "zone") {
-        std::string zone;
-        in >> zone;
-        s->georeferenced = zone != "local";
-        if (s->georeferenced) {
-          int z = 0;
-          bool north = true;
-          if (!ParseUtmZoneName(zone, &z, &north)) return fail("bad UTM zone '" + zone + "'");
-          s->utm_zone = zone;
-        }
-      } else if (what == "origin") {
-        if (!(in >> s->origin.x() >> s->origin.y() >> s->origin.z()))
-          return fail("bad line '" + line + "'");
-        have_origin = true;
-      } else if (what == "placement") {
-        std::string placement;
-        uint64_t n = 0;
-        if (!(in >> placement) || !ParseWholeNumber(placement, UINT32_MAX, &n))
-          return fail("bad line '" + line + "' (placement below 2^32)");
-        s->placement = static_cast<uint32_t>(n);
-      } else if (what == "keyframe") {
-        Trajectory t;
-        std::string rest;
-        std::getline(in, rest);
-        if (!ParseTum(rest, &t, error) || t.poses.size() != 1)
-          return fail("bad line '" + line + "'");
-        s->keyframes.push_back(t.poses[0]);
-      }
-    } else if (key == "FIELDS") {
-      std::string rest;
-      std::getline(in, rest);
-      if (rest != " x y z intensity") return fail("fields are '" + rest + "', not x y z intensity");
-      have_fields = true;
-    } else if (key == "POINTS") {
-      if (!(in >> points)) return fail("bad POINTS line");
-      have_points = true;
-    } else if (key == "DATA") {
-      std::string kind;
-      in >> kind;
-      if (kind != "binary") return fail("DATA is '" + kind + "', not binary");
-      break;
-    }
-  }
-  if (!have_fields || !have_points || !have_origin || !seen.count("sequence"))
-    return fail("the header lacks FIELDS, POINTS or the raillomer origin or sequence");
+  PcdHeader header;
+  const std::string why = ReadPcdHeader(bytes, &pos, &header, s);
+  if (!why.empty()) return fail(why);
+  const size_t points = header.points;
   if (points > (bytes.size() - pos) / 16 || bytes.size() - pos != 16 * points) {
     return fail("expected " + std::to_string(16 * points) + " bytes of points, found " +
                 std::to_string(bytes.size() - pos) + " (truncated?)");
