@@ -111,6 +111,48 @@ void MapExporter::Add(const api::Submap& s) {
     recent_voxels_.pop_front();
 }
 
+namespace {
+
+/// The PLY or PCD header of a map of `points` points in `frame`.
+std::string TextHeader(bool ply, uint64_t points, const std::string& frame) {
+  std::ostringstream h;
+  if (ply) {
+    h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer map in " << frame << "\n"
+      << "element vertex " << points << "\nproperty double x\nproperty double y\n"
+      << "property double z\nproperty float intensity\nend_header\n";
+  } else {
+    h << "# .PCD v0.7 - RailLoMer map in " << frame << "\nVERSION 0.7\nFIELDS x y z intensity\n"
+      << "SIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH " << points
+      << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << points << "\nDATA binary\n";
+  }
+  return h.str();
+}
+
+/// Converts the body's records (x, y, z doubles and a float intensity) into LAS point records
+/// relative to `offset`, a chunk at a time; returns how many it converted.
+uint64_t CopyLasRecords(std::istream& body, std::ostream& out, const Eigen::Vector3d& offset) {
+  uint64_t converted = 0;
+  std::vector<char> chunk(kLasChunkRecords * kRecordBytes);
+  std::string records;
+  while (body.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) || body.gcount() > 0) {
+    records.clear();
+    const size_t n = static_cast<size_t>(body.gcount()) / kRecordBytes;
+    for (size_t i = 0; i < n; ++i) {
+      Eigen::Vector3d p;
+      float intensity = 0.f;
+      std::memcpy(p.data(), &chunk[i * kRecordBytes], 3 * sizeof(double));
+      std::memcpy(&intensity, &chunk[i * kRecordBytes + 3 * sizeof(double)], sizeof(float));
+      const float clamped = std::isfinite(intensity) ? std::clamp(intensity, 0.f, 65535.f) : 0.f;
+      api::las::AppendRecord(&records, p, offset, static_cast<uint16_t>(std::lround(clamped)));
+    }
+    out.write(records.data(), static_cast<std::streamsize>(records.size()));
+    converted += n;
+  }
+  return converted;
+}
+
+}  // namespace
+
 bool MapExporter::Close(std::string* error) {
   if (!body_) return true;
   const bool write_failed = std::ferror(body_) != 0;
@@ -122,8 +164,9 @@ bool MapExporter::Close(std::string* error) {
     return false;
   }
   std::string header;
-  api::las::Header las;
+  Eigen::Vector3d las_offset = Eigen::Vector3d::Zero();
   if (format_ == Format::kLas) {
+    api::las::Header las;
     las.points = points_;
     las.bounds = bounds_;
     if (georeferenced_) las.utm_zone = utm_zone_;
@@ -134,74 +177,50 @@ bool MapExporter::Close(std::string* error) {
       std::remove(body_path_.c_str());
       return false;
     }
+    // The records are relative to an offset at the map's minimum corner, known only now.
+    las_offset = api::las::OffsetOf(las);
   } else {
     const std::string frame =
         georeferenced_ ? "UTM zone " + utm_zone_ + " (easting, northing, ellipsoidal height)"
                        : std::string("the estimator's local odometry frame (not georeferenced)");
-    std::ostringstream h;
-    if (format_ == Format::kPly) {
-      h << "ply\nformat binary_little_endian 1.0\ncomment RailLoMer map in " << frame << "\n"
-        << "element vertex " << points_ << "\nproperty double x\nproperty double y\n"
-        << "property double z\nproperty float intensity\nend_header\n";
-    } else {
-      h << "# .PCD v0.7 - RailLoMer map in " << frame << "\nVERSION 0.7\nFIELDS x y z intensity\n"
-        << "SIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH " << points_
-        << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << points_ << "\nDATA binary\n";
-    }
-    header = h.str();
+    header = TextHeader(format_ == Format::kPly, points_, frame);
   }
   const std::string tmp = path_ + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary);
-    std::ifstream body(body_path_, std::ios::binary);
-    if (!body) {
-      *error = "cannot read back " + body_path_;
-      std::remove(body_path_.c_str());
-      return false;
-    }
-    out << header;
-    uint64_t converted = 0;
-    if (format_ == Format::kLas) {
-      // The records are relative to an offset at the map's minimum corner, known only now.
-      const Eigen::Vector3d offset = api::las::OffsetOf(las);
-      std::vector<char> chunk(kLasChunkRecords * kRecordBytes);
-      std::string records;
-      while (body.read(chunk.data(), static_cast<std::streamsize>(chunk.size())) ||
-             body.gcount() > 0) {
-        records.clear();
-        const size_t n = static_cast<size_t>(body.gcount()) / kRecordBytes;
-        for (size_t i = 0; i < n; ++i) {
-          Eigen::Vector3d p;
-          float intensity = 0.f;
-          std::memcpy(p.data(), &chunk[i * kRecordBytes], 3 * sizeof(double));
-          std::memcpy(&intensity, &chunk[i * kRecordBytes + 3 * sizeof(double)], sizeof(float));
-          const float clamped =
-              std::isfinite(intensity) ? std::clamp(intensity, 0.f, 65535.f) : 0.f;
-          api::las::AppendRecord(&records, p, offset, static_cast<uint16_t>(std::lround(clamped)));
-        }
-        out.write(records.data(), static_cast<std::streamsize>(records.size()));
-        converted += n;
-      }
-      if (converted != points_) {
-        *error = "read back " + std::to_string(converted) + " of the " + std::to_string(points_) +
-                 " points from " + body_path_;
-        std::remove(body_path_.c_str());
-        return false;
-      }
-    } else if (points_ > 0) {
-      out << body.rdbuf();
-    }
-    if (!out) {
-      *error = "cannot write " + tmp;
-      std::remove(body_path_.c_str());
-      return false;
-    }
-  }
+  const bool written = WriteMapFile(tmp, header, las_offset, error);
   std::remove(body_path_.c_str());
+  if (!written) return false;
   std::error_code ec;
   std::filesystem::rename(tmp, path_, ec);
   if (ec) {
     *error = "cannot move " + tmp + " to " + path_ + ": " + ec.message();
+    return false;
+  }
+  return true;
+}
+
+bool MapExporter::WriteMapFile(const std::string& tmp,
+                               const std::string& header,
+                               const Eigen::Vector3d& las_offset,
+                               std::string* error) const {
+  std::ofstream out(tmp, std::ios::binary);
+  std::ifstream body(body_path_, std::ios::binary);
+  if (!body) {
+    *error = "cannot read back " + body_path_;
+    return false;
+  }
+  out << header;
+  if (format_ == Format::kLas) {
+    const uint64_t converted = CopyLasRecords(body, out, las_offset);
+    if (converted != points_) {
+      *error = "read back " + std::to_string(converted) + " of the " + std::to_string(points_) +
+               " points from " + body_path_;
+      return false;
+    }
+  } else if (points_ > 0) {
+    out << body.rdbuf();
+  }
+  if (!out) {
+    *error = "cannot write " + tmp;
     return false;
   }
   return true;

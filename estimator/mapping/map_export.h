@@ -48,6 +48,11 @@ class MapExporter {
 
  private:
   MapExporter() = default;
+  /// Writes `header` and the body's points (as LAS records about `las_offset` for LAS) to `tmp`.
+  bool WriteMapFile(const std::string& tmp,
+                    const std::string& header,
+                    const Eigen::Vector3d& las_offset,
+                    std::string* error) const;
   std::string path_, body_path_;
   enum class Format { kPly, kPcd, kLas } format_ = Format::kPly;
   MapExportOptions options_;
