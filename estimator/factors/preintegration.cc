@@ -29,7 +29,38 @@ constexpr int kNoise = 9;
 
 double Square(double x) { return x * x; }
 
+/// The variances of one step's white noise: continuous densities averaged over dt have variance
+/// density^2 / dt.
+Eigen::Matrix<double, kNoise, 1> StepNoiseVariances(const PreintegrationNoise& noise, double dt) {
+  Eigen::Matrix<double, kNoise, 1> q_white;
+  const double imu_dt = noise.imu_period_s > 0.0 ? std::min(dt, noise.imu_period_s) : dt;
+  q_white.segment<3>(kNa).setConstant(Square(noise.accel_noise_density) / imu_dt);
+  q_white.segment<3>(kNg).setConstant(Square(noise.gyro_noise_density) / imu_dt);
+  if (noise.imu_period_s > 0.0 && dt > 1.5 * noise.imu_period_s) {
+    // White noise of variance q over a step of dt moves the integral by (sqrt(q) dt)^2.
+    q_white.segment<3>(kNa).array() += Square(noise.gap_accel_sigma_mps2);
+    q_white.segment<3>(kNg).array() += Square(noise.gap_rate_sigma_radps);
+  }
+  q_white(kNs) = Square(noise.odometer_speed_density) / dt;
+  q_white(kNl) = Square(noise.odometer_lateral_density) / dt;
+  q_white(kNl + 1) = Square(noise.odometer_vertical_density) / dt;
+  return q_white;
+}
+
 }  // namespace
+
+/// The error-state transition F and noise input G of one step (eq. 15-17). Only the alpha,
+/// beta, theta and phi rows of F differ from the identity: Fr holds them, in that order (rows
+/// 0-8 are alpha, beta, theta; rows 9-11 phi). The noise enters those rows through Gr
+/// (accelerometer, gyroscope, odometer speed) and the random walks add directly.
+struct Preintegration::StepTransition {
+  static constexpr int kRowPhi = 9;
+  Eigen::Matrix<double, 12, 19> Fr = Eigen::Matrix<double, 12, 19>::Zero();
+  Eigen::Matrix<double, 12, kNoise> Gr = Eigen::Matrix<double, 12, kNoise>::Zero();
+  Matrix3d R0, R1;  ///< gamma at the step's start and end
+  Matrix3d dR;      ///< the step's rotation
+  Matrix3d jr_dt;   ///< Jr(w dt) dt
+};
 
 Preintegration::Preintegration(const Vector3d& ba,
                                const Vector3d& bg,
@@ -155,7 +186,6 @@ Vector3d Preintegration::TrackAxis(const Vector3d& sway) const {
 }
 
 void Preintegration::Integrate(const Step& s) {
-  const double dt = s.dt;
   Delta start;
   start.alpha = alpha_;
   start.beta = beta_;
@@ -164,77 +194,80 @@ void Preintegration::Integrate(const Step& s) {
   step_start_deltas_.push_back(start);
   step_start_times_.push_back(sum_dt_);
   const Delta end = Propagate(start, s, 1.0);
+  StepTransition t = InertialTransition(s, start, end);
+  if (s.odometer_valid) AddOdometerStep(s, &t);
+  PropagateCovariance(t, s.dt);
+  alpha_ = end.alpha;
+  beta_ = end.beta;
+  gamma_ = end.gamma;
+  phi_ = end.phi;
+  sum_dt_ += s.dt;
+  if (!s.odometer_valid) odometer_used_ = false;
+}
 
-  // Error-state transition F and noise input G of one step (eq. 15-17).
+Preintegration::StepTransition Preintegration::InertialTransition(const Step& s,
+                                                                  const Delta& start,
+                                                                  const Delta& end) const {
+  StepTransition t;
+  const double dt = s.dt;
   const Vector3d w = 0.5 * (s.gyro0 + s.gyro1) - bg_;
-  const Matrix3d dR = ExpQuaternion(w * dt).toRotationMatrix();
-  const Matrix3d jr_dt = RightJacobian(w * dt) * dt;
-  const Matrix3d R0 = start.gamma.toRotationMatrix();
-  const Matrix3d R1 = end.gamma.toRotationMatrix();
+  t.dR = ExpQuaternion(w * dt).toRotationMatrix();
+  t.jr_dt = RightJacobian(w * dt) * dt;
+  t.R0 = start.gamma.toRotationMatrix();
+  t.R1 = end.gamma.toRotationMatrix();
   const Vector3d a0 = s.accel0 - ba_;
   const Vector3d a1 = s.accel1 - ba_;
   // d_theta1 = dR^T d_theta0 - Jr dt (d_bg + n_g); midpoint acceleration derivatives:
-  const Matrix3d R1_a1x = R1 * Skew(a1);
-  const Matrix3d acc_theta = -0.5 * (R0 * Skew(a0) + R1_a1x * dR.transpose());
-  const Matrix3d acc_bg = 0.5 * R1_a1x * jr_dt;
-  const Matrix3d acc_ba = -0.5 * (R0 + R1);
-
-  // Only the alpha, beta, theta and phi rows of F differ from the identity: Fr holds them, in
-  // that order (rows 0-8 are alpha, beta, theta; rows 9-11 phi). The noise enters those rows
-  // through Gr (accelerometer, gyroscope, odometer speed) and the random walks add directly.
-  constexpr int kRowPhi = 9;
-  Eigen::Matrix<double, 12, 19> Fr = Eigen::Matrix<double, 12, 19>::Zero();
-  Eigen::Matrix<double, 12, kNoise> Gr = Eigen::Matrix<double, 12, kNoise>::Zero();
+  const Matrix3d R1_a1x = t.R1 * Skew(a1);
+  const Matrix3d acc_theta = -0.5 * (t.R0 * Skew(a0) + R1_a1x * t.dR.transpose());
+  const Matrix3d acc_bg = 0.5 * R1_a1x * t.jr_dt;
+  const Matrix3d acc_ba = -0.5 * (t.R0 + t.R1);
   const double half_dt2 = 0.5 * dt * dt;
-  Fr.block<9, 9>(0, 0).setIdentity();
-  Fr.block<3, 3>(kRowPhi, kPhi).setIdentity();
-  Fr.block<3, 3>(kAlpha, kBeta) = Matrix3d::Identity() * dt;
-  Fr.block<3, 3>(kAlpha, kTheta) = half_dt2 * acc_theta;
-  Fr.block<3, 3>(kAlpha, kBa) = half_dt2 * acc_ba;
-  Fr.block<3, 3>(kAlpha, kBg) = half_dt2 * acc_bg;
-  Fr.block<3, 3>(kBeta, kTheta) = dt * acc_theta;
-  Fr.block<3, 3>(kBeta, kBa) = dt * acc_ba;
-  Fr.block<3, 3>(kBeta, kBg) = dt * acc_bg;
-  Fr.block<3, 3>(kTheta, kTheta) = dR.transpose();
-  Fr.block<3, 3>(kTheta, kBg) = -jr_dt;
-  Gr.block<3, 3>(kAlpha, kNa) = half_dt2 * acc_ba;
-  Gr.block<3, 3>(kBeta, kNa) = dt * acc_ba;
-  Gr.block<3, 3>(kAlpha, kNg) = half_dt2 * acc_bg;
-  Gr.block<3, 3>(kBeta, kNg) = dt * acc_bg;
-  Gr.block<3, 3>(kTheta, kNg) = -jr_dt;
-  if (s.odometer_valid) {
-    const Vector3d u = R_body_odo_.col(0);
-    const Vector3d u0 = TrackAxis(s.sway0), u1 = TrackAxis(s.sway1);
-    const Matrix3d R1_o1x = R1 * Skew(c_ * s.speed1 * u1);
-    Fr.block<3, 3>(kRowPhi, kTheta) =
-        -0.5 * dt * (R0 * Skew(c_ * s.speed0 * u0) + R1_o1x * dR.transpose());
-    Fr.block<3, 3>(kRowPhi, kBg) = 0.5 * dt * R1_o1x * jr_dt;
-    Fr.block<3, 1>(kRowPhi, kC) = 0.5 * dt * (R0 * u0 * s.speed0 + R1 * u1 * s.speed1);
-    Gr.block<3, 3>(kRowPhi, kNg) = Fr.block<3, 3>(kRowPhi, kBg);
-    // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
-    Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
-    Gr.block<3, 2>(kRowPhi, kNl) = -0.5 * dt * (R0 + R1) * R_body_odo_.rightCols<2>();
-    // The axis turned by the misalignment m: d u / d m = [-z_odo, y_odo].
-    Eigen::Matrix<double, 3, 2> du_dm;
-    du_dm << -R_body_odo_.col(2), R_body_odo_.col(1);
-    phi_m_ += 0.5 * dt * c_ * (R0 * s.speed0 + R1 * s.speed1) * du_dm;
-  }
+  t.Fr.block<9, 9>(0, 0).setIdentity();
+  t.Fr.block<3, 3>(StepTransition::kRowPhi, kPhi).setIdentity();
+  t.Fr.block<3, 3>(kAlpha, kBeta) = Matrix3d::Identity() * dt;
+  t.Fr.block<3, 3>(kAlpha, kTheta) = half_dt2 * acc_theta;
+  t.Fr.block<3, 3>(kAlpha, kBa) = half_dt2 * acc_ba;
+  t.Fr.block<3, 3>(kAlpha, kBg) = half_dt2 * acc_bg;
+  t.Fr.block<3, 3>(kBeta, kTheta) = dt * acc_theta;
+  t.Fr.block<3, 3>(kBeta, kBa) = dt * acc_ba;
+  t.Fr.block<3, 3>(kBeta, kBg) = dt * acc_bg;
+  t.Fr.block<3, 3>(kTheta, kTheta) = t.dR.transpose();
+  t.Fr.block<3, 3>(kTheta, kBg) = -t.jr_dt;
+  t.Gr.block<3, 3>(kAlpha, kNa) = half_dt2 * acc_ba;
+  t.Gr.block<3, 3>(kBeta, kNa) = dt * acc_ba;
+  t.Gr.block<3, 3>(kAlpha, kNg) = half_dt2 * acc_bg;
+  t.Gr.block<3, 3>(kBeta, kNg) = dt * acc_bg;
+  t.Gr.block<3, 3>(kTheta, kNg) = -t.jr_dt;
+  return t;
+}
 
-  // Continuous densities to the variances of one step: white noise averaged over dt has
-  // variance density^2 / dt, a random walk grows by density^2 * dt.
-  Eigen::Matrix<double, kNoise, 1> q_white;
-  const double imu_dt = noise_.imu_period_s > 0.0 ? std::min(dt, noise_.imu_period_s) : dt;
-  q_white.segment<3>(kNa).setConstant(Square(noise_.accel_noise_density) / imu_dt);
-  q_white.segment<3>(kNg).setConstant(Square(noise_.gyro_noise_density) / imu_dt);
-  if (noise_.imu_period_s > 0.0 && dt > 1.5 * noise_.imu_period_s) {
-    // White noise of variance q over a step of dt moves the integral by (sqrt(q) dt)^2.
-    q_white.segment<3>(kNa).array() += Square(noise_.gap_accel_sigma_mps2);
-    q_white.segment<3>(kNg).array() += Square(noise_.gap_rate_sigma_radps);
-  }
-  q_white(kNs) = Square(noise_.odometer_speed_density) / dt;
-  q_white(kNl) = Square(noise_.odometer_lateral_density) / dt;
-  q_white(kNl + 1) = Square(noise_.odometer_vertical_density) / dt;
+void Preintegration::AddOdometerStep(const Step& s, StepTransition* t) {
+  constexpr int kRowPhi = StepTransition::kRowPhi;
+  const double dt = s.dt;
+  const Matrix3d& R0 = t->R0;
+  const Matrix3d& R1 = t->R1;
+  const Vector3d u = R_body_odo_.col(0);
+  const Vector3d u0 = TrackAxis(s.sway0), u1 = TrackAxis(s.sway1);
+  const Matrix3d R1_o1x = R1 * Skew(c_ * s.speed1 * u1);
+  t->Fr.block<3, 3>(kRowPhi, kTheta) =
+      -0.5 * dt * (R0 * Skew(c_ * s.speed0 * u0) + R1_o1x * t->dR.transpose());
+  t->Fr.block<3, 3>(kRowPhi, kBg) = 0.5 * dt * R1_o1x * t->jr_dt;
+  t->Fr.block<3, 1>(kRowPhi, kC) = 0.5 * dt * (R0 * u0 * s.speed0 + R1 * u1 * s.speed1);
+  t->Gr.block<3, 3>(kRowPhi, kNg) = t->Fr.block<3, 3>(kRowPhi, kBg);
+  // Eq. (9): c * s_hat = v + eta_s, so the speed noise enters unscaled.
+  t->Gr.block<3, 1>(kRowPhi, kNs) = -0.5 * dt * (R0 + R1) * u;
+  t->Gr.block<3, 2>(kRowPhi, kNl) = -0.5 * dt * (R0 + R1) * R_body_odo_.rightCols<2>();
+  // The axis turned by the misalignment m: d u / d m = [-z_odo, y_odo].
+  Eigen::Matrix<double, 3, 2> du_dm;
+  du_dm << -R_body_odo_.col(2), R_body_odo_.col(1);
+  phi_m_ += 0.5 * dt * c_ * (R0 * s.speed0 + R1 * s.speed1) * du_dm;
+}
 
+void Preintegration::PropagateCovariance(const StepTransition& t, double dt) {
+  const Eigen::Matrix<double, 12, 19>& Fr = t.Fr;
+  const Eigen::Matrix<double, 12, kNoise>& Gr = t.Gr;
+  const Eigen::Matrix<double, kNoise, 1> q_white = StepNoiseVariances(noise_, dt);
   // Eq. (17): J = F J, P = F P F^T + G Q G^T, touching only the rows and columns F changes.
   const Eigen::Matrix<double, 12, 19> new_rows = Fr * jacobian_;
   jacobian_.topRows<9>() = new_rows.topRows<9>();
@@ -252,16 +285,10 @@ void Preintegration::Integrate(const Step& s) {
   covariance_.block<9, 3>(0, kPhi) += gqg.topRightCorner<9, 3>();
   covariance_.block<3, 9>(kPhi, 0) += gqg.bottomLeftCorner<3, 9>();
   covariance_.block<3, 3>(kPhi, kPhi) += gqg.bottomRightCorner<3, 3>();
+  // A random walk grows by density^2 * dt.
   covariance_.diagonal().segment<3>(kBa).array() += Square(noise_.accel_bias_walk) * dt;
   covariance_.diagonal().segment<3>(kBg).array() += Square(noise_.gyro_bias_walk) * dt;
   covariance_(kC, kC) += Square(noise_.odometer_scale_walk) * dt;
-
-  alpha_ = end.alpha;
-  beta_ = end.beta;
-  gamma_ = end.gamma;
-  phi_ = end.phi;
-  sum_dt_ += dt;
-  if (!s.odometer_valid) odometer_used_ = false;
 }
 
 void Preintegration::Repropagate(const Vector3d& ba, const Vector3d& bg, double c) {

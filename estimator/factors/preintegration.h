@@ -206,7 +206,15 @@ class Preintegration {
     Eigen::Quaterniond gamma = Eigen::Quaterniond::Identity();
     Eigen::Vector3d phi = Eigen::Vector3d::Zero();
   };
+  struct StepTransition;
+  /// Appends one step: the deltas at its end, their Jacobian and covariance.
   void Integrate(const Step& step);
+  /// The inertial rows of one step's transition, from the deltas at its start and end.
+  StepTransition InertialTransition(const Step& s, const Delta& start, const Delta& end) const;
+  /// The odometer's rows of the transition, and the step's share of phi's misalignment Jacobian.
+  void AddOdometerStep(const Step& s, StepTransition* t);
+  /// J = F J and P = F P F^T + G Q G^T over one step of dt, with the random walks (eq. 17).
+  void PropagateCovariance(const StepTransition& t, double dt);
   /// LeverTerm with the sway roll already applied to the arm and its level part.
   Eigen::Vector3d LeverTerm(const Eigen::Matrix3d& R_ij,
                             const Eigen::Vector3d& swayed_p,
