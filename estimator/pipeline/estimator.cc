@@ -1171,6 +1171,55 @@ void Estimator::Output(const FrameResult& frame,
 }
 
 void Estimator::AlignGravity(bool last_chance) {
+  size_t states = 0;
+  const GravityFit fit = FitGravity(&states);
+  const double min_duration = 0.5 * config_.options.gravity_align_s;
+  const double g = config_.rig.gravity_mps2;
+  bool aligned = false;
+  Eigen::Vector3d g_est;
+  if (states >= 2 &&
+      fit.duration_s() >= (last_chance ? std::min(3.0, min_duration) : min_duration) &&
+      fit.Gravity(&g_est)) {
+    const Eigen::Quaterniond q_fix =
+        Eigen::Quaterniond::FromTwoVectors(g_est.normalized(), Eigen::Vector3d::UnitZ());
+    const double angle_rad = Eigen::AngleAxisd(q_fix).angle();
+    const double angle_deg = angle_rad * 180.0 / M_PI;
+    if (std::abs(g_est.norm() - g) < 0.03 * g && angle_deg < 3.0) {
+      // A frame levelled this far off (started at speed, the simulated runs re-level by 1.3-4.5
+      // mrad; from rest by 0.3-0.7) had the gyro's roll and pitch biases bent to it: on
+      // poor_high_open_a -2.9e-5 rad/s in pitch against a true +2.2e-5, which pitched the body
+      // 0.6 mrad within 16 s of the re-levelling. From rest they were learnt standing still,
+      // and are kept.
+      constexpr double kForgetTiltGyroBiasRad = 1.0e-3;
+      RotateWorld(q_fix.toRotationMatrix(), angle_rad > kForgetTiltGyroBiasRad);
+      if (sinks_.on_info) {
+        std::ostringstream m;
+        m.precision(3);
+        m << "re-levelled the world frame by " << angle_deg << " deg on gravity from "
+          << fit.duration_s() << " s of IMU data (|g| " << g_est.norm() << " m/s^2)";
+        sinks_.on_info(m.str());
+      }
+    } else {
+      Warn("gravity from the IMU does not fit the trajectory (|g| " + std::to_string(g_est.norm()) +
+           " m/s^2, tilt " + std::to_string(angle_deg) + " deg): frame kept as levelled");
+      // Not retried: the data disagree, the initial levelling stands.
+    }
+    aligned = true;
+  }
+  if (!aligned && !last_chance) {
+    next_gravity_try_s_ += 1.0;
+    return;
+  }
+  gravity_pending_ = false;
+  for (auto& e : extras_) e->preintegration.reset();
+  while (!held_.empty()) {
+    std::unique_ptr<NodeExtras> h = std::move(held_.front());
+    held_.pop_front();
+    Emit(std::move(h));
+  }
+}
+
+GravityFit Estimator::FitGravity(size_t* states) const {
   // The states so far in time order: the held-back final ones, then the window's (the two
   // newest are left out: their velocities are the least settled). Over the intervals between
   // them the IMU's velocity increments, rotated into the world and taken with zero
@@ -1190,6 +1239,7 @@ void Estimator::AlignGravity(bool last_chance) {
     items.push_back({window_->State(i), extras_[static_cast<size_t>(i)]->preintegration.get()});
   }
   const size_t n = items.size() >= 3 ? items.size() - 2 : 0;
+  *states = n;
   const Eigen::Vector3d g_w(0.0, 0.0, config_.rig.gravity_mps2);
   GravityFit fit;
   for (size_t k = 0; k < n; ++k) {
@@ -1202,62 +1252,24 @@ void Estimator::AlignGravity(bool last_chance) {
     const double dt = items[k].pre->sum_dt();
     fit.Add(dt, items[k].pre->Predict(start).v - start.v + g_w * dt, items[k].state.v);
   }
-  const double min_duration = 0.5 * config_.options.gravity_align_s;
-  bool aligned = false;
-  Eigen::Vector3d g_est;
-  if (n >= 2 && fit.duration_s() >= (last_chance ? std::min(3.0, min_duration) : min_duration) &&
-      fit.Gravity(&g_est)) {
-    const Eigen::Quaterniond q_fix =
-        Eigen::Quaterniond::FromTwoVectors(g_est.normalized(), Eigen::Vector3d::UnitZ());
-    const double angle_rad = Eigen::AngleAxisd(q_fix).angle();
-    const double angle_deg = angle_rad * 180.0 / M_PI;
-    if (std::abs(g_est.norm() - g_w.z()) < 0.03 * g_w.z() && angle_deg < 3.0) {
-      const Eigen::Matrix3d R = q_fix.toRotationMatrix();
-      // A frame levelled this far off (started at speed, the simulated runs re-level by 1.3-4.5
-      // mrad; from rest by 0.3-0.7) had the gyro's roll and pitch biases bent to it: on
-      // poor_high_open_a -2.9e-5 rad/s in pitch against a true +2.2e-5, which pitched the body
-      // 0.6 mrad within 16 s of the re-levelling. From rest they were learnt standing still,
-      // and are kept.
-      constexpr double kForgetTiltGyroBiasRad = 1.0e-3;
-      window_->RotateWorld(R, angle_rad > kForgetTiltGyroBiasRad);
-      // The heading hold was in the old frame: the straight is recognised anew.
-      straight_.Reset();
-      straight_heading_.reset();
-      recent_headings_.clear();
-      edge_map_->Rotate(R);
-      plane_map_->Rotate(R);
-      rail_map_->Rotate(R);
-      for (std::vector<Eigen::Vector3d>& frame : bed_history_)
-        for (Eigen::Vector3d& p : frame) p = R * p;
-      for (auto& h : held_) {
-        h->result.T_world_body.linear() = R * h->result.T_world_body.linear();
-        h->result.T_world_body.translation() = R * h->result.T_world_body.translation();
-        h->result.v_world = R * h->result.v_world;
-      }
-      if (sinks_.on_info) {
-        std::ostringstream m;
-        m.precision(3);
-        m << "re-levelled the world frame by " << angle_deg << " deg on gravity from "
-          << fit.duration_s() << " s of IMU data (|g| " << g_est.norm() << " m/s^2)";
-        sinks_.on_info(m.str());
-      }
-      aligned = true;
-    } else {
-      Warn("gravity from the IMU does not fit the trajectory (|g| " + std::to_string(g_est.norm()) +
-           " m/s^2, tilt " + std::to_string(angle_deg) + " deg): frame kept as levelled");
-      aligned = true;  // not retried: the data disagree, the initial levelling stands
-    }
-  }
-  if (!aligned && !last_chance) {
-    next_gravity_try_s_ += 1.0;
-    return;
-  }
-  gravity_pending_ = false;
-  for (auto& e : extras_) e->preintegration.reset();
-  while (!held_.empty()) {
-    std::unique_ptr<NodeExtras> h = std::move(held_.front());
-    held_.pop_front();
-    Emit(std::move(h));
+  return fit;
+}
+
+void Estimator::RotateWorld(const Eigen::Matrix3d& R, bool forget_tilt_gyro_bias) {
+  window_->RotateWorld(R, forget_tilt_gyro_bias);
+  // The heading hold was in the old frame: the straight is recognised anew.
+  straight_.Reset();
+  straight_heading_.reset();
+  recent_headings_.clear();
+  edge_map_->Rotate(R);
+  plane_map_->Rotate(R);
+  rail_map_->Rotate(R);
+  for (std::vector<Eigen::Vector3d>& frame : bed_history_)
+    for (Eigen::Vector3d& p : frame) p = R * p;
+  for (auto& h : held_) {
+    h->result.T_world_body.linear() = R * h->result.T_world_body.linear();
+    h->result.T_world_body.translation() = R * h->result.T_world_body.translation();
+    h->result.v_world = R * h->result.v_world;
   }
 }
 

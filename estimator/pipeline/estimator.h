@@ -29,6 +29,7 @@ class CostFunction;
 
 namespace raillomer {
 
+class GravityFit;
 class SlidingWindow;
 class LocalMap;
 class Preintegration;
@@ -242,6 +243,12 @@ class Estimator {
   /// far (see EstimatorOptions::gravity_align_s), then releases the held-back states. With
   /// `last_chance` it settles for whatever data there is.
   void AlignGravity(bool last_chance);
+  /// Gravity fitted to the IMU's velocity increments between the states so far; `states`: how
+  /// many of them it used.
+  GravityFit FitGravity(size_t* states) const;
+  /// Rotates the world frame by R: the window, the local maps, the held states and the sleeper
+  /// history; the straight-track hold starts anew.
+  void RotateWorld(const Eigen::Matrix3d& R, bool forget_tilt_gyro_bias);
 
   EstimatorConfig config_;
   EstimatorSinks sinks_;
