@@ -594,242 +594,282 @@ void World::BuildStations() {
 }
 
 void World::BuildCorridor(std::mt19937& rng) {
-  const double length = alignment_.length_m();
   // Signals and kilometre posts first: their layout does not depend on densities.
-  if (scenario_.signal_spacing_m > 0.0) {
-    for (double s = 300.0; s < length - 50.0; s += scenario_.signal_spacing_m) {
-      if (InTunnel(s, 5.0)) continue;
-      const double lateral = -scenario_.mast_side * 3.2;
-      WorldObject signal;
-      signal.kind = "signal";
-      signal.chainage_m = s;
-      signal.lateral_m = lateral;
-      const TrackPoint p = alignment_.At(s);
-      const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-      const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
-      signal.mesh.AddCylinder(base, base + Vec3(0, 0, 4.6), 0.08, 6, Material::kMast);
-      signal.mesh.AddBox(base + Vec3(0, 0, 4.5), R, Vec3(0.12, 0.18, 0.5), Material::kSignal);
-      signal.mesh.AddBox(base + Vec3(0, 0, 0.3), R, Vec3(0.3, 0.3, 0.3), Material::kMast);
-      objects_.push_back(std::move(signal));
-    }
-  }
-  if (scenario_.km_posts) {
-    for (double s = 1000.0; s < length; s += 1000.0) {
-      if (InTunnel(s, 5.0)) continue;
-      WorldObject post;
-      post.kind = "km_post";
-      post.chainage_m = s;
-      post.lateral_m = 3.6;
-      const Vec3 base = alignment_.Beside(s, 3.6, GroundHeight(s, 3.6));
-      post.mesh.AddBox(base + Vec3(0, 0, 0.65),
-                       Eigen::Matrix3d::Identity(),
-                       Vec3(0.08, 0.08, 0.65),
-                       Material::kSign);
-      objects_.push_back(std::move(post));
-    }
-  }
-  auto place = [&](const Density& density, const std::function<void(double, double)>& build) {
-    std::poisson_distribution<int> count(std::max(1e-9, density.per_km));
-    for (double km = 0.0; km < length; km += 1000.0) {
-      const double span = std::min(1000.0, length - km);
-      for (int side : {1, -1}) {
-        const int n = density.per_km > 0.0 ? count(rng) : 0;
-        for (int i = 0; i < n; ++i) {
-          const double s = km + Uniform(rng, 0.0, span);
-          const double lateral = side * Uniform(rng, density.min_offset_m, density.max_offset_m);
-          if (FeaturePoor(s) || NearStructure(s, lateral)) continue;
-          build(s, lateral);
-        }
-      }
-    }
-  };
-  place(scenario_.trees, [&](double s, double lateral) {
-    WorldObject tree;
-    tree.kind = "tree";
-    tree.chainage_m = s;
-    tree.lateral_m = lateral;
-    const double trunk = Uniform(rng, 1.5, 4.0);
-    const double crown = std::min(Uniform(rng, 1.5, 4.0), std::fabs(lateral) - 3.0);
-    const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
-    tree.mesh.AddCylinder(
-        base, base + Vec3(0, 0, trunk + crown), 0.15 + 0.03 * crown, 6, Material::kVegetation);
-    const int blobs = 3 + static_cast<int>(rng() % 3);
-    for (int b = 0; b < blobs; ++b) {
-      const Vec3 c = base + Vec3(Uniform(rng, -0.4, 0.4) * crown,
-                                 Uniform(rng, -0.4, 0.4) * crown,
-                                 trunk + crown * Uniform(rng, 0.6, 1.4));
-      const double r = crown * Uniform(rng, 0.5, 0.8);
-      tree.mesh.AddBlob(c, Vec3(r, r, r * 0.9), 0.25, rng, Material::kVegetation);
-    }
-    objects_.push_back(std::move(tree));
-  });
-  place(scenario_.bushes, [&](double s, double lateral) {
-    WorldObject bush;
-    bush.kind = "bush";
-    bush.chainage_m = s;
-    bush.lateral_m = lateral;
-    const int blobs = 1 + static_cast<int>(rng() % 3);
-    const double side = lateral > 0.0 ? 1.0 : -1.0;
-    for (int b = 0; b < blobs; ++b) {
-      // Blobs spread along the line and away from it; with their jitter (x1.3) they stay out of
-      // the structure gauge (2.44 m) with 0.15 m to spare.
-      const double away = Uniform(rng, 0.0, 1.0);
-      const double r_max = (std::fabs(lateral) + away - kClearanceHalfWidthM - 0.15) / 1.3;
-      const double r = std::min(Uniform(rng, 0.5, 1.4), std::max(0.2, r_max));
-      const double s_blob = s + Uniform(rng, -1.0, 1.0);
-      const Vec3 centre =
-          alignment_.Beside(s_blob, lateral + side * away, GroundHeight(s_blob, lateral) + 0.6 * r);
-      bush.mesh.AddBlob(centre, Vec3(r, r, 0.8 * r), 0.3, rng, Material::kVegetation);
-    }
-    objects_.push_back(std::move(bush));
-  });
-  place(scenario_.buildings, [&](double s, double lateral) {
-    WorldObject building;
-    building.kind = "building";
-    building.chainage_m = s;
-    building.lateral_m = lateral;
-    const TrackPoint p = alignment_.At(s);
-    const Eigen::Matrix3d R =
-        Eigen::AngleAxisd(p.heading_rad + Uniform(rng, -0.3, 0.3), Vec3::UnitZ())
-            .toRotationMatrix();
-    const Vec3 half(Uniform(rng, 3.0, 12.0), Uniform(rng, 3.0, 7.0), Uniform(rng, 1.5, 6.0));
-    const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral) - 0.3);
-    const Vec3 centre = base + Vec3(0, 0, half.z());
-    building.mesh.AddBox(centre, R, half, Material::kBuilding);
-    // Gable roof along the long axis.
-    const double ridge = 0.6 * half.y();
-    const Vec3 e0 = centre + R * Vec3(-half.x(), -half.y(), half.z());
-    const Vec3 e1 = centre + R * Vec3(half.x(), -half.y(), half.z());
-    const Vec3 e2 = centre + R * Vec3(half.x(), half.y(), half.z());
-    const Vec3 e3 = centre + R * Vec3(-half.x(), half.y(), half.z());
-    const Vec3 r0 = centre + R * Vec3(-half.x(), 0.0, half.z() + ridge);
-    const Vec3 r1 = centre + R * Vec3(half.x(), 0.0, half.z() + ridge);
-    building.mesh.AddQuad(e0, e1, r1, r0, Material::kRoof);
-    building.mesh.AddQuad(e2, e3, r0, r1, Material::kRoof);
-    building.mesh.AddTriangle(e0, r0, e3, Material::kBuilding);
-    building.mesh.AddTriangle(e1, e2, r1, Material::kBuilding);
-    objects_.push_back(std::move(building));
+  if (scenario_.signal_spacing_m > 0.0) PlaceSignals();
+  if (scenario_.km_posts) PlaceKmPosts();
+  PlaceRandomly(
+      scenario_.trees, rng, [&](double s, double lateral) { return Tree(s, lateral, rng); });
+  PlaceRandomly(
+      scenario_.bushes, rng, [&](double s, double lateral) { return Bush(s, lateral, rng); });
+  PlaceRandomly(scenario_.buildings, rng, [&](double s, double lateral) {
+    return Building(s, lateral, rng);
   });
 }
 
-void World::ApplyChanges(std::mt19937& rng) {
-  auto local = [&](double s0, const Vec3& v, double* along, double* lateral, double* height) {
-    const TrackPoint p = alignment_.At(s0);
-    const Vec3 d = v - p.position;
-    const Vec3 t(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
-    *along = d.dot(t);
-    *lateral = d.dot(p.Left());
-    *height = d.z() - p.grade * *along;
-  };
-  auto record = [&](const std::string& kind, const WorldObject& object) {
-    ChangeRecord r;
-    r.id = static_cast<int>(changes_.size()) + 1;
-    r.kind = kind;
-    r.object = object.kind;
-    r.chainage_m = object.chainage_m;
-    r.lateral_m = object.lateral_m;
-    const Eigen::AlignedBox3d box = object.mesh.Bounds();
-    r.centre_world = box.center();
-    r.extent_m = box.sizes();
-    // Sample the triangle edges every 0.25 m: long members (a trunk) cross the envelope between
-    // their vertices. What is gone cannot be in the way.
-    const Mesh& mesh = object.mesh;
-    for (size_t t = 0; t < mesh.triangles.size() && kind != "object_removed"; ++t) {
-      for (int e = 0; e < 3 && !r.intrudes_clearance; ++e) {
-        const Vec3 a = mesh.vertices[mesh.triangles[t][e]].cast<double>();
-        const Vec3 b = mesh.vertices[mesh.triangles[t][(e + 1) % 3]].cast<double>();
-        const int steps = 1 + static_cast<int>((b - a).norm() / 0.25);
-        for (int k = 0; k <= steps; ++k) {
-          double along, lateral, height;
-          local(object.chainage_m, a + (b - a) * (double(k) / steps), &along, &lateral, &height);
-          if (std::fabs(along) < 50.0 && std::fabs(lateral) < kClearanceHalfWidthM &&
-              height > 0.0 && height < kClearanceHeightM) {
-            r.intrudes_clearance = true;
-            break;
-          }
-        }
+void World::PlaceSignals() {
+  const double length = alignment_.length_m();
+  for (double s = 300.0; s < length - 50.0; s += scenario_.signal_spacing_m) {
+    if (InTunnel(s, 5.0)) continue;
+    const double lateral = -scenario_.mast_side * 3.2;
+    WorldObject signal;
+    signal.kind = "signal";
+    signal.chainage_m = s;
+    signal.lateral_m = lateral;
+    const TrackPoint p = alignment_.At(s);
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
+    const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
+    signal.mesh.AddCylinder(base, base + Vec3(0, 0, 4.6), 0.08, 6, Material::kMast);
+    signal.mesh.AddBox(base + Vec3(0, 0, 4.5), R, Vec3(0.12, 0.18, 0.5), Material::kSignal);
+    signal.mesh.AddBox(base + Vec3(0, 0, 0.3), R, Vec3(0.3, 0.3, 0.3), Material::kMast);
+    objects_.push_back(std::move(signal));
+  }
+}
+
+void World::PlaceKmPosts() {
+  for (double s = 1000.0; s < alignment_.length_m(); s += 1000.0) {
+    if (InTunnel(s, 5.0)) continue;
+    WorldObject post;
+    post.kind = "km_post";
+    post.chainage_m = s;
+    post.lateral_m = 3.6;
+    const Vec3 base = alignment_.Beside(s, 3.6, GroundHeight(s, 3.6));
+    post.mesh.AddBox(base + Vec3(0, 0, 0.65),
+                     Eigen::Matrix3d::Identity(),
+                     Vec3(0.08, 0.08, 0.65),
+                     Material::kSign);
+    objects_.push_back(std::move(post));
+  }
+}
+
+void World::PlaceRandomly(const Density& density,
+                          std::mt19937& rng,
+                          const std::function<WorldObject(double, double)>& build) {
+  const double length = alignment_.length_m();
+  std::poisson_distribution<int> count(std::max(1e-9, density.per_km));
+  for (double km = 0.0; km < length; km += 1000.0) {
+    const double span = std::min(1000.0, length - km);
+    for (int side : {1, -1}) {
+      const int n = density.per_km > 0.0 ? count(rng) : 0;
+      for (int i = 0; i < n; ++i) {
+        const double s = km + Uniform(rng, 0.0, span);
+        const double lateral = side * Uniform(rng, density.min_offset_m, density.max_offset_m);
+        if (FeaturePoor(s) || NearStructure(s, lateral)) continue;
+        objects_.push_back(build(s, lateral));
       }
-      if (r.intrudes_clearance) break;
-    }
-    return r;
-  };
-  for (const Change& c : scenario_.changes) {
-    if (c.kind == Change::Kind::kObjectAdded) {
-      WorldObject box;
-      box.kind = "box";
-      box.chainage_m = c.at_m;
-      box.lateral_m = c.offset_m;
-      const TrackPoint p = alignment_.At(c.at_m);
-      const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-      const double ground =
-          std::fabs(c.offset_m) < kBallastShoulderM ? 0.0 : GroundHeight(c.at_m, c.offset_m);
-      box.mesh.AddBox(alignment_.Beside(c.at_m, c.offset_m, ground + 0.5 * c.size_m[2]),
-                      R,
-                      0.5 * Vec3(c.size_m[0], c.size_m[1], c.size_m[2]),
-                      Material::kBuilding);
-      changes_.push_back(record("object_added", box));
-      objects_.push_back(std::move(box));
-    } else if (c.kind == Change::Kind::kObjectRemoved || c.kind == Change::Kind::kObjectMoved) {
-      auto best = objects_.end();
-      for (auto it = objects_.begin(); it != objects_.end(); ++it) {
-        if (it->kind != c.target) continue;
-        if (best == objects_.end() ||
-            std::fabs(it->chainage_m - c.at_m) < std::fabs(best->chainage_m - c.at_m)) {
-          best = it;
-        }
-      }
-      if (best == objects_.end()) continue;  // nothing of that kind: recorded as no change
-      if (c.kind == Change::Kind::kObjectRemoved) {
-        changes_.push_back(record("object_removed", *best));
-        objects_.erase(best);
-      } else {
-        const Vec3 from = best->mesh.Bounds().center();
-        const TrackPoint p = alignment_.At(best->chainage_m);
-        const Vec3 t(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
-        best->mesh.Translate(c.move_m[0] * t + c.move_m[1] * p.Left());
-        best->chainage_m += c.move_m[0];
-        best->lateral_m += c.move_m[1];
-        ChangeRecord r = record("object_moved", *best);
-        r.from_world = from;
-        changes_.push_back(r);
-      }
-    } else if (c.kind == Change::Kind::kVegetationGrowth) {
-      WorldObject tree;
-      tree.kind = "tree";
-      const double crown = 2.0;
-      const double lateral = c.side * (kClearanceHalfWidthM - c.intrusion_m + crown);
-      tree.chainage_m = c.at_m;
-      tree.lateral_m = lateral;
-      const Vec3 base = alignment_.Beside(c.at_m, lateral, GroundHeight(c.at_m, lateral));
-      tree.mesh.AddCylinder(
-          base, alignment_.Beside(c.at_m, lateral, 4.0), 0.2, 6, Material::kVegetation);
-      tree.mesh.AddBlob(alignment_.Beside(c.at_m, lateral, 4.0),
-                        Vec3(crown, crown, 1.8),
-                        0.0,
-                        rng,
-                        Material::kVegetation);
-      changes_.push_back(record("vegetation_growth", tree));
-      objects_.push_back(std::move(tree));
-    } else {
-      WorldObject tree;
-      tree.kind = "fallen_tree";
-      tree.chainage_m = c.at_m;
-      const TrackPoint p = alignment_.At(c.at_m);
-      const double angle = p.heading_rad + 70.0 * M_PI / 180.0;
-      const Vec3 dir(std::cos(angle), std::sin(angle), 0.0);
-      const Vec3 centre = alignment_.Beside(c.at_m, 0.0, 0.25);
-      tree.mesh.AddCylinder(centre - 6.0 * dir, centre + 6.0 * dir, 0.22, 8, Material::kVegetation);
-      for (int b = 0; b < 3; ++b) {
-        tree.mesh.AddBlob(centre + (7.0 + 1.2 * b) * dir + Vec3(0, 0, 0.8),
-                          Vec3(1.4, 1.4, 1.0),
-                          0.25,
-                          rng,
-                          Material::kVegetation);
-      }
-      changes_.push_back(record("fallen_tree", tree));
-      objects_.push_back(std::move(tree));
     }
   }
+}
+
+WorldObject World::Tree(double s, double lateral, std::mt19937& rng) const {
+  WorldObject tree;
+  tree.kind = "tree";
+  tree.chainage_m = s;
+  tree.lateral_m = lateral;
+  const double trunk = Uniform(rng, 1.5, 4.0);
+  const double crown = std::min(Uniform(rng, 1.5, 4.0), std::fabs(lateral) - 3.0);
+  const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
+  tree.mesh.AddCylinder(
+      base, base + Vec3(0, 0, trunk + crown), 0.15 + 0.03 * crown, 6, Material::kVegetation);
+  const int blobs = 3 + static_cast<int>(rng() % 3);
+  for (int b = 0; b < blobs; ++b) {
+    const Vec3 c = base + Vec3(Uniform(rng, -0.4, 0.4) * crown,
+                               Uniform(rng, -0.4, 0.4) * crown,
+                               trunk + crown * Uniform(rng, 0.6, 1.4));
+    const double r = crown * Uniform(rng, 0.5, 0.8);
+    tree.mesh.AddBlob(c, Vec3(r, r, r * 0.9), 0.25, rng, Material::kVegetation);
+  }
+  return tree;
+}
+
+WorldObject World::Bush(double s, double lateral, std::mt19937& rng) const {
+  WorldObject bush;
+  bush.kind = "bush";
+  bush.chainage_m = s;
+  bush.lateral_m = lateral;
+  const int blobs = 1 + static_cast<int>(rng() % 3);
+  const double side = lateral > 0.0 ? 1.0 : -1.0;
+  for (int b = 0; b < blobs; ++b) {
+    // Blobs spread along the line and away from it; with their jitter (x1.3) they stay out of
+    // the structure gauge (2.44 m) with 0.15 m to spare.
+    const double away = Uniform(rng, 0.0, 1.0);
+    const double r_max = (std::fabs(lateral) + away - kClearanceHalfWidthM - 0.15) / 1.3;
+    const double r = std::min(Uniform(rng, 0.5, 1.4), std::max(0.2, r_max));
+    const double s_blob = s + Uniform(rng, -1.0, 1.0);
+    const Vec3 centre =
+        alignment_.Beside(s_blob, lateral + side * away, GroundHeight(s_blob, lateral) + 0.6 * r);
+    bush.mesh.AddBlob(centre, Vec3(r, r, 0.8 * r), 0.3, rng, Material::kVegetation);
+  }
+  return bush;
+}
+
+WorldObject World::Building(double s, double lateral, std::mt19937& rng) const {
+  WorldObject building;
+  building.kind = "building";
+  building.chainage_m = s;
+  building.lateral_m = lateral;
+  const TrackPoint p = alignment_.At(s);
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(p.heading_rad + Uniform(rng, -0.3, 0.3), Vec3::UnitZ()).toRotationMatrix();
+  const Vec3 half(Uniform(rng, 3.0, 12.0), Uniform(rng, 3.0, 7.0), Uniform(rng, 1.5, 6.0));
+  const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral) - 0.3);
+  const Vec3 centre = base + Vec3(0, 0, half.z());
+  building.mesh.AddBox(centre, R, half, Material::kBuilding);
+  // Gable roof along the long axis.
+  const double ridge = 0.6 * half.y();
+  const Vec3 e0 = centre + R * Vec3(-half.x(), -half.y(), half.z());
+  const Vec3 e1 = centre + R * Vec3(half.x(), -half.y(), half.z());
+  const Vec3 e2 = centre + R * Vec3(half.x(), half.y(), half.z());
+  const Vec3 e3 = centre + R * Vec3(-half.x(), half.y(), half.z());
+  const Vec3 r0 = centre + R * Vec3(-half.x(), 0.0, half.z() + ridge);
+  const Vec3 r1 = centre + R * Vec3(half.x(), 0.0, half.z() + ridge);
+  building.mesh.AddQuad(e0, e1, r1, r0, Material::kRoof);
+  building.mesh.AddQuad(e2, e3, r0, r1, Material::kRoof);
+  building.mesh.AddTriangle(e0, r0, e3, Material::kBuilding);
+  building.mesh.AddTriangle(e1, e2, r1, Material::kBuilding);
+  return building;
+}
+
+void World::ApplyChanges(std::mt19937& rng) {
+  for (const Change& c : scenario_.changes) {
+    switch (c.kind) {
+      case Change::Kind::kObjectAdded:
+        AddObject(c);
+        break;
+      case Change::Kind::kObjectRemoved:
+      case Change::Kind::kObjectMoved:
+        RemoveOrMoveObject(c);
+        break;
+      case Change::Kind::kVegetationGrowth:
+        GrowTree(c, rng);
+        break;
+      case Change::Kind::kFallenTree:
+        FellTree(c, rng);
+        break;
+    }
+  }
+}
+
+bool World::IntrudesClearance(const WorldObject& object) const {
+  // Sample the triangle edges every 0.25 m: long members (a trunk) cross the envelope between
+  // their vertices.
+  const TrackPoint p = alignment_.At(object.chainage_m);
+  const Vec3 t(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
+  const Mesh& mesh = object.mesh;
+  for (size_t i = 0; i < mesh.triangles.size(); ++i) {
+    for (int e = 0; e < 3; ++e) {
+      const Vec3 a = mesh.vertices[mesh.triangles[i][e]].cast<double>();
+      const Vec3 b = mesh.vertices[mesh.triangles[i][(e + 1) % 3]].cast<double>();
+      const int steps = 1 + static_cast<int>((b - a).norm() / 0.25);
+      for (int k = 0; k <= steps; ++k) {
+        const Vec3 d = a + (b - a) * (double(k) / steps) - p.position;
+        const double along = d.dot(t);
+        const double lateral = d.dot(p.Left());
+        const double height = d.z() - p.grade * along;
+        if (std::fabs(along) < 50.0 && std::fabs(lateral) < kClearanceHalfWidthM && height > 0.0 &&
+            height < kClearanceHeightM) {
+          return true;
+        }
+      }
+    }
+  }
+  return false;
+}
+
+ChangeRecord World::Record(const std::string& kind, const WorldObject& object) const {
+  ChangeRecord r;
+  r.id = static_cast<int>(changes_.size()) + 1;
+  r.kind = kind;
+  r.object = object.kind;
+  r.chainage_m = object.chainage_m;
+  r.lateral_m = object.lateral_m;
+  const Eigen::AlignedBox3d box = object.mesh.Bounds();
+  r.centre_world = box.center();
+  r.extent_m = box.sizes();
+  // What is gone cannot be in the way.
+  r.intrudes_clearance = kind != "object_removed" && IntrudesClearance(object);
+  return r;
+}
+
+void World::AddObject(const Change& c) {
+  WorldObject box;
+  box.kind = "box";
+  box.chainage_m = c.at_m;
+  box.lateral_m = c.offset_m;
+  const TrackPoint p = alignment_.At(c.at_m);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
+  const double ground =
+      std::fabs(c.offset_m) < kBallastShoulderM ? 0.0 : GroundHeight(c.at_m, c.offset_m);
+  box.mesh.AddBox(alignment_.Beside(c.at_m, c.offset_m, ground + 0.5 * c.size_m[2]),
+                  R,
+                  0.5 * Vec3(c.size_m[0], c.size_m[1], c.size_m[2]),
+                  Material::kBuilding);
+  changes_.push_back(Record("object_added", box));
+  objects_.push_back(std::move(box));
+}
+
+void World::RemoveOrMoveObject(const Change& c) {
+  auto best = objects_.end();
+  for (auto it = objects_.begin(); it != objects_.end(); ++it) {
+    if (it->kind != c.target) continue;
+    if (best == objects_.end() ||
+        std::fabs(it->chainage_m - c.at_m) < std::fabs(best->chainage_m - c.at_m)) {
+      best = it;
+    }
+  }
+  if (best == objects_.end()) return;  // nothing of that kind: recorded as no change
+  if (c.kind == Change::Kind::kObjectRemoved) {
+    changes_.push_back(Record("object_removed", *best));
+    objects_.erase(best);
+    return;
+  }
+  const Vec3 from = best->mesh.Bounds().center();
+  const TrackPoint p = alignment_.At(best->chainage_m);
+  const Vec3 t(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
+  best->mesh.Translate(c.move_m[0] * t + c.move_m[1] * p.Left());
+  best->chainage_m += c.move_m[0];
+  best->lateral_m += c.move_m[1];
+  ChangeRecord r = Record("object_moved", *best);
+  r.from_world = from;
+  changes_.push_back(r);
+}
+
+void World::GrowTree(const Change& c, std::mt19937& rng) {
+  WorldObject tree;
+  tree.kind = "tree";
+  const double crown = 2.0;
+  const double lateral = c.side * (kClearanceHalfWidthM - c.intrusion_m + crown);
+  tree.chainage_m = c.at_m;
+  tree.lateral_m = lateral;
+  const Vec3 base = alignment_.Beside(c.at_m, lateral, GroundHeight(c.at_m, lateral));
+  tree.mesh.AddCylinder(
+      base, alignment_.Beside(c.at_m, lateral, 4.0), 0.2, 6, Material::kVegetation);
+  tree.mesh.AddBlob(alignment_.Beside(c.at_m, lateral, 4.0),
+                    Vec3(crown, crown, 1.8),
+                    0.0,
+                    rng,
+                    Material::kVegetation);
+  changes_.push_back(Record("vegetation_growth", tree));
+  objects_.push_back(std::move(tree));
+}
+
+void World::FellTree(const Change& c, std::mt19937& rng) {
+  WorldObject tree;
+  tree.kind = "fallen_tree";
+  tree.chainage_m = c.at_m;
+  const TrackPoint p = alignment_.At(c.at_m);
+  const double angle = p.heading_rad + 70.0 * M_PI / 180.0;
+  const Vec3 dir(std::cos(angle), std::sin(angle), 0.0);
+  const Vec3 centre = alignment_.Beside(c.at_m, 0.0, 0.25);
+  tree.mesh.AddCylinder(centre - 6.0 * dir, centre + 6.0 * dir, 0.22, 8, Material::kVegetation);
+  for (int b = 0; b < 3; ++b) {
+    tree.mesh.AddBlob(centre + (7.0 + 1.2 * b) * dir + Vec3(0, 0, 0.8),
+                      Vec3(1.4, 1.4, 1.0),
+                      0.25,
+                      rng,
+                      Material::kVegetation);
+  }
+  changes_.push_back(Record("fallen_tree", tree));
+  objects_.push_back(std::move(tree));
 }
 
 }  // namespace raillomer::sim

@@ -1,6 +1,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <random>
 #include <string>
 #include <vector>
@@ -117,7 +118,26 @@ class World {
   void BuildCorridor(std::mt19937& rng);
   void BuildStations();
   void BuildTunnels(Mesh* mesh);
+  void PlaceSignals();
+  void PlaceKmPosts();
+  /// Places objects at random by a density (Poisson per km and side, uniform offsets), skipping
+  /// feature-poor stretches and places near structures; `build` makes each.
+  void PlaceRandomly(const Density& density,
+                     std::mt19937& rng,
+                     const std::function<WorldObject(double, double)>& build);
+  WorldObject Tree(double s, double lateral, std::mt19937& rng) const;
+  WorldObject Bush(double s, double lateral, std::mt19937& rng) const;
+  WorldObject Building(double s, double lateral, std::mt19937& rng) const;
+  /// Edits the corridor by the scenario's changes and records each (changes_).
   void ApplyChanges(std::mt19937& rng);
+  void AddObject(const Change& c);
+  void RemoveOrMoveObject(const Change& c);
+  void GrowTree(const Change& c, std::mt19937& rng);
+  void FellTree(const Change& c, std::mt19937& rng);
+  /// The ground truth of an edit to `object`.
+  ChangeRecord Record(const std::string& kind, const WorldObject& object) const;
+  /// Whether any part of the object lies inside the structure gauge near its chainage.
+  bool IntrudesClearance(const WorldObject& object) const;
   bool FeaturePoor(double s) const;
   bool NearStructure(double s, double lateral_m) const;
 
