@@ -94,6 +94,40 @@ double LivoxHorizonModel::BodyRange(const Eigen::Vector3d& dir_sensor) const {
   return t0 > 0.0 ? t0 : -1.0;
 }
 
+/// The sensor's poses on a 1 ms grid over a frame, interpolated per point.
+struct LivoxHorizonModel::SensorTrack {
+  std::vector<Eigen::Vector3d> p;
+  std::vector<Eigen::Quaterniond> q;
+
+  /// The sensor's origin and rotation at t seconds into the frame.
+  void At(double t, Eigen::Vector3d* origin, Eigen::Quaterniond* rotation) const {
+    const int knots = static_cast<int>(p.size());
+    const double f = t / 1e-3;
+    const int k = std::min(static_cast<int>(f), knots - 2);
+    const double w = f - k;
+    *origin = (1.0 - w) * p[k] + w * p[k + 1];
+    *rotation = q[k].slerp(w, q[k + 1]);
+  }
+};
+
+/// The frame's random draws, one stream: a frame scans the same whatever came before.
+struct LivoxHorizonModel::FrameNoise {
+  std::mt19937_64 rng;
+  std::normal_distribution<double> gauss{0.0, 1.0};
+  std::uniform_real_distribution<double> uniform{0.0, 1.0};
+
+  double Gauss() { return gauss(rng); }
+  double Uniform() { return uniform(rng); }
+};
+
+/// What one beam returns.
+struct LivoxHorizonModel::Echo {
+  PointKind kind = PointKind::kNoReturn;
+  double measured = 0.0;      ///< measured range
+  double reflectivity = 0.0;  ///< before clamping to 0-255
+  double true_range = 0.0;    ///< of a surface hit, 0 otherwise
+};
+
 void LivoxHorizonModel::Scan(uint64_t frame,
                              double t0_s,
                              const std::function<Eigen::Isometry3d(double)>& body_pose,
@@ -103,93 +137,100 @@ void LivoxHorizonModel::Scan(uint64_t frame,
   const uint32_t n = scenario_.points_per_frame;
   points->assign(n, io::LivoxPoint{});
   if (kinds) kinds->assign(n, PointKind::kNoReturn);
-
-  // Sensor poses on a 1 ms grid over the frame, interpolated per point below.
-  const double period_s = period_ns_ * 1e-9;
-  const int knots = static_cast<int>(std::ceil(period_s / 1e-3)) + 1;
-  std::vector<Eigen::Vector3d> knot_p(knots);
-  std::vector<Eigen::Quaterniond> knot_q(knots);
-  for (int k = 0; k < knots; ++k) {
-    const Eigen::Isometry3d T = body_pose(t0_s + k * 1e-3) * T_body_lidar_;
-    knot_p[k] = T.translation();
-    knot_q[k] = Eigen::Quaterniond(T.linear());
-  }
-
-  std::mt19937_64 rng(seed_ * 0x9E3779B97F4A7C15ULL + frame * 1315423911ULL + config_.lidar_id);
-  std::normal_distribution<double> gauss(0.0, 1.0);
-  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  const SensorTrack track = TrackOverFrame(t0_s, body_pose);
+  FrameNoise noise{
+      std::mt19937_64(seed_ * 0x9E3779B97F4A7C15ULL + frame * 1315423911ULL + config_.lidar_id)};
   const double angular_sigma = scenario_.angular_noise_deg * kDeg;
-  const double sun_cos = std::cos(scenario_.sun_cone_deg * kDeg);
-
   std::vector<double> range(n, 0.0);  // true range of surface hits, 0 otherwise
   for (uint32_t i = 0; i < n; ++i) {
     io::LivoxPoint& out = (*points)[i];
     out.offset_time_ns = OffsetNs(i);
     Eigen::Vector3d dir = Direction(frame, i, &out.line);
     if (angular_sigma > 0.0) {
-      dir += angular_sigma * Eigen::Vector3d(0.0, gauss(rng), gauss(rng));
+      dir += angular_sigma * Eigen::Vector3d(0.0, noise.Gauss(), noise.Gauss());
       dir.normalize();
     }
-    const double body = BodyRange(dir);
-    double measured = 0.0;
-    double reflectivity = 0.0;
-    PointKind kind = PointKind::kNoReturn;
-    if (body > 0.0) {
-      kind = PointKind::kBody;
-      measured = body + scenario_.range_noise_m * 2.0 * gauss(rng);
-      reflectivity = MaterialReflectivity(Material::kVehicle) * 1.5;
-    } else {
-      const double t = out.offset_time_ns * 1e-9;
-      const double f = t / 1e-3;
-      const int k = std::min(static_cast<int>(f), knots - 2);
-      const double w = f - k;
-      const Eigen::Vector3d origin = (1.0 - w) * knot_p[k] + w * knot_p[k + 1];
-      const Eigen::Quaterniond q = knot_q[k].slerp(w, knot_q[k + 1]);
-      const Eigen::Vector3d dir_world = q * dir;
-      const RayHit hit = caster.Cast(origin, dir_world, kMaxRangeM);
-      bool returned = false;
-      if (hit.hit && hit.range_m >= scenario_.min_range_m) {
-        const double cos_incidence = std::fabs(hit.normal.dot(dir_world));
-        const double rho = MaterialReflectivity(hit.material);
-        const double effective = rho > 100.0 ? rho : rho * std::sqrt(std::max(cos_incidence, 0.02));
-        if (hit.range_m <= DetectionRange(effective)) {
-          returned = true;
-          kind = PointKind::kSurface;
-          range[i] = hit.range_m;
-          // Range noise, larger at short range (axial error).
-          const double sigma =
-              scenario_.range_noise_m * (hit.range_m < 2.0 ? 3.0 - hit.range_m : 1.0);
-          measured = hit.range_m + sigma * gauss(rng);
-          reflectivity = rho > 100.0 ? 200.0 + 20.0 * uniform(rng)
-                                     : std::min(150.0, effective * 1.5) + 2.0 * gauss(rng);
-        }
-      }
-      if (!returned && dir_world.dot(sun_world_) > sun_cos &&
-          uniform(rng) < scenario_.sun_flicker_probability) {
-        kind = PointKind::kSunFlicker;
-        measured = 2.0 + 48.0 * uniform(rng);
-        reflectivity = 8.0 * uniform(rng);
-      }
-    }
+    Echo echo = Measure(dir, out.offset_time_ns * 1e-9, track, caster, &noise);
+    range[i] = echo.true_range;
     // Boundary bleeding between this point and the previous one of the same laser and sweep.
-    if (kind == PointKind::kSurface && i >= kLines && range[i - kLines] > 0.0 &&
+    if (echo.kind == PointKind::kSurface && i >= kLines && range[i - kLines] > 0.0 &&
         i / kLines % groups_per_sweep_ != 0) {
-      const double a = range[i - kLines], b = range[i];
-      const double lo = std::min(a, b), hi = std::max(a, b);
-      if (hi - lo > std::max(0.5, 0.1 * lo) && hi < 80.0 &&
-          uniform(rng) < scenario_.bleeding_probability) {
-        kind = PointKind::kBleeding;
-        measured = lo + (0.15 + 0.7 * uniform(rng)) * (hi - lo);
-      }
+      Bleed(range[i - kLines], range[i], &noise, &echo);
     }
-    if (kinds) (*kinds)[i] = kind;
-    if (kind == PointKind::kNoReturn) continue;
-    const Eigen::Vector3f p = (measured * dir).cast<float>();
+    if (kinds) (*kinds)[i] = echo.kind;
+    if (echo.kind == PointKind::kNoReturn) continue;
+    const Eigen::Vector3f p = (echo.measured * dir).cast<float>();
     out.x = p.x();
     out.y = p.y();
     out.z = p.z();
-    out.reflectivity = static_cast<uint8_t>(std::clamp(reflectivity, 0.0, 255.0));
+    out.reflectivity = static_cast<uint8_t>(std::clamp(echo.reflectivity, 0.0, 255.0));
     out.tag = 0x10;  // first return
+  }
+}
+
+LivoxHorizonModel::SensorTrack LivoxHorizonModel::TrackOverFrame(
+    double t0_s, const std::function<Eigen::Isometry3d(double)>& body_pose) const {
+  const double period_s = period_ns_ * 1e-9;
+  const int knots = static_cast<int>(std::ceil(period_s / 1e-3)) + 1;
+  SensorTrack track;
+  track.p.resize(knots);
+  track.q.resize(knots);
+  for (int k = 0; k < knots; ++k) {
+    const Eigen::Isometry3d T = body_pose(t0_s + k * 1e-3) * T_body_lidar_;
+    track.p[k] = T.translation();
+    track.q[k] = Eigen::Quaterniond(T.linear());
+  }
+  return track;
+}
+
+LivoxHorizonModel::Echo LivoxHorizonModel::Measure(const Eigen::Vector3d& dir,
+                                                   double t_s,
+                                                   const SensorTrack& track,
+                                                   const RayCaster& caster,
+                                                   FrameNoise* noise) const {
+  Echo echo;
+  const double body = BodyRange(dir);
+  if (body > 0.0) {
+    echo.kind = PointKind::kBody;
+    echo.measured = body + scenario_.range_noise_m * 2.0 * noise->Gauss();
+    echo.reflectivity = MaterialReflectivity(Material::kVehicle) * 1.5;
+    return echo;
+  }
+  Eigen::Vector3d origin;
+  Eigen::Quaterniond q;
+  track.At(t_s, &origin, &q);
+  const Eigen::Vector3d dir_world = q * dir;
+  const RayHit hit = caster.Cast(origin, dir_world, kMaxRangeM);
+  if (hit.hit && hit.range_m >= scenario_.min_range_m) {
+    const double cos_incidence = std::fabs(hit.normal.dot(dir_world));
+    const double rho = MaterialReflectivity(hit.material);
+    const double effective = rho > 100.0 ? rho : rho * std::sqrt(std::max(cos_incidence, 0.02));
+    if (hit.range_m <= DetectionRange(effective)) {
+      echo.kind = PointKind::kSurface;
+      echo.true_range = hit.range_m;
+      // Range noise, larger at short range (axial error).
+      const double sigma = scenario_.range_noise_m * (hit.range_m < 2.0 ? 3.0 - hit.range_m : 1.0);
+      echo.measured = hit.range_m + sigma * noise->Gauss();
+      echo.reflectivity = rho > 100.0 ? 200.0 + 20.0 * noise->Uniform()
+                                      : std::min(150.0, effective * 1.5) + 2.0 * noise->Gauss();
+      return echo;
+    }
+  }
+  const double sun_cos = std::cos(scenario_.sun_cone_deg * kDeg);
+  if (dir_world.dot(sun_world_) > sun_cos && noise->Uniform() < scenario_.sun_flicker_probability) {
+    echo.kind = PointKind::kSunFlicker;
+    echo.measured = 2.0 + 48.0 * noise->Uniform();
+    echo.reflectivity = 8.0 * noise->Uniform();
+  }
+  return echo;
+}
+
+void LivoxHorizonModel::Bleed(double a, double b, FrameNoise* noise, Echo* echo) const {
+  const double lo = std::min(a, b), hi = std::max(a, b);
+  if (hi - lo > std::max(0.5, 0.1 * lo) && hi < 80.0 &&
+      noise->Uniform() < scenario_.bleeding_probability) {
+    echo->kind = PointKind::kBleeding;
+    echo->measured = lo + (0.15 + 0.7 * noise->Uniform()) * (hi - lo);
   }
 }
 

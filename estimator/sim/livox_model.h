@@ -45,6 +45,21 @@ class LivoxHorizonModel {
             std::vector<PointKind>* kinds) const;
 
  private:
+  struct SensorTrack;
+  struct FrameNoise;
+  struct Echo;
+  /// The sensor's poses over a frame starting at t0_s.
+  SensorTrack TrackOverFrame(double t0_s,
+                             const std::function<Eigen::Isometry3d(double)>& body_pose) const;
+  /// The return of the beam along `dir` (sensor frame) at t_s into the frame: the vehicle's own
+  /// body, a surface, sun flicker, or nothing.
+  Echo Measure(const Eigen::Vector3d& dir,
+               double t_s,
+               const SensorTrack& track,
+               const RayCaster& caster,
+               FrameNoise* noise) const;
+  /// A surface return between two of ranges a and b that differ much may land between them.
+  void Bleed(double a, double b, FrameNoise* noise, Echo* echo) const;
   /// Range to the vehicle body along a sensor-frame ray, or a negative number.
   double BodyRange(const Eigen::Vector3d& dir_sensor) const;
 
