@@ -1118,6 +1118,51 @@ MapStore::HotTile* MapStore::Hot(int64_t run_id,
   return raw;
 }
 
+namespace {
+
+/// A level's points grouped by tile; kept from level to level, so its vectors are reused.
+struct TileGroups {
+  std::vector<TileKey> keys;                              // the tiles this level's points fall in
+  std::vector<std::vector<uint32_t>> bucket;              // ... and the points of each
+  std::unordered_map<TileKey, size_t, TileKeyHash> slot;  // a key's place in `keys`
+};
+
+/// Groups the submap's `candidates` by their tile at `level`, tiles in the order of their
+/// first point.
+void GroupByTile(const api::Submap& s,
+                 const std::vector<uint32_t>& candidates,
+                 int level,
+                 double tile_m,
+                 TileGroups* groups) {
+  std::vector<TileKey>& keys = groups->keys;
+  std::vector<std::vector<uint32_t>>& bucket = groups->bucket;
+  keys.clear();
+  groups->slot.clear();
+  for (auto& b : bucket) b.clear();
+  const double inverse_side = 1.0 / tile_m;
+  for (uint32_t i : candidates) {
+    const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
+    const TileKey key{level,
+                      static_cast<int64_t>(std::floor(p.x() * inverse_side)),
+                      static_cast<int64_t>(std::floor(p.y() * inverse_side))};
+    // Consecutive points mostly share a tile: check the last one before the table.
+    size_t k = keys.size();
+    if (!keys.empty() && keys.back() == key) {
+      k = keys.size() - 1;
+    } else {
+      const auto [it, inserted] = groups->slot.emplace(key, keys.size());
+      k = it->second;
+      if (inserted) {
+        keys.push_back(key);
+        if (bucket.size() < keys.size()) bucket.emplace_back();
+      }
+    }
+    bucket[k].push_back(i);
+  }
+}
+
+}  // namespace
+
 void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receipt) {
   const TileGrid& grid = options_.grid;
   receipt->points = s.points.size();
@@ -1128,63 +1173,47 @@ void MapStore::Merge(int64_t run_id, const api::Submap& s, IngestReceipt* receip
   // new at a level go on to the next.
   std::vector<uint32_t> candidates(s.points.size()), next;
   for (size_t i = 0; i < candidates.size(); ++i) candidates[i] = static_cast<uint32_t>(i);
-  std::vector<TileKey> keys;                              // the tiles this level's points fall in
-  std::vector<std::vector<uint32_t>> bucket;              // ... and the points of each
-  std::unordered_map<TileKey, size_t, TileKeyHash> slot;  // a key's place in `keys`
+  TileGroups groups;
   for (int level = 0; level < grid.levels && !candidates.empty(); ++level) {
     // Group the points by tile first: then each tile's voxels are filled in one tight loop.
-    keys.clear();
-    slot.clear();
-    for (auto& b : bucket) b.clear();
-    const double inverse_side = 1.0 / grid.TileM(level);
-    for (uint32_t i : candidates) {
-      const Eigen::Vector3d p = s.origin + s.points[i].cast<double>();
-      const TileKey key{level,
-                        static_cast<int64_t>(std::floor(p.x() * inverse_side)),
-                        static_cast<int64_t>(std::floor(p.y() * inverse_side))};
-      // Consecutive points mostly share a tile: check the last one before the table.
-      size_t k = keys.size();
-      if (!keys.empty() && keys.back() == key) {
-        k = keys.size() - 1;
-      } else {
-        const auto [it, inserted] = slot.emplace(key, keys.size());
-        k = it->second;
-        if (inserted) {
-          keys.push_back(key);
-          if (bucket.size() < keys.size()) bucket.emplace_back();
-        }
-      }
-      bucket[k].push_back(i);
-    }
+    GroupByTile(s, candidates, level, grid.TileM(level), &groups);
     const float inverse_voxel = static_cast<float>(1.0 / grid.VoxelM(level));
     next.clear();
-    for (size_t k = 0; k < keys.size(); ++k) {
-      const std::vector<uint32_t>& points = bucket[k];
-      HotTile* tile = Hot(run_id, s.utm_zone, keys[k], s.origin.z() + s.points[points[0]].z());
-      tile->touched = touch_;
-      // Offsets first, then the shift: both small, so float keeps them to a micrometre.
-      const Eigen::Vector3f shift = (s.origin - tile->points.origin).cast<float>();
-      const TileQuantization& q = tile->quantization;
-      for (uint32_t i : points) {
-        const Eigen::Vector3f o = s.points[i] + shift;
-        if (!q.Covers(o)) {
-          if (level == 0) ++receipt->points_off_grid;
-          continue;
-        }
-        if (!tile->voxels.Insert(TileVoxel(o, inverse_voxel))) continue;
-        tile->points.points.push_back(o);
-        tile->points.intensities.push_back(
-            static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
-        tile->dirty = true;
-        ++hot_points_;
-        next.push_back(i);
-      }
-    }
+    for (size_t k = 0; k < groups.keys.size(); ++k)
+      MergeTile(run_id, s, groups.keys[k], groups.bucket[k], inverse_voxel, receipt, &next);
     if (level == 0) receipt->points_new = next.size();
     candidates.swap(next);
   }
   stats_.points_ingested += s.points.size();
   stats_.points_off_grid += receipt->points_off_grid;
+}
+
+void MapStore::MergeTile(int64_t run_id,
+                         const api::Submap& s,
+                         const TileKey& key,
+                         const std::vector<uint32_t>& points,
+                         float inverse_voxel,
+                         IngestReceipt* receipt,
+                         std::vector<uint32_t>* next) {
+  HotTile* tile = Hot(run_id, s.utm_zone, key, s.origin.z() + s.points[points[0]].z());
+  tile->touched = touch_;
+  // Offsets first, then the shift: both small, so float keeps them to a micrometre.
+  const Eigen::Vector3f shift = (s.origin - tile->points.origin).cast<float>();
+  const TileQuantization& q = tile->quantization;
+  for (uint32_t i : points) {
+    const Eigen::Vector3f o = s.points[i] + shift;
+    if (!q.Covers(o)) {
+      if (key.level == 0) ++receipt->points_off_grid;
+      continue;
+    }
+    if (!tile->voxels.Insert(TileVoxel(o, inverse_voxel))) continue;
+    tile->points.points.push_back(o);
+    tile->points.intensities.push_back(
+        static_cast<uint8_t>(std::clamp(std::lround(s.intensities[i]), 0L, 255L)));
+    tile->dirty = true;
+    ++hot_points_;
+    next->push_back(i);
+  }
 }
 
 /// One changed tile of a flush: its snapshot, then its encoding.
@@ -1479,6 +1508,48 @@ Result MapStore::Tile(int64_t run_id,
   return {};
 }
 
+namespace {
+
+/// The UTM zone of a run's poses: `zone` (the run's, if it has one) or else the first
+/// georeferenced pose's; kInvalid naming the first pose in another zone.
+Result PosesZone(int64_t run_id, const std::vector<api::StreamPose>& poses, std::string* zone) {
+  for (const api::StreamPose& p : poses) {
+    if (!p.georeferenced) continue;
+    if (zone->empty()) *zone = p.utm_zone;
+    if (p.utm_zone != *zone)
+      return Fail(Outcome::kInvalid,
+                  "pose " + std::to_string(p.sequence) + " is in UTM zone " + p.utm_zone +
+                      ", run " + std::to_string(run_id) + " in " + *zone);
+  }
+  return {};
+}
+
+/// Whether the stored pose in `get`'s row (stamp, position, rotation, zone) is `p`.
+bool SamePose(const Statement& get, const api::StreamPose& p) {
+  return get.Int(0) == p.stamp_ns && get.Double(1) == p.p.x() && get.Double(2) == p.p.y() &&
+         get.Double(3) == p.p.z() && get.Double(4) == p.q.x() && get.Double(5) == p.q.y() &&
+         get.Double(6) == p.q.z() && get.Double(7) == p.q.w() && get.Text(8) == p.utm_zone;
+}
+
+/// Binds a pose of run `run_id` as parameters 1-12 (run, sequence, stamp, georeferenced, zone,
+/// x, y, z, qx, qy, qz, qw).
+void BindPose(Statement& put, int64_t run_id, const api::StreamPose& p) {
+  put.Bind(1, run_id)
+      .Bind(2, static_cast<int64_t>(p.sequence))
+      .Bind(3, p.stamp_ns)
+      .Bind(4, p.georeferenced ? 1 : 0)
+      .Bind(5, p.utm_zone)
+      .Bind(6, p.p.x())
+      .Bind(7, p.p.y())
+      .Bind(8, p.p.z())
+      .Bind(9, p.q.x())
+      .Bind(10, p.q.y())
+      .Bind(11, p.q.z())
+      .Bind(12, p.q.w());
+}
+
+}  // namespace
+
 Result MapStore::IngestPoses(int64_t run_id,
                              const std::vector<api::StreamPose>& poses,
                              int* stored,
@@ -1496,59 +1567,13 @@ Result MapStore::IngestPoses(int64_t run_id,
   if (!r) return r;
   // A run lies in one UTM zone: its first georeferenced pose or submap sets it.
   std::string zone = run.utm_zone;
-  for (const api::StreamPose& p : poses) {
-    if (!p.georeferenced) continue;
-    if (zone.empty()) zone = p.utm_zone;
-    if (p.utm_zone != zone)
-      return Fail(Outcome::kInvalid,
-                  "pose " + std::to_string(p.sequence) + " is in UTM zone " + p.utm_zone +
-                      ", run " + std::to_string(run_id) + " in " + zone);
-  }
+  r = PosesZone(run_id, poses, &zone);
+  if (!r) return r;
   Transaction t(*writer_);
   if (!t.ok()) return Fail(Outcome::kError, writer_->Message());
-  Statement get(*writer_,
-                "SELECT stamp_ns, x, y, z, qx, qy, qz, qw, utm_zone FROM poses WHERE run_id = ? "
-                "AND sequence = ?");
-  Statement put(*writer_,
-                "INSERT INTO poses (run_id, sequence, stamp_ns, georeferenced, utm_zone, x, y, z, "
-                "qx, qy, qz, qw) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   int added = 0;
-  for (size_t k = 0; k < poses.size(); ++k) {
-    const api::StreamPose& p = poses[k];
-    get.Reset();
-    get.Bind(1, run_id).Bind(2, static_cast<int64_t>(p.sequence));
-    if (get.Step()) {
-      const bool same =
-          get.Int(0) == p.stamp_ns && get.Double(1) == p.p.x() && get.Double(2) == p.p.y() &&
-          get.Double(3) == p.p.z() && get.Double(4) == p.q.x() && get.Double(5) == p.q.y() &&
-          get.Double(6) == p.q.z() && get.Double(7) == p.q.w() && get.Text(8) == p.utm_zone;
-      if (!same)
-        return Fail(Outcome::kConflict,
-                    "run " + std::to_string(run_id) +
-                        " already has a different pose under "
-                        "sequence " +
-                        std::to_string(p.sequence));
-      continue;
-    }
-    if (run.status != "live")
-      return Fail(Outcome::kConflict, "run " + std::to_string(run_id) + " is finished");
-    put.Reset();
-    put.Bind(1, run_id)
-        .Bind(2, static_cast<int64_t>(p.sequence))
-        .Bind(3, p.stamp_ns)
-        .Bind(4, p.georeferenced ? 1 : 0)
-        .Bind(5, p.utm_zone)
-        .Bind(6, p.p.x())
-        .Bind(7, p.p.y())
-        .Bind(8, p.p.z())
-        .Bind(9, p.q.x())
-        .Bind(10, p.q.y())
-        .Bind(11, p.q.z())
-        .Bind(12, p.q.w());
-    if (!put.Run()) return Fail(Outcome::kError, put.error());
-    ++added;
-    fresh[k] = true;
-  }
+  r = InsertPosesLocked(run_id, run, poses, &fresh, &added);
+  if (!r) return r;
   Statement count(*writer_, "UPDATE runs SET poses = poses + ?, utm_zone = ? WHERE id = ?");
   if (!zone.empty()) count.Bind(2, zone);
   if (!count.Bind(1, added).Bind(3, run_id).Run()) return Fail(Outcome::kError, count.error());
@@ -1559,6 +1584,40 @@ Result MapStore::IngestPoses(int64_t run_id,
   if (added_flags) *added_flags = fresh;
   if (added == 0 && !poses.empty())
     return {Outcome::kDuplicate, "every pose of the batch was stored before"};
+  return {};
+}
+
+Result MapStore::InsertPosesLocked(int64_t run_id,
+                                   const RunInfo& run,
+                                   const std::vector<api::StreamPose>& poses,
+                                   std::vector<bool>* fresh,
+                                   int* added) {
+  Statement get(*writer_,
+                "SELECT stamp_ns, x, y, z, qx, qy, qz, qw, utm_zone FROM poses WHERE run_id = ? "
+                "AND sequence = ?");
+  Statement put(*writer_,
+                "INSERT INTO poses (run_id, sequence, stamp_ns, georeferenced, utm_zone, x, y, z, "
+                "qx, qy, qz, qw) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const api::StreamPose& p = poses[k];
+    get.Reset();
+    get.Bind(1, run_id).Bind(2, static_cast<int64_t>(p.sequence));
+    if (get.Step()) {
+      if (!SamePose(get, p))
+        return Fail(Outcome::kConflict,
+                    "run " + std::to_string(run_id) +
+                        " already has a different pose under sequence " +
+                        std::to_string(p.sequence));
+      continue;
+    }
+    if (run.status != "live")
+      return Fail(Outcome::kConflict, "run " + std::to_string(run_id) + " is finished");
+    put.Reset();
+    BindPose(put, run_id, p);
+    if (!put.Run()) return Fail(Outcome::kError, put.error());
+    ++*added;
+    (*fresh)[k] = true;
+  }
   return {};
 }
 

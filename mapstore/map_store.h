@@ -304,6 +304,15 @@ class MapStore {
   std::string IncomingPath(int64_t run_id, uint64_t sequence) const;
   /// Merges a submap's points into the hot tiles of every level.
   void Merge(int64_t run_id, const api::Submap& submap, IngestReceipt* receipt);
+  /// Merges the submap's `points` that fall in tile `key` into its hot tile's voxels (of side
+  /// 1 / inverse_voxel); `next` gets those new there.
+  void MergeTile(int64_t run_id,
+                 const api::Submap& submap,
+                 const TileKey& key,
+                 const std::vector<uint32_t>& points,
+                 float inverse_voxel,
+                 IngestReceipt* receipt,
+                 std::vector<uint32_t>* next);
   HotTile* Hot(int64_t run_id, const std::string& zone, const TileKey& key, double z_m);
   /// Hot tiles beyond hot_points_budget or hot_tiles_budget.
   bool OverBudgetLocked() const;
@@ -341,6 +350,13 @@ class MapStore {
                            const api::Submap& s,
                            const std::string& payload,
                            const std::string& hash);
+  /// Inserts the poses the run has not stored yet (`fresh` marks them, `added` counts them);
+  /// kConflict for a stored sequence with other values or a new pose of a finished run.
+  Result InsertPosesLocked(int64_t run_id,
+                           const RunInfo& run,
+                           const std::vector<api::StreamPose>& poses,
+                           std::vector<bool>* fresh,
+                           int* added);
   Result RunLocked(const Database& db, int64_t run_id, RunInfo* out) const;
   /// Marks an acknowledged submap whose payload is gone as lost, and takes it out of its run's
   /// counts.

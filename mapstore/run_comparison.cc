@@ -600,6 +600,60 @@ bool ChainageRange(const MapStore& store,
   return *first_m <= *last_m;
 }
 
+/// Whether both runs have at least 1000 points of the stretch (the later run's over all its
+/// placements).
+bool EnoughPoints(const StretchParts& parts) {
+  size_t later_points = 0;
+  for (const std::vector<Eigen::Vector3d>& p : parts.later_placements) later_points += p.size();
+  return parts.reference.points.size() >= 1000 && later_points >= 1000;
+}
+
+/// The rail plane's height below the centreline into `parts` (0 where the rails were not seen)
+/// and the registered runs' disagreement on the rails (RailResidual; NaN there).
+double MeasureRails(const Stretch& stretch, StretchParts* parts) {
+  const double drop = RailDrop(stretch, parts->reference.points);
+  parts->rail_drop_m = std::isnan(drop) ? 0.0 : drop;
+  return std::isnan(drop)
+             ? drop
+             : RailResidual(
+                   stretch, parts->reference.points, parts->later.points, parts->rail_drop_m);
+}
+
+/// The changes of a registered stretch (CompareStretch), placed on the line and checked
+/// against the gauge: the catenary's wire pieces dropped, vegetation told and centred on its
+/// trunk, moved objects paired. `out` gets the stretch's summary and its rails' RMS.
+std::vector<RunChange> FindChanges(const Stretch& stretch,
+                                   const RunComparisonOptions& o,
+                                   const RegistrationResult& fit,
+                                   const std::string& zone,
+                                   bool provisional,
+                                   StretchParts* parts,
+                                   StretchOutcome* out) {
+  std::vector<StretchChange> found =
+      CompareStretch(parts->reference, parts->later, o.change, &out->summary);
+  out->rail_rms_m = MeasureRails(stretch, parts);
+  parts->lod_m = LevelOfDetection(o.change, fit.rms_m);
+  parts->voxel_m = o.change.voxel_m;
+  const StructureGauge gauge(o.clearance);
+  std::vector<RunChange> placed;
+  for (const StretchChange& c : found) placed.push_back(Place(c, stretch, *parts, gauge, zone));
+  // A thin member over the track is the catenary's before it is growth: a tunnel's crown
+  // beside a bracket reads as what growth comes out of.
+  DropWirePieces(o, &found, &placed, &out->summary);
+  MarkVegetation(stretch, *parts, o, found, &placed);
+  CentreTrees(stretch, o, found, &placed);
+  PairMoved(o, &placed);
+  if (provisional) {
+    // Provisional output can lack points the final map will have (a LiDAR's gap, a piece not
+    // sent yet), so what it does not show is not told gone: removals wait for the final map.
+    placed.erase(std::remove_if(placed.begin(),
+                                placed.end(),
+                                [](const RunChange& c) { return c.kind == ChangeKind::kRemoved; }),
+                 placed.end());
+  }
+  return placed;
+}
+
 }  // namespace
 
 const char* ToString(ChangeKind kind) {
@@ -662,66 +716,94 @@ Result RunComparison::Prepare(const MapStore& store,
   if (reference_run == later_run)
     return Fail(Outcome::kInvalid, "a run cannot be compared with itself");
   std::unique_ptr<RunComparison> c(new RunComparison(store, o));
-  Result r = store.GetRun(later_run, &c->later_);
+  Result r = c->ReadRuns(reference_run, later_run);
   if (!r) return r;
-  r = store.GetRun(reference_run, &c->reference_);
+  double ref_first = 0.0, ref_last = 0.0;
+  r = c->ReadReach(reference_run, later_run, &ref_first, &ref_last);
+  if (!r) return r;
+  c->TakeProvisional(provisional, later_run, ref_first, ref_last);
+  c->CutStretches();
+  *out = std::move(c);
+  return {};
+}
+
+Result RunComparison::ReadRuns(int64_t reference_run, int64_t later_run) {
+  Result r = store_.GetRun(later_run, &later_);
+  if (!r) return r;
+  r = store_.GetRun(reference_run, &reference_);
   if (!r) return Fail(r.outcome, "reference: " + r.message);
-  if (c->reference_.line != c->later_.line)
+  if (reference_.line != later_.line)
     return Fail(Outcome::kInvalid,
-                "run " + std::to_string(later_run) + " is of line '" + c->later_.line + "', run " +
-                    std::to_string(reference_run) + " of '" + c->reference_.line + "'");
-  if (c->reference_.status != "finished")
+                "run " + std::to_string(later_run) + " is of line '" + later_.line + "', run " +
+                    std::to_string(reference_run) + " of '" + reference_.line + "'");
+  if (reference_.status != "finished")
     return Fail(Outcome::kConflict,
                 "the reference run " + std::to_string(reference_run) + " is still live");
-  if (!c->later_.utm_zone.empty() && c->reference_.utm_zone != c->later_.utm_zone)
+  if (!later_.utm_zone.empty() && reference_.utm_zone != later_.utm_zone)
     return Fail(Outcome::kInvalid,
-                "the runs lie in different UTM zones (" + c->reference_.utm_zone + " and " +
-                    c->later_.utm_zone + ")");
-  r = store.GetLine(c->reference_.line, &c->line_);
+                "the runs lie in different UTM zones (" + reference_.utm_zone + " and " +
+                    later_.utm_zone + ")");
+  r = store_.GetLine(reference_.line, &line_);
   if (!r) return r;
-  if (c->line_.reference_run == 0)
-    return Fail(Outcome::kConflict, "line '" + c->line_.name + "' has no centreline yet");
-  r = store.Trajectory(reference_run, &c->reference_poses_);
-  if (r) r = store.Trajectory(later_run, &c->later_poses_);
-  if (!r) return r;
-  double ref_first = 0.0, ref_last = 0.0, first = 0.0, last = 0.0;
-  if (!ChainageRange(store, reference_run, c->reference_poses_, &ref_first, &ref_last))
+  if (line_.reference_run == 0)
+    return Fail(Outcome::kConflict, "line '" + line_.name + "' has no centreline yet");
+  r = store_.Trajectory(reference_run, &reference_poses_);
+  if (r) r = store_.Trajectory(later_run, &later_poses_);
+  return r;
+}
+
+Result RunComparison::ReadReach(int64_t reference_run,
+                                int64_t later_run,
+                                double* ref_first_m,
+                                double* ref_last_m) {
+  double first = 0.0, last = 0.0;
+  if (!ChainageRange(store_, reference_run, reference_poses_, ref_first_m, ref_last_m))
     return Fail(Outcome::kInvalid,
                 "the reference run " + std::to_string(reference_run) +
                     " has no pose on the line's centreline");
-  c->later_reach_m_ = -std::numeric_limits<double>::infinity();
-  if (ChainageRange(store, later_run, c->later_poses_, &first, &last, &c->later_chainage_m_)) {
-    if (last < ref_first || first > ref_last)
+  later_reach_m_ = -std::numeric_limits<double>::infinity();
+  if (ChainageRange(store_, later_run, later_poses_, &first, &last, &later_chainage_m_)) {
+    if (last < *ref_first_m || first > *ref_last_m)
       return Fail(Outcome::kInvalid,
                   "runs " + std::to_string(later_run) + " and " + std::to_string(reference_run) +
                       " do not overlap along the line");
-    c->later_reach_m_ = last;
-  } else if (!c->later_poses_.empty() && c->later_.status == "finished") {
+    later_reach_m_ = last;
+  } else if (!later_poses_.empty() && later_.status == "finished") {
     return Fail(Outcome::kInvalid,
-                "run " + std::to_string(later_run) + " has no pose on line '" + c->line_.name +
+                "run " + std::to_string(later_run) + " has no pose on line '" + line_.name +
                     "''s centreline: it does not overlap the reference");
   }
-  if (provisional && provisional->utm_zone == c->reference_.utm_zone &&
-      (c->later_.utm_zone.empty() || c->later_.utm_zone == provisional->utm_zone)) {
-    c->provisional_ = *provisional;
-    if (ChainageRange(store,
-                      later_run,
-                      c->provisional_.poses,
-                      &first,
-                      &c->provisional_reach_m_,
-                      &c->provisional_chainage_m_) &&
-        (c->provisional_reach_m_ < ref_first || first > ref_last))
-      c->provisional_reach_m_ = -std::numeric_limits<double>::infinity();
-  }
-  const double start = c->line_.chainage_offset_m, end = start + c->line_.length_m;
+  return {};
+}
+
+void RunComparison::TakeProvisional(const ProvisionalRun* provisional,
+                                    int64_t later_run,
+                                    double ref_first_m,
+                                    double ref_last_m) {
+  if (!provisional || provisional->utm_zone != reference_.utm_zone ||
+      (!later_.utm_zone.empty() && later_.utm_zone != provisional->utm_zone))
+    return;
+  provisional_ = *provisional;
+  double first = 0.0;
+  if (ChainageRange(store_,
+                    later_run,
+                    provisional_.poses,
+                    &first,
+                    &provisional_reach_m_,
+                    &provisional_chainage_m_) &&
+      (provisional_reach_m_ < ref_first_m || first > ref_last_m))
+    provisional_reach_m_ = -std::numeric_limits<double>::infinity();
+}
+
+void RunComparison::CutStretches() {
+  const RunComparisonOptions& o = options_;
+  const double start = line_.chainage_offset_m, end = start + line_.length_m;
   for (int i = 0; start + i * o.stretch_m < end; ++i) {
     StretchRange s{i, start + i * o.stretch_m, std::min(start + (i + 1) * o.stretch_m, end)};
     s.from_m = std::max(s.from_m, o.from_m);
     s.to_m = std::min(s.to_m, o.to_m);
-    if (s.from_m < s.to_m) c->stretches_.push_back(s);
+    if (s.from_m < s.to_m) stretches_.push_back(s);
   }
-  *out = std::move(c);
-  return {};
 }
 
 double RunComparison::ReachUntil(int64_t stamp_ns, bool provisional) const {
@@ -761,9 +843,7 @@ Result RunComparison::Compare(const StretchRange& range,
                              {later_.id, &later_poses_, provisional ? &provisional_ : nullptr},
                              &parts);
   if (!r) return r;
-  size_t later_points = 0;
-  for (const std::vector<Eigen::Vector3d>& p : parts.later_placements) later_points += p.size();
-  if (parts.reference.points.size() < 1000 || later_points < 1000) {
+  if (!EnoughPoints(parts)) {
     out->skipped = "fewer than 1000 points of a run there";
     return {};
   }
@@ -778,34 +858,8 @@ Result RunComparison::Compare(const StretchRange& range,
   }
   out->compared = true;
   out->T_reference_later = fit.T_fixed_moving;
-  std::vector<StretchChange> found =
-      CompareStretch(parts.reference, parts.later, o.change, &out->summary);
-  const double drop = RailDrop(stretch, parts.reference.points);
-  parts.rail_drop_m = std::isnan(drop) ? 0.0 : drop;
-  out->rail_rms_m =
-      std::isnan(drop)
-          ? drop
-          : RailResidual(stretch, parts.reference.points, parts.later.points, parts.rail_drop_m);
-  parts.lod_m = LevelOfDetection(o.change, fit.rms_m);
-  parts.voxel_m = o.change.voxel_m;
-  const StructureGauge gauge(o.clearance);
-  std::vector<RunChange> placed;
-  for (const StretchChange& c : found)
-    placed.push_back(Place(c, stretch, parts, gauge, reference_.utm_zone));
-  // A thin member over the track is the catenary's before it is growth: a tunnel's crown
-  // beside a bracket reads as what growth comes out of.
-  DropWirePieces(o, &found, &placed, &out->summary);
-  MarkVegetation(stretch, parts, o, found, &placed);
-  CentreTrees(stretch, o, found, &placed);
-  PairMoved(o, &placed);
-  if (provisional) {
-    // Provisional output can lack points the final map will have (a LiDAR's gap, a piece not
-    // sent yet), so what it does not show is not told gone: removals wait for the final map.
-    placed.erase(std::remove_if(placed.begin(),
-                                placed.end(),
-                                [](const RunChange& c) { return c.kind == ChangeKind::kRemoved; }),
-                 placed.end());
-  }
+  std::vector<RunChange> placed =
+      FindChanges(stretch, o, fit, reference_.utm_zone, provisional, &parts, out);
   KeepOwn(range, std::move(placed), out);
   out->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {};

@@ -174,6 +174,23 @@ class RunComparison {
 
  private:
   RunComparison(const MapStore& store, const RunComparisonOptions& options);
+  /// Reads both runs, their line and their poses; kInvalid / kNotFound / kConflict where they
+  /// cannot be compared (another line or zone, the reference live, no centreline yet).
+  Result ReadRuns(int64_t reference_run, int64_t later_run);
+  /// The reference's chainage range (`ref_first_m` to `ref_last_m`) and how far the later run
+  /// reaches; kInvalid where the reference has no pose on the line or the runs do not overlap.
+  Result ReadReach(int64_t reference_run,
+                   int64_t later_run,
+                   double* ref_first_m,
+                   double* ref_last_m);
+  /// Keeps the later run's provisional output (ignored if absent or in another zone) and its
+  /// reach, -infinity where it does not overlap the reference's range.
+  void TakeProvisional(const ProvisionalRun* provisional,
+                       int64_t later_run,
+                       double ref_first_m,
+                       double ref_last_m);
+  /// Cuts the line into stretches of stretch_m, clipped to the options' range.
+  void CutStretches();
   /// The changes of `placed` that are this stretch's: in the corridor, centred in the stretch
   /// (an object centred in the overlap is the neighbour's).
   void KeepOwn(const StretchRange& range, std::vector<RunChange> placed, StretchOutcome* out) const;

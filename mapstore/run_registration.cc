@@ -204,6 +204,95 @@ std::vector<Eigen::Vector3d> VoxelCentroids(const std::vector<Eigen::Vector3d>& 
 
 namespace {
 
+/// Correspondences: each moved point (moved by `T_fixed_moving`) and the nearest fixed one
+/// within `correspondence_m`.
+void FindPairs(const std::vector<Eigen::Vector3d>& fixed,
+               const Grid& grid,
+               Normals* normals,
+               const std::vector<Eigen::Vector3d>& moving,
+               const Eigen::Isometry3d& T_fixed_moving,
+               double correspondence_m,
+               std::vector<Pair>* pairs) {
+  pairs->clear();
+  for (const Eigen::Vector3d& m : moving) {
+    const Eigen::Vector3d p = T_fixed_moving * m;
+    size_t k = 0;
+    if (grid.Nearest(p, correspondence_m, &k)) pairs->push_back({p, fixed[k], (*normals)[k]});
+  }
+}
+
+/// The robust kernel's scale from the pairs' residuals: 1.5 times their median, at least
+/// kernel_floor_m and half the stage's correspondence distance.
+double KernelScale(const std::vector<double>& residuals,
+                   double correspondence_m,
+                   const RegistrationOptions& o) {
+  std::vector<double> sorted = residuals;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  // The ground agrees at once (its median residual is soon near zero): the scale keeps room
+  // for the few structures (masts, walls) that still disagree by up to the stage's distance.
+  return std::max({o.kernel_floor_m, 1.5 * sorted[sorted.size() / 2], 0.5 * correspondence_m});
+}
+
+/// Adds the weighted pairs to the Gauss-Newton system `H`, `b` on a left perturbation
+/// [dt, dtheta]: d(R p + t) = dt + dtheta x (R p + t). `result` gets the inliers (residual
+/// within `scale`) and their RMS.
+void AddPairs(const std::vector<Pair>& pairs,
+              const std::vector<double>& residuals,
+              double scale,
+              Eigen::Matrix<double, 6, 6>* H,
+              Eigen::Matrix<double, 6, 1>* b,
+              RegistrationResult* result) {
+  double inlier_sq = 0.0;
+  result->inliers = 0;
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const Pair& c = pairs[i];
+    // Geman-McClure weight: residuals well beyond the scale (what changed) count for little.
+    const double u = residuals[i] / scale;
+    const double w = 1.0 / ((1.0 + u * u) * (1.0 + u * u));
+    if (residuals[i] <= scale) {
+      ++result->inliers;
+      inlier_sq += residuals[i] * residuals[i];
+    }
+    auto add = [&](const Eigen::Vector3d& n, double r) {
+      Eigen::Matrix<double, 6, 1> J;
+      J << n, c.p.cross(n);
+      *H += w * J * J.transpose();
+      *b += w * J * r;
+    };
+    if (!c.n.isZero()) {
+      add(c.n, c.n.dot(c.p - c.q));
+    } else {
+      for (int a = 0; a < 3; ++a) add(Eigen::Vector3d::Unit(a), c.p[a] - c.q[a]);
+    }
+  }
+  result->rms_m = result->inliers > 0 ? std::sqrt(inlier_sq / result->inliers) : 0.0;
+}
+
+/// The translation block's smallest eigenvalue over its largest (0 where it is empty): how
+/// well the pairs hold the translation in every direction.
+double TranslationConditioning(const Eigen::Matrix<double, 6, 6>& H) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> translation(H.topLeftCorner<3, 3>());
+  return translation.eigenvalues()(2) > 0.0
+             ? translation.eigenvalues()(0) / translation.eigenvalues()(2)
+             : 0.0;
+}
+
+/// The step [dt, dtheta] that solves the system.
+Eigen::Matrix<double, 6, 1> SolveStep(const Eigen::Matrix<double, 6, 6>& H,
+                                      const Eigen::Matrix<double, 6, 1>& b) {
+  // A little damping keeps a direction the stretch cannot see (along a bare straight) still.
+  return -(H + 1e-9 * H.trace() * Eigen::Matrix<double, 6, 6>::Identity()).ldlt().solve(b);
+}
+
+/// The rigid motion of a step [dt, dtheta].
+Eigen::Isometry3d StepMotion(const Eigen::Vector3d& dt, const Eigen::Vector3d& dtheta) {
+  Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+  if (dtheta.norm() > 0.0)
+    delta.linear() = Eigen::AngleAxisd(dtheta.norm(), dtheta.normalized()).toRotationMatrix();
+  delta.translation() = dt;
+  return delta;
+}
+
 /// One stage of the registration at a correspondence distance, from `result`'s transform;
 /// `grid` holds the fixed cloud, `normals` are its, worked out as pairs ask for them.
 void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
@@ -218,64 +307,19 @@ void RegisterStage(const std::vector<Eigen::Vector3d>& fixed,
   result->converged = false;
   for (int iteration = 0; iteration < o.max_iterations; ++iteration) {
     ++result->iterations;
-    // Correspondences: each moved point and the nearest fixed one.
-    pairs.clear();
-    for (const Eigen::Vector3d& m : moving) {
-      const Eigen::Vector3d p = result->T_fixed_moving * m;
-      size_t k = 0;
-      if (grid.Nearest(p, correspondence_m, &k)) pairs.push_back({p, fixed[k], (*normals)[k]});
-    }
+    FindPairs(fixed, grid, normals, moving, result->T_fixed_moving, correspondence_m, &pairs);
     result->pairs = pairs.size();
     if (pairs.size() < 6) return;
     residuals.resize(pairs.size());
     for (size_t i = 0; i < pairs.size(); ++i) residuals[i] = Residual(pairs[i]);
-    std::vector<double> sorted = residuals;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    // The ground agrees at once (its median residual is soon near zero): the scale keeps room
-    // for the few structures (masts, walls) that still disagree by up to the stage's distance.
-    const double scale =
-        std::max({o.kernel_floor_m, 1.5 * sorted[sorted.size() / 2], 0.5 * correspondence_m});
-    // Gauss-Newton on a left perturbation [dt, dtheta]: d(R p + t) = dt + dtheta x (R p + t).
+    const double scale = KernelScale(residuals, correspondence_m, o);
     Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
     Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
-    double inlier_sq = 0.0;
-    result->inliers = 0;
-    for (size_t i = 0; i < pairs.size(); ++i) {
-      const Pair& c = pairs[i];
-      // Geman-McClure weight: residuals well beyond the scale (what changed) count for little.
-      const double u = residuals[i] / scale;
-      const double w = 1.0 / ((1.0 + u * u) * (1.0 + u * u));
-      if (residuals[i] <= scale) {
-        ++result->inliers;
-        inlier_sq += residuals[i] * residuals[i];
-      }
-      auto add = [&](const Eigen::Vector3d& n, double r) {
-        Eigen::Matrix<double, 6, 1> J;
-        J << n, c.p.cross(n);
-        H += w * J * J.transpose();
-        b += w * J * r;
-      };
-      if (!c.n.isZero()) {
-        add(c.n, c.n.dot(c.p - c.q));
-      } else {
-        for (int a = 0; a < 3; ++a) add(Eigen::Vector3d::Unit(a), c.p[a] - c.q[a]);
-      }
-    }
-    result->rms_m = result->inliers > 0 ? std::sqrt(inlier_sq / result->inliers) : 0.0;
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> translation(H.topLeftCorner<3, 3>());
-    result->translation_conditioning =
-        translation.eigenvalues()(2) > 0.0
-            ? translation.eigenvalues()(0) / translation.eigenvalues()(2)
-            : 0.0;
-    // A little damping keeps a direction the stretch cannot see (along a bare straight) still.
-    const Eigen::Matrix<double, 6, 1> step =
-        -(H + 1e-9 * H.trace() * Eigen::Matrix<double, 6, 6>::Identity()).ldlt().solve(b);
-    Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+    AddPairs(pairs, residuals, scale, &H, &b, result);
+    result->translation_conditioning = TranslationConditioning(H);
+    const Eigen::Matrix<double, 6, 1> step = SolveStep(H, b);
     const Eigen::Vector3d dtheta = step.tail<3>();
-    if (dtheta.norm() > 0.0)
-      delta.linear() = Eigen::AngleAxisd(dtheta.norm(), dtheta.normalized()).toRotationMatrix();
-    delta.translation() = step.head<3>();
-    result->T_fixed_moving = delta * result->T_fixed_moving;
+    result->T_fixed_moving = StepMotion(step.head<3>(), dtheta) * result->T_fixed_moving;
     // How far the step moved the cloud: its translation and the rotation at 50 m.
     if (step.head<3>().norm() + 50.0 * dtheta.norm() < o.converged_step_m) {
       result->converged = true;
