@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
+#include <vector>
 
 namespace raillomer {
 
@@ -16,6 +18,134 @@ int CellCount(double from, double to, double bin) {
 
 int Occupied(const HeightDescriptor& d) {
   return static_cast<int>((d.cells.array() > 0.f).count());
+}
+
+/// The descriptor's points sorted by cell (a counting sort): cell c holds
+/// sorted[begin[c], begin[c + 1]).
+struct CellPoints {
+  std::vector<int> begin;
+  std::vector<Eigen::Vector3f> sorted;
+};
+
+/// Sorts the points between z_floor_m and z_ceiling_m that fall in the grid into its cells.
+CellPoints SortIntoCells(const HeightDescriptorOptions& options,
+                         const HeightDescriptor& d,
+                         const std::vector<Eigen::Vector3f>& points_body) {
+  const float inv_bin = static_cast<float>(1.0 / options.bin_m);
+  const float x_min = static_cast<float>(options.x_min_m);
+  const float y_min = static_cast<float>(options.y_min_m);
+  const float z_floor = static_cast<float>(options.z_floor_m);
+  const float z_ceiling = static_cast<float>(options.z_ceiling_m);
+  const int n_cells = d.rows * d.cols;
+  CellPoints cells;
+  std::vector<int> cell_of(points_body.size(), -1);
+  cells.begin.assign(n_cells + 1, 0);
+  for (size_t i = 0; i < points_body.size(); ++i) {
+    const Eigen::Vector3f& p = points_body[i];
+    if (!(p.z() > z_floor && p.z() <= z_ceiling)) continue;  // also drops NaN
+    const float u = (p.x() - x_min) * inv_bin, v = (p.y() - y_min) * inv_bin;
+    if (!(u >= 0.f && v >= 0.f && u < d.cols && v < d.rows)) continue;
+    const int col = std::min(d.cols - 1, static_cast<int>(u));
+    const int row = std::min(d.rows - 1, static_cast<int>(v));
+    cell_of[i] = row * d.cols + col;
+    ++cells.begin[cell_of[i] + 1];
+  }
+  for (int c = 0; c < n_cells; ++c) cells.begin[c + 1] += cells.begin[c];
+  cells.sorted.resize(cells.begin[n_cells]);
+  std::vector<int> fill(cells.begin.begin(), cells.begin.end() - 1);
+  for (size_t i = 0; i < points_body.size(); ++i) {
+    if (cell_of[i] >= 0) cells.sorted[fill[cell_of[i]]++] = points_body[i];
+  }
+  return cells;
+}
+
+/// Whether point `self` (in cell row, col) has min_support_points others within
+/// support_radius_m: a real surface. Isolated returns (sun flicker, mixed returns, dust) would
+/// add random heights.
+bool Supported(const HeightDescriptorOptions& options,
+               const HeightDescriptor& d,
+               const CellPoints& cells,
+               int row,
+               int col,
+               int self) {
+  if (options.min_support_points <= 0) return true;
+  const float radius2 = static_cast<float>(options.support_radius_m * options.support_radius_m);
+  const int reach =
+      std::max(1, static_cast<int>(std::ceil(options.support_radius_m / options.bin_m)));
+  const Eigen::Vector3f& p = cells.sorted[self];
+  int found = 0;
+  for (int r = std::max(0, row - reach); r <= std::min(d.rows - 1, row + reach); ++r) {
+    for (int c = std::max(0, col - reach); c <= std::min(d.cols - 1, col + reach); ++c) {
+      const int cell = r * d.cols + c;
+      for (int k = cells.begin[cell]; k < cells.begin[cell + 1]; ++k) {
+        if (k != self && (cells.sorted[k] - p).squaredNorm() <= radius2 &&
+            ++found >= options.min_support_points) {
+          return true;
+        }
+      }
+    }
+  }
+  return false;
+}
+
+/// Why two descriptors cannot be compared (layout, prediction, too few occupied cells), or an
+/// empty string.
+std::string CannotCompare(const HeightDescriptorOptions& options,
+                          const HeightDescriptor& previous,
+                          const HeightDescriptor& current,
+                          double predicted_dx_m) {
+  std::string error;
+  if (!options.IsValid(&error)) return "invalid options: " + error;
+  if (previous.rows != current.rows || previous.cols != current.cols ||
+      previous.bin_m != current.bin_m || !(previous.bin_m > 0.0) ||
+      previous.cells.rows() != previous.rows || previous.cells.cols() != previous.cols ||
+      current.cells.rows() != current.rows || current.cells.cols() != current.cols) {
+    return "the descriptors differ in layout";
+  }
+  if (!std::isfinite(predicted_dx_m)) return "the predicted shift is not finite";
+  const int occupied = std::min(Occupied(previous), Occupied(current));
+  if (occupied < options.min_occupied_cells) {
+    return "too empty: " + std::to_string(occupied) + " occupied cells (need " +
+           std::to_string(options.min_occupied_cells) + ")";
+  }
+  return "";
+}
+
+/// The lowest local minimum of `distance` beyond `best` and its neighbours (infinity if none).
+double RunnerUp(const std::vector<double>& distance, int best) {
+  const int n = static_cast<int>(distance.size());
+  double runner_up = std::numeric_limits<double>::infinity();
+  for (int i = 1; i + 1 < n; ++i) {
+    if (std::abs(i - best) <= 1) continue;
+    if (distance[i] <= distance[i - 1] && distance[i] <= distance[i + 1]) {
+      runner_up = std::min(runner_up, distance[i]);
+    }
+  }
+  return runner_up;
+}
+
+/// Refines the best whole-bin shift with a parabola through it and its neighbours; fills the
+/// result's shift, distance and sigma, or returns why it cannot.
+std::string RefineShift(const HeightDescriptorOptions& options,
+                        const std::vector<double>& distance,
+                        int best,
+                        int best_shift,
+                        double bin,
+                        LongitudinalShift* result) {
+  const double d_min = distance[best];
+  const double dm = distance[best - 1], dp = distance[best + 1];
+  const double curvature = dm - 2.0 * d_min + dp;  // second difference, per bin^2
+  if (!(curvature > 1e-9)) return "the minimum is flat";
+  const double offset = std::clamp(0.5 * (dm - dp) / curvature, -0.5, 0.5);
+  const double d_opt = std::max(0.0, d_min - 0.25 * (dm - dp) * offset);
+  // Valley width: where the parabola has risen by the residual distance at its vertex. The
+  // error grows with it (calibrated on simulated Livox frames), above a floor from the bins.
+  const double width_m = std::sqrt(2.0 * d_opt / (curvature / (bin * bin)));
+  if (width_m > options.max_valley_width_m) return "the distance valley is too wide";
+  result->dx_m = (best_shift + offset) * bin;
+  result->distance = d_opt;
+  result->sigma_m = std::hypot(options.min_sigma_m, kSigmaPerValleyWidth * width_m);
+  return "";
 }
 
 }  // namespace
@@ -51,64 +181,16 @@ HeightDescriptor ComputeHeightDescriptor(const HeightDescriptorOptions& options,
   d.x_min_m = options.x_min_m;
   d.bin_m = options.bin_m;
   d.cells = Eigen::MatrixXf::Zero(d.rows, d.cols);
-  const float inv_bin = static_cast<float>(1.0 / options.bin_m);
-  const float x_min = static_cast<float>(options.x_min_m);
-  const float y_min = static_cast<float>(options.y_min_m);
   const float z_floor = static_cast<float>(options.z_floor_m);
-  const float z_ceiling = static_cast<float>(options.z_ceiling_m);
-
-  // The points inside the grid, sorted by cell (counting sort).
-  const int n_cells = d.rows * d.cols;
-  std::vector<int> cell_of(points_body.size(), -1);
-  std::vector<int> begin(n_cells + 1, 0);
-  for (size_t i = 0; i < points_body.size(); ++i) {
-    const Eigen::Vector3f& p = points_body[i];
-    if (!(p.z() > z_floor && p.z() <= z_ceiling)) continue;  // also drops NaN
-    const float u = (p.x() - x_min) * inv_bin, v = (p.y() - y_min) * inv_bin;
-    if (!(u >= 0.f && v >= 0.f && u < d.cols && v < d.rows)) continue;
-    const int col = std::min(d.cols - 1, static_cast<int>(u));
-    const int row = std::min(d.rows - 1, static_cast<int>(v));
-    cell_of[i] = row * d.cols + col;
-    ++begin[cell_of[i] + 1];
-  }
-  for (int c = 0; c < n_cells; ++c) begin[c + 1] += begin[c];
-  std::vector<Eigen::Vector3f> sorted(begin[n_cells]);
-  {
-    std::vector<int> fill(begin.begin(), begin.end() - 1);
-    for (size_t i = 0; i < points_body.size(); ++i) {
-      if (cell_of[i] >= 0) sorted[fill[cell_of[i]]++] = points_body[i];
-    }
-  }
-
-  // A point counts if min_support_points others lie within support_radius_m (a real surface);
-  // isolated returns (sun flicker, mixed returns, dust) would add random heights.
-  const float radius2 = static_cast<float>(options.support_radius_m * options.support_radius_m);
-  const int reach =
-      std::max(1, static_cast<int>(std::ceil(options.support_radius_m / options.bin_m)));
-  auto supported = [&](int row, int col, int self) {
-    if (options.min_support_points <= 0) return true;
-    const Eigen::Vector3f& p = sorted[self];
-    int found = 0;
-    for (int r = std::max(0, row - reach); r <= std::min(d.rows - 1, row + reach); ++r) {
-      for (int c = std::max(0, col - reach); c <= std::min(d.cols - 1, col + reach); ++c) {
-        const int cell = r * d.cols + c;
-        for (int k = begin[cell]; k < begin[cell + 1]; ++k) {
-          if (k != self && (sorted[k] - p).squaredNorm() <= radius2 &&
-              ++found >= options.min_support_points) {
-            return true;
-          }
-        }
-      }
-    }
-    return false;
-  };
+  const CellPoints cells = SortIntoCells(options, d, points_body);
+  // Each cell: the height of its highest supported point.
   for (int row = 0; row < d.rows; ++row) {
     for (int col = 0; col < d.cols; ++col) {
       const int cell = row * d.cols + col;
       float best = 0.f;
-      for (int k = begin[cell]; k < begin[cell + 1]; ++k) {
-        const float h = sorted[k].z() - z_floor;
-        if (h > best && supported(row, col, k)) best = h;
+      for (int k = cells.begin[cell]; k < cells.begin[cell + 1]; ++k) {
+        const float h = cells.sorted[k].z() - z_floor;
+        if (h > best && Supported(options, d, cells, row, col, k)) best = h;
       }
       d.cells(row, col) = best;
     }
@@ -165,20 +247,8 @@ LongitudinalShift EstimateLongitudinalShift(const HeightDescriptorOptions& optio
     result.failure = why;
     return result;
   };
-  std::string error;
-  if (!options.IsValid(&error)) return fail("invalid options: " + error);
-  if (previous.rows != current.rows || previous.cols != current.cols ||
-      previous.bin_m != current.bin_m || !(previous.bin_m > 0.0) ||
-      previous.cells.rows() != previous.rows || previous.cells.cols() != previous.cols ||
-      current.cells.rows() != current.rows || current.cells.cols() != current.cols) {
-    return fail("the descriptors differ in layout");
-  }
-  if (!std::isfinite(predicted_dx_m)) return fail("the predicted shift is not finite");
-  const int occupied = std::min(Occupied(previous), Occupied(current));
-  if (occupied < options.min_occupied_cells) {
-    return fail("too empty: " + std::to_string(occupied) + " occupied cells (need " +
-                std::to_string(options.min_occupied_cells) + ")");
-  }
+  const std::string why = CannotCompare(options, previous, current, predicted_dx_m);
+  if (!why.empty()) return fail(why);
 
   // Eq. (27) at every whole-bin shift within the search window around the prediction.
   const double bin = previous.bin_m;
@@ -198,16 +268,8 @@ LongitudinalShift EstimateLongitudinalShift(const HeightDescriptorOptions& optio
   result.distance = d_min;
   if (best == 0 || best == n - 1) return fail("the minimum lies at the edge of the window");
   if (1.0 - d_min < options.min_score) return fail("the similarity is below min_score");
-
   // Distinct: every other local minimum (beyond the best's neighbours) lies clearly higher.
-  double runner_up = std::numeric_limits<double>::infinity();
-  for (int i = 1; i + 1 < n; ++i) {
-    if (std::abs(i - best) <= 1) continue;
-    if (distance[i] <= distance[i - 1] && distance[i] <= distance[i + 1]) {
-      runner_up = std::min(runner_up, distance[i]);
-    }
-  }
-  if (runner_up - d_min < options.min_distinctness * (d_max - d_min)) {
+  if (RunnerUp(distance, best) - d_min < options.min_distinctness * (d_max - d_min)) {
     return fail("the minimum is not distinct");
   }
   // Structures cut off by the field of view, and long surfaces sampled by the scan pattern,
@@ -216,20 +278,8 @@ LongitudinalShift EstimateLongitudinalShift(const HeightDescriptorOptions& optio
   if (std::abs(best_shift) <= 1 && std::fabs(predicted_dx_m) > 2.0 * bin) {
     return fail("locked to zero shift while the prediction moves");
   }
-
-  // Sub-bin refinement: a parabola through the best shift and its neighbours.
-  const double dm = distance[best - 1], dp = distance[best + 1];
-  const double curvature = dm - 2.0 * d_min + dp;  // second difference, per bin^2
-  if (!(curvature > 1e-9)) return fail("the minimum is flat");
-  const double offset = std::clamp(0.5 * (dm - dp) / curvature, -0.5, 0.5);
-  const double d_opt = std::max(0.0, d_min - 0.25 * (dm - dp) * offset);
-  // Valley width: where the parabola has risen by the residual distance at its vertex. The
-  // error grows with it (calibrated on simulated Livox frames), above a floor from the bins.
-  const double width_m = std::sqrt(2.0 * d_opt / (curvature / (bin * bin)));
-  if (width_m > options.max_valley_width_m) return fail("the distance valley is too wide");
-  result.dx_m = (best_shift + offset) * bin;
-  result.distance = d_opt;
-  result.sigma_m = std::hypot(options.min_sigma_m, kSigmaPerValleyWidth * width_m);
+  const std::string flat = RefineShift(options, distance, best, best_shift, bin, &result);
+  if (!flat.empty()) return fail(flat);
   result.ok = true;
   return result;
 }
