@@ -250,39 +250,8 @@ void SubmapBuilder::FinishPending(std::vector<api::Submap>* done) {
 api::Submap SubmapBuilder::Finalize(Pending p) {
   api::Submap& s = p.submap;
   if (p.chained && (options_.gnss_pull > 0.0 || options_.gnss_pull_vertical > 0.0)) {
-    // Move the submap rigidly so that its anchor goes gnss_pull of the way to its GNSS pose
-    // (gnss_pull_vertical of the way in height; along the track only with the heading loop).
-    Eigen::Isometry3d anchor = p.P[p.anchor];
-    anchor.translation() += s.origin;
-    const Eigen::Isometry3d& gnss = p.T_gnss_anchor;
-    const double k = options_.gnss_pull;
-    Eigen::Isometry3d target = Eigen::Isometry3d::Identity();
-    target.linear() = Eigen::Quaterniond(anchor.linear())
-                          .slerp(k, Eigen::Quaterniond(gnss.linear()))
-                          .normalized()
-                          .toRotationMatrix();
-    Eigen::Vector3d step = k * (gnss.translation() - anchor.translation());
-    step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
-    Eigen::Vector3d ahead, left;
-    if (options_.gnss_heading_length_m > 0.0 && Horizontal(anchor.linear(), &ahead, &left)) {
-      // Sideways the heading loop follows GNSS, so the step keeps only its along-track share.
-      // Beyond that, each way takes a share of the gap past a barrier, so that a chain that has
-      // strayed comes back a little each submap instead of being torn back by metres at a
-      // reset: along the track gnss_pull_along_excess past 1/4 of chain_reset_m (where the
-      // odometry runs long or short for a while), sideways gnss_pull_excess past 3/4 of it
-      // (where the loop has not kept up).
-      const Eigen::Vector3d gap = gnss.translation() - anchor.translation();
-      const auto excess = [](double g, double barrier) {
-        return g - std::clamp(g, -barrier, barrier);
-      };
-      const double along =
-          ahead.dot(step) +
-          options_.gnss_pull_along_excess * excess(ahead.dot(gap), 0.25 * options_.chain_reset_m);
-      const double across =
-          options_.gnss_pull_excess * excess(left.dot(gap), 0.75 * options_.chain_reset_m);
-      step.head<2>() = (along * ahead + across * left).head<2>();
-    }
-    target.translation() = anchor.translation() + step - s.origin;
+    // Move the submap rigidly so that its anchor goes gnss_pull of the way to its GNSS pose.
+    const Eigen::Isometry3d target = PullTarget(p);
     const Eigen::Isometry3d delta = target * p.P[p.anchor].inverse();  // local frame
     for (Eigen::Vector3f& q : s.points) q = (delta * q.cast<double>()).cast<float>();
     for (Eigen::Isometry3d& T : p.P) T = delta * T;
@@ -292,23 +261,66 @@ api::Submap SubmapBuilder::Finalize(Pending p) {
     s.keyframes[k].q_world_body = Eigen::Quaterniond(p.P[k].linear()).normalized();
   }
   if (s.georeferenced) {
-    if (options_.ndt) {
-      archive_.Put(s.index, s.utm_zone, s.origin, Thinned(s.points, options_.ndt_target_voxel_m));
-      if (placed_.size() <= s.index) placed_.resize(s.index + 1);
-      placed_[s.index] = {p.P[p.anchor].translation() + s.origin, p.travel_anchor_m};
-    }
-    Previous next;
-    next.utm_zone = s.utm_zone;
-    next.T_world_anchor = p.P[p.anchor];
-    next.T_world_anchor.translation() += s.origin;
-    next.T_odom_anchor = p.T_odom_anchor;
-    next.R_level_anchor = p.T_gnss_anchor.linear();
-    previous_ = std::move(next);
+    Remember(p);
   } else {
     previous_.reset();
   }
   ++stats_.submaps;
   return std::move(s);
+}
+
+Eigen::Isometry3d SubmapBuilder::PullTarget(const Pending& p) const {
+  // The anchor goes gnss_pull of the way to its GNSS pose (gnss_pull_vertical of the way in
+  // height; along the track only with the heading loop). The target is local (minus origin).
+  const api::Submap& s = p.submap;
+  Eigen::Isometry3d anchor = p.P[p.anchor];
+  anchor.translation() += s.origin;
+  const Eigen::Isometry3d& gnss = p.T_gnss_anchor;
+  const double k = options_.gnss_pull;
+  Eigen::Isometry3d target = Eigen::Isometry3d::Identity();
+  target.linear() = Eigen::Quaterniond(anchor.linear())
+                        .slerp(k, Eigen::Quaterniond(gnss.linear()))
+                        .normalized()
+                        .toRotationMatrix();
+  Eigen::Vector3d step = k * (gnss.translation() - anchor.translation());
+  step.z() = options_.gnss_pull_vertical * (gnss.translation().z() - anchor.translation().z());
+  Eigen::Vector3d ahead, left;
+  if (options_.gnss_heading_length_m > 0.0 && Horizontal(anchor.linear(), &ahead, &left)) {
+    // Sideways the heading loop follows GNSS, so the step keeps only its along-track share.
+    // Beyond that, each way takes a share of the gap past a barrier, so that a chain that has
+    // strayed comes back a little each submap instead of being torn back by metres at a
+    // reset: along the track gnss_pull_along_excess past 1/4 of chain_reset_m (where the
+    // odometry runs long or short for a while), sideways gnss_pull_excess past 3/4 of it
+    // (where the loop has not kept up).
+    const Eigen::Vector3d gap = gnss.translation() - anchor.translation();
+    const auto excess = [](double g, double barrier) {
+      return g - std::clamp(g, -barrier, barrier);
+    };
+    const double along =
+        ahead.dot(step) +
+        options_.gnss_pull_along_excess * excess(ahead.dot(gap), 0.25 * options_.chain_reset_m);
+    const double across =
+        options_.gnss_pull_excess * excess(left.dot(gap), 0.75 * options_.chain_reset_m);
+    step.head<2>() = (along * ahead + across * left).head<2>();
+  }
+  target.translation() = anchor.translation() + step - s.origin;
+  return target;
+}
+
+void SubmapBuilder::Remember(const Pending& p) {
+  const api::Submap& s = p.submap;
+  if (options_.ndt) {
+    archive_.Put(s.index, s.utm_zone, s.origin, Thinned(s.points, options_.ndt_target_voxel_m));
+    if (placed_.size() <= s.index) placed_.resize(s.index + 1);
+    placed_[s.index] = {p.P[p.anchor].translation() + s.origin, p.travel_anchor_m};
+  }
+  Previous next;
+  next.utm_zone = s.utm_zone;
+  next.T_world_anchor = p.P[p.anchor];
+  next.T_world_anchor.translation() += s.origin;
+  next.T_odom_anchor = p.T_odom_anchor;
+  next.R_level_anchor = p.T_gnss_anchor.linear();
+  previous_ = std::move(next);
 }
 
 Eigen::Matrix3d SubmapBuilder::Tilt(const Eigen::Matrix3d& R_world_body) const {
@@ -340,38 +352,15 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
   *tilt = Eigen::Matrix3d::Identity();
   const Eigen::Isometry3d& gnss = anchor.T_world_body;
   if (!anchor.georeferenced || !previous_ || previous_->utm_zone != anchor.utm_zone) return gnss;
-  // The previous submap's position carried by the odometry's motion since its anchor, turned
-  // into the world by the current GNSS correction and with the odometry's scale error taken
-  // out; the orientation is the GNSS-corrected one. Carrying the orientation along the chain
-  // too would carry an early heading error (the alignment's, before the graph has settled)
-  // into every later submap, which then walks sideways off the track. Path and orientation
-  // are both tilted by the height and heading loops, and by the roll and pitch that NDT and the
-  // pull left the previous submap with against its own GNSS orientation: NDT then only has this
-  // submap's own difference to take out, and one that stops early (PCL's sometimes stops at
-  // its first step) leaves no step in roll or pitch at the seam. The pull takes that carried
-  // tilt out again, a share per submap.
   *tilt = Tilt(gnss.linear());
-  const Eigen::AngleAxisd left_over(previous_->T_world_anchor.linear() *
-                                    previous_->R_level_anchor.transpose());
-  Eigen::Vector3d carried = left_over.angle() * left_over.axis();
-  carried.z() = 0.0;  // heading stays the GNSS correction's (see above)
-  Eigen::Matrix3d R_tilt = *tilt;
-  if (carried.norm() > 1e-12) {
-    R_tilt = Eigen::AngleAxisd(carried.norm(), carried.normalized()).toRotationMatrix() * R_tilt;
-  }
-  const Eigen::Matrix3d R_correction =
-      R_tilt * gnss.linear() * anchor.T_odom_body.linear().transpose();
-  const Eigen::Vector3d motion = anchor.odometry_scale * (anchor.T_odom_body.translation() -
-                                                          previous_->T_odom_anchor.translation());
-  Eigen::Isometry3d chain = gnss;
-  chain.linear() = R_tilt * gnss.linear();
-  chain.translation() = previous_->T_world_anchor.translation() + R_correction * motion;
+  double travel_m = 0.0;
+  const Eigen::Isometry3d chain = Chain(anchor, *tilt, &travel_m);
   const Eigen::Vector3d off = gnss.translation() - chain.translation();
   Steer(&height_,
         options_.gnss_height_length_m,
         options_.gnss_max_tilt_rate_rad_per_m,
         off.z(),
-        motion.norm());
+        travel_m);
   Eigen::Vector3d ahead, left;
   const bool level = Horizontal(gnss.linear(), &ahead, &left);
   if (level) {
@@ -379,7 +368,7 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
           options_.gnss_heading_length_m,
           options_.gnss_max_turn_rate_rad_per_m,
           left.dot(off),
-          motion.norm());
+          travel_m);
   }
   // Across the track a gap of chain_reset_m tears the map; along it the chain may lag or lead
   // twice as far (a step along the track moves nothing on the rails or the side walls).
@@ -399,6 +388,39 @@ Eigen::Isometry3d SubmapBuilder::PlaceAnchor(const SubmapKeyframe& anchor,
   return chain;
 }
 
+Eigen::Isometry3d SubmapBuilder::Chain(const SubmapKeyframe& anchor,
+                                       const Eigen::Matrix3d& tilt,
+                                       double* travel_m) const {
+  // The previous submap's position carried by the odometry's motion since its anchor, turned
+  // into the world by the current GNSS correction and with the odometry's scale error taken
+  // out; the orientation is the GNSS-corrected one. Carrying the orientation along the chain
+  // too would carry an early heading error (the alignment's, before the graph has settled)
+  // into every later submap, which then walks sideways off the track. Path and orientation
+  // are both tilted by the height and heading loops, and by the roll and pitch that NDT and the
+  // pull left the previous submap with against its own GNSS orientation: NDT then only has this
+  // submap's own difference to take out, and one that stops early (PCL's sometimes stops at
+  // its first step) leaves no step in roll or pitch at the seam. The pull takes that carried
+  // tilt out again, a share per submap.
+  const Eigen::Isometry3d& gnss = anchor.T_world_body;
+  const Eigen::AngleAxisd left_over(previous_->T_world_anchor.linear() *
+                                    previous_->R_level_anchor.transpose());
+  Eigen::Vector3d carried = left_over.angle() * left_over.axis();
+  carried.z() = 0.0;  // heading stays the GNSS correction's (see above)
+  Eigen::Matrix3d R_tilt = tilt;
+  if (carried.norm() > 1e-12) {
+    R_tilt = Eigen::AngleAxisd(carried.norm(), carried.normalized()).toRotationMatrix() * R_tilt;
+  }
+  const Eigen::Matrix3d R_correction =
+      R_tilt * gnss.linear() * anchor.T_odom_body.linear().transpose();
+  const Eigen::Vector3d motion = anchor.odometry_scale * (anchor.T_odom_body.translation() -
+                                                          previous_->T_odom_anchor.translation());
+  *travel_m = motion.norm();
+  Eigen::Isometry3d chain = gnss;
+  chain.linear() = R_tilt * gnss.linear();
+  chain.translation() = previous_->T_world_anchor.translation() + R_correction * motion;
+  return chain;
+}
+
 void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   if (pending_) FinishPending(done);  // its placement seeds this submap's chain
   const SubmapKeyframe& first = open_.front();
@@ -410,37 +432,52 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
   s.georeferenced = first.georeferenced;
   s.utm_zone = first.utm_zone;
   s.origin = first.T_world_body.translation().array().round().matrix();
+  PlaceKeyframes(&p);
+  GatherPoints(&p);
+  open_.clear();
+  open_travel_m_.clear();
+  if (s.georeferenced && options_.ndt && StartNdt(&p, p.chained)) {
+    pending_ = std::move(p);
+    return;
+  }
+  done->push_back(Finalize(std::move(p)));
+}
 
+void SubmapBuilder::PlaceKeyframes(Pending* p) {
   // Local poses (world minus origin): the middle keyframe placed by PlaceAnchor, the others by
   // the odometry relative to it. The relative motion is taken first, in odometry magnitudes.
   const size_t n = open_.size();
-  p.anchor = n / 2;
-  p.T_odom_anchor = open_[p.anchor].T_odom_body;
-  p.T_gnss_anchor = open_[p.anchor].T_world_body;
-  p.travel_anchor_m = open_travel_m_[p.anchor];
+  p->anchor = n / 2;
+  p->T_odom_anchor = open_[p->anchor].T_odom_body;
+  p->T_gnss_anchor = open_[p->anchor].T_world_body;
+  p->travel_anchor_m = open_travel_m_[p->anchor];
   bool chained = false;
   Eigen::Matrix3d tilt;
-  Eigen::Isometry3d A = PlaceAnchor(open_[p.anchor], &chained, &tilt);
-  p.T_gnss_anchor.linear() = tilt * p.T_gnss_anchor.linear();  // the pull keeps the tilt
-  p.chained = chained;
-  A.translation() -= s.origin;
-  const Eigen::Isometry3d odom_anchor_inv = p.T_odom_anchor.inverse();
+  Eigen::Isometry3d A = PlaceAnchor(open_[p->anchor], &chained, &tilt);
+  p->T_gnss_anchor.linear() = tilt * p->T_gnss_anchor.linear();  // the pull keeps the tilt
+  p->chained = chained;
+  A.translation() -= p->submap.origin;
+  const Eigen::Isometry3d odom_anchor_inv = p->T_odom_anchor.inverse();
   std::vector<Eigen::Isometry3d> odom(n);
   for (size_t k = 0; k < n; ++k) odom[k] = open_[k].T_odom_body;
   if (options_.remove_side_slip)
-    odom = WithoutSideSlip(odom, p.anchor, options_.p_body_odometer, options_.side_slip_max_jump_m);
-  p.P.resize(n);
-  for (size_t k = 0; k < n; ++k) p.P[k] = A * (odom_anchor_inv * odom[k]);
-  if (options_.icp && n > 1) RegisterKeyframes(s.origin, &p.P);
+    odom =
+        WithoutSideSlip(odom, p->anchor, options_.p_body_odometer, options_.side_slip_max_jump_m);
+  p->P.resize(n);
+  for (size_t k = 0; k < n; ++k) p->P[k] = A * (odom_anchor_inv * odom[k]);
+  if (options_.icp && n > 1) RegisterKeyframes(p->submap.origin, &p->P);
+}
 
+void SubmapBuilder::GatherPoints(Pending* p) const {
+  api::Submap& s = p->submap;
   const float max_range_squared =
       options_.max_range_m > 0.0 ? static_cast<float>(options_.max_range_m * options_.max_range_m)
                                  : std::numeric_limits<float>::infinity();
-  for (size_t k = 0; k < n; ++k) {
+  for (size_t k = 0; k < open_.size(); ++k) {
     const SubmapKeyframe& kf = open_[k];
     for (size_t i = 0; i < kf.points_body.size(); ++i) {
       if (kf.points_body[i].squaredNorm() > max_range_squared) continue;
-      s.points.push_back((p.P[k] * kf.points_body[i].cast<double>()).cast<float>());
+      s.points.push_back((p->P[k] * kf.points_body[i].cast<double>()).cast<float>());
       s.intensities.push_back(i < kf.intensities.size() ? kf.intensities[i] : 0.f);
     }
     api::StampedPose pose;  // filled in by Finalize
@@ -459,13 +496,6 @@ void SubmapBuilder::Close(std::vector<api::Submap>* done) {
       s.intensities.push_back(intensity);
     });
   }
-  open_.clear();
-  open_travel_m_.clear();
-  if (s.georeferenced && options_.ndt && StartNdt(&p, chained)) {
-    pending_ = std::move(p);
-    return;
-  }
-  done->push_back(Finalize(std::move(p)));
 }
 
 SubmapBuilder::~SubmapBuilder() {

@@ -221,11 +221,20 @@ class SubmapBuilder {
 
   /// Closes the open submap into `done`, or into pending_ while its NDT runs.
   void Close(std::vector<api::Submap>* done);
+  /// The open keyframes' local poses (world minus origin): the anchor placed, the others by the
+  /// odometry relative to it, refined by ICP.
+  void PlaceKeyframes(Pending* p);
+  /// The open keyframes' points within max_range_m at their poses, voxel-thinned.
+  void GatherPoints(Pending* p) const;
   /// Waits for the pending submap's NDT, applies it and hands the submap over.
   void FinishPending(std::vector<api::Submap>* done);
   /// Pulls a chained submap towards GNSS, writes the keyframe poses and remembers the submap
   /// for the next one's chain and NDT.
   api::Submap Finalize(Pending p);
+  /// Where a chained submap's anchor goes (local): gnss_pull of the way to its GNSS pose.
+  Eigen::Isometry3d PullTarget(const Pending& p) const;
+  /// Keeps a georeferenced submap for the next one's chain and for NDT.
+  void Remember(const Pending& p);
   /// Stage 1: refines the local keyframe poses P (world minus origin) by ICP.
   void RegisterKeyframes(const Eigen::Vector3d& origin, std::vector<Eigen::Isometry3d>* P);
   /// Stage 2: where the middle keyframe goes (absolute), by the chain or by GNSS; `chained`
@@ -237,6 +246,11 @@ class SubmapBuilder {
   /// The rotation that raises the nose of `R_world_body` by the height loop's slope and turns
   /// its heading left by the heading loop's angle.
   Eigen::Matrix3d Tilt(const Eigen::Matrix3d& R_world_body) const;
+  /// The anchor's pose carried from the previous submap's by the odometry and tilted;
+  /// `travel_m`: the distance carried.
+  Eigen::Isometry3d Chain(const SubmapKeyframe& anchor,
+                          const Eigen::Matrix3d& tilt,
+                          double* travel_m) const;
   /// A critically damped loop of natural length `length_m` on a distance along the path.
   struct Loop {
     double angle_rad = 0.0;
