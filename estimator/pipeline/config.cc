@@ -1,8 +1,11 @@
 #include "estimator/pipeline/config.h"
 
+#include <array>
 #include <cmath>
 #include <fstream>
 #include <sstream>
+#include <string>
+#include <utility>
 
 #include "api/yaml_map_reader.h"
 #include "estimator/geo/utm.h"
@@ -174,6 +177,99 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     st.Finish();
   }
   r.Finish();
+}
+
+/// The imu section (required): topic, rate, noise densities and gravity.
+void ParseImu(MapReader& root, const YAML::Node& root_node, RigConfig* rig) {
+  if (!root.Has("imu")) {
+    root.Fail(root_node, "key 'imu' is required");
+    return;
+  }
+  MapReader r(root.Node("imu"), "imu", root.source());
+  r.Read("topic", &rig->imu_topic);
+  r.Read("rate_hz", &rig->imu_rate_hz);
+  r.Read("gyro_noise_density", &rig->noise.gyro_noise_density);
+  r.Read("gyro_bias_walk", &rig->noise.gyro_bias_walk);
+  r.Read("accel_noise_density", &rig->noise.accel_noise_density);
+  r.Read("accel_bias_walk", &rig->noise.accel_bias_walk);
+  r.Read("gap_rate_sigma_radps", &rig->noise.gap_rate_sigma_radps);
+  r.Read("gap_accel_sigma_mps2", &rig->noise.gap_accel_sigma_mps2);
+  r.Read("gravity_mps2", &rig->gravity_mps2);
+  if (!(rig->imu_rate_hz >= 1.0 && rig->imu_rate_hz <= 10000.0)) {
+    r.Fail(r.Node("rate_hz"), "key 'imu.rate_hz' must be in [1, 10000] Hz");
+  }
+  r.Finish();
+}
+
+/// The odometer section; without one the run has no odometer.
+void ParseOdometer(MapReader& root, RigConfig* rig) {
+  if (!root.Has("odometer")) {
+    rig->odometer_topic.clear();
+    return;
+  }
+  MapReader r(root.Node("odometer"), "odometer", root.source());
+  std::array<double, 3> t{0, 0, 0};
+  r.Read("topic", &rig->odometer_topic);
+  r.Read("joint_name", &rig->odometer_joint);
+  r.Read("wheel_diameter_m", &rig->wheel_diameter_m);
+  r.Read("pulses_per_rev", &rig->pulses_per_rev);
+  r.Read("rate_hz", &rig->odometer_rate_hz);
+  r.ReadArray("translation_m", &t);
+  rig->p_body_odometer = Vec(t);
+  if (!(rig->wheel_diameter_m > 0.1 && rig->wheel_diameter_m < 3.0)) {
+    r.Fail(r.Node("wheel_diameter_m"), "key 'odometer.wheel_diameter_m' must be in (0.1, 3) m");
+  }
+  if (rig->pulses_per_rev < 1) {
+    r.Fail(r.Node("pulses_per_rev"), "key 'odometer.pulses_per_rev' must be >= 1");
+  }
+  rig->noise.odometer_resolution_m = M_PI * rig->wheel_diameter_m / rig->pulses_per_rev;
+  r.Finish();
+}
+
+/// The optional gnss (topic, antenna) and vehicle (body height, gauge) sections.
+void ParseGnssAndVehicle(MapReader& root, RigConfig* rig) {
+  if (root.Has("gnss")) {
+    MapReader r(root.Node("gnss"), "gnss", root.source());
+    std::array<double, 3> antenna{0, 0, 0};
+    double rate = 1.0;
+    r.Read("topic", &rig->gnss_topic);
+    r.ReadArray("antenna_m", &antenna);
+    r.Read("rate_hz", &rate);
+    rig->p_body_antenna = Vec(antenna);
+    r.Finish();
+  }
+  if (root.Has("vehicle")) {
+    MapReader r(root.Node("vehicle"), "vehicle", root.source());
+    r.Read("body_above_rail_top_m", &rig->body_above_rail_top_m);
+    r.Read("gauge_m", &rig->gauge_m);
+    r.Finish();
+  }
+}
+
+/// Why the noise figures are unusable, or an empty string. White-noise densities must be
+/// positive (zero would make a measurement exact); random walks may be zero (a constant bias or
+/// scale).
+std::string BadNoise(const PreintegrationNoise& n) {
+  const std::pair<const char*, double> densities[] = {
+      {"imu.gyro_noise_density", n.gyro_noise_density},
+      {"imu.accel_noise_density", n.accel_noise_density},
+      {"estimator.odometer_speed_density", n.odometer_speed_density},
+      {"estimator.odometer_lateral_density", n.odometer_lateral_density},
+      {"estimator.odometer_vertical_density", n.odometer_vertical_density}};
+  const std::pair<const char*, double> walks[] = {
+      {"imu.gyro_bias_walk", n.gyro_bias_walk},
+      {"imu.accel_bias_walk", n.accel_bias_walk},
+      {"imu.gap_rate_sigma_radps", n.gap_rate_sigma_radps},
+      {"imu.gap_accel_sigma_mps2", n.gap_accel_sigma_mps2},
+      {"estimator.odometer_scale_walk", n.odometer_scale_walk},
+      {"estimator.odometer_misalignment_walk", n.odometer_misalignment_walk}};
+  for (const auto& [key, value] : densities) {
+    if (!(value > 0.0 && std::isfinite(value))) return std::string(key) + " must be > 0";
+  }
+  for (const auto& [key, value] : walks) {
+    if (!(value >= 0.0 && std::isfinite(value))) return std::string(key) + " must be >= 0";
+  }
+  return "";
 }
 
 }  // namespace
@@ -463,61 +559,9 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
     root.Read("rig", &rig.rig);
     root.Read("utm_zone", &rig.utm_zone);
     ParseLidars(root, &rig);
-    if (root.Has("imu")) {
-      MapReader r(root.Node("imu"), "imu", source_name);
-      r.Read("topic", &rig.imu_topic);
-      r.Read("rate_hz", &rig.imu_rate_hz);
-      r.Read("gyro_noise_density", &rig.noise.gyro_noise_density);
-      r.Read("gyro_bias_walk", &rig.noise.gyro_bias_walk);
-      r.Read("accel_noise_density", &rig.noise.accel_noise_density);
-      r.Read("accel_bias_walk", &rig.noise.accel_bias_walk);
-      r.Read("gap_rate_sigma_radps", &rig.noise.gap_rate_sigma_radps);
-      r.Read("gap_accel_sigma_mps2", &rig.noise.gap_accel_sigma_mps2);
-      r.Read("gravity_mps2", &rig.gravity_mps2);
-      if (!(rig.imu_rate_hz >= 1.0 && rig.imu_rate_hz <= 10000.0)) {
-        r.Fail(r.Node("rate_hz"), "key 'imu.rate_hz' must be in [1, 10000] Hz");
-      }
-      r.Finish();
-    } else {
-      root.Fail(root_node, "key 'imu' is required");
-    }
-    if (root.Has("odometer")) {
-      MapReader r(root.Node("odometer"), "odometer", source_name);
-      std::array<double, 3> t{0, 0, 0};
-      r.Read("topic", &rig.odometer_topic);
-      r.Read("joint_name", &rig.odometer_joint);
-      r.Read("wheel_diameter_m", &rig.wheel_diameter_m);
-      r.Read("pulses_per_rev", &rig.pulses_per_rev);
-      r.Read("rate_hz", &rig.odometer_rate_hz);
-      r.ReadArray("translation_m", &t);
-      rig.p_body_odometer = Vec(t);
-      if (!(rig.wheel_diameter_m > 0.1 && rig.wheel_diameter_m < 3.0)) {
-        r.Fail(r.Node("wheel_diameter_m"), "key 'odometer.wheel_diameter_m' must be in (0.1, 3) m");
-      }
-      if (rig.pulses_per_rev < 1) {
-        r.Fail(r.Node("pulses_per_rev"), "key 'odometer.pulses_per_rev' must be >= 1");
-      }
-      rig.noise.odometer_resolution_m = M_PI * rig.wheel_diameter_m / rig.pulses_per_rev;
-      r.Finish();
-    } else {
-      rig.odometer_topic.clear();
-    }
-    if (root.Has("gnss")) {
-      MapReader r(root.Node("gnss"), "gnss", source_name);
-      std::array<double, 3> antenna{0, 0, 0};
-      double rate = 1.0;
-      r.Read("topic", &rig.gnss_topic);
-      r.ReadArray("antenna_m", &antenna);
-      r.Read("rate_hz", &rate);
-      rig.p_body_antenna = Vec(antenna);
-      r.Finish();
-    }
-    if (root.Has("vehicle")) {
-      MapReader r(root.Node("vehicle"), "vehicle", source_name);
-      r.Read("body_above_rail_top_m", &rig.body_above_rail_top_m);
-      r.Read("gauge_m", &rig.gauge_m);
-      r.Finish();
-    }
+    ParseImu(root, root_node, &rig);
+    ParseOdometer(root, &rig);
+    ParseGnssAndVehicle(root, &rig);
     ParseEstimatorSection(root, &c.options, &rig.noise);
     root.Finish();
   } catch (const api::YamlError& e) {
@@ -541,33 +585,10 @@ bool ParseEstimatorConfig(const std::string& yaml_text,
     if (error) *error = source_name + ": estimator." + why;
     return false;
   }
-  // White-noise densities must be positive (zero would make a measurement exact); random walks
-  // may be zero (a constant bias or scale).
-  const PreintegrationNoise& n = c.rig.noise;
-  const std::pair<const char*, double> densities[] = {
-      {"imu.gyro_noise_density", n.gyro_noise_density},
-      {"imu.accel_noise_density", n.accel_noise_density},
-      {"estimator.odometer_speed_density", n.odometer_speed_density},
-      {"estimator.odometer_lateral_density", n.odometer_lateral_density},
-      {"estimator.odometer_vertical_density", n.odometer_vertical_density}};
-  const std::pair<const char*, double> walks[] = {
-      {"imu.gyro_bias_walk", n.gyro_bias_walk},
-      {"imu.accel_bias_walk", n.accel_bias_walk},
-      {"imu.gap_rate_sigma_radps", n.gap_rate_sigma_radps},
-      {"imu.gap_accel_sigma_mps2", n.gap_accel_sigma_mps2},
-      {"estimator.odometer_scale_walk", n.odometer_scale_walk},
-      {"estimator.odometer_misalignment_walk", n.odometer_misalignment_walk}};
-  for (const auto& [key, value] : densities) {
-    if (!(value > 0.0 && std::isfinite(value))) {
-      if (error) *error = source_name + ": " + key + " must be > 0";
-      return false;
-    }
-  }
-  for (const auto& [key, value] : walks) {
-    if (!(value >= 0.0 && std::isfinite(value))) {
-      if (error) *error = source_name + ": " + key + " must be >= 0";
-      return false;
-    }
+  why = BadNoise(c.rig.noise);
+  if (!why.empty()) {
+    if (error) *error = source_name + ": " + why;
+    return false;
   }
   *config = std::move(c);
   return true;
