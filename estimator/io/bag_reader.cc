@@ -385,48 +385,78 @@ struct BagIndex {
         *why = "file ends at " + At(file.size()) + " inside the record at " + At(pos);
         return false;
       }
-      if (header.op == kOpChunk) {
-        Chunk chunk;
-        chunk.record = header;
-        auto compression = header.fields.find("compression");
-        if (compression == header.fields.end() || !FieldU32(header.fields, "size", &chunk.size)) {
-          *why = "chunk at " + At(pos) + " lacks its compression or size";
-          return false;
-        }
-        chunk.compression = compression->second;
-        chunks.push_back(std::move(chunk));
-      } else if (header.op == kOpIndexData) {
-        uint32_t version = 0, connection = 0, count = 0;
-        if (chunks.empty() || !FieldU32(header.fields, "ver", &version) || version != 1 ||
-            !FieldU32(header.fields, "conn", &connection) ||
-            !FieldU32(header.fields, "count", &count) || uint64_t{count} * 12 != header.data_len ||
-            !file.ReadData(header, &data)) {
-          *why = "corrupt index data record at " + At(pos);
-          return false;
-        }
-        for (uint32_t i = 0; i < count; ++i) {
-          IndexEntry entry;
-          entry.time_ns = ReadTime(data.data() + 12 * i);
-          entry.offset = ReadU32(data.data() + 12 * i + 8);
-          entry.chunk = static_cast<uint32_t>(chunks.size() - 1);
-          entry.connection = connection;
-          entries.push_back(entry);
-        }
-      } else if (header.op == kOpConnection) {
-        uint32_t id = 0;
-        Connection connection;
-        if (!file.ReadData(header, &data) ||
-            !ParseConnection(header.fields, data.data(), data.size(), &id, &connection)) {
-          *why = "corrupt connection record at " + At(pos);
-          return false;
-        }
-        connections[id] = connection;
-      } else if (header.op != kOpChunkInfo) {
-        *why = "unexpected record (op " + std::to_string(header.op) + ") at " + At(pos);
-        return false;
-      }
+      if (!AddRecord(file, header, pos, &data, why)) return false;
       pos = header.data_pos + header.data_len;
     }
+    if (!Consistent(file, why)) return false;
+    std::stable_sort(entries.begin(), entries.end(), [](const IndexEntry& a, const IndexEntry& b) {
+      return a.time_ns < b.time_ns;
+    });
+    return true;
+  }
+
+ private:
+  /// Takes one top-level record at `pos`: a chunk, its index data or a connection.
+  bool AddRecord(BagFile& file,
+                 const RecordHeader& header,
+                 uint64_t pos,
+                 std::vector<uint8_t>* data,
+                 std::string* why) {
+    if (header.op == kOpChunk) {
+      Chunk chunk;
+      chunk.record = header;
+      auto compression = header.fields.find("compression");
+      if (compression == header.fields.end() || !FieldU32(header.fields, "size", &chunk.size)) {
+        *why = "chunk at " + At(pos) + " lacks its compression or size";
+        return false;
+      }
+      chunk.compression = compression->second;
+      chunks.push_back(std::move(chunk));
+    } else if (header.op == kOpIndexData) {
+      return AddIndexData(file, header, pos, data, why);
+    } else if (header.op == kOpConnection) {
+      uint32_t id = 0;
+      Connection connection;
+      if (!file.ReadData(header, data) ||
+          !ParseConnection(header.fields, data->data(), data->size(), &id, &connection)) {
+        *why = "corrupt connection record at " + At(pos);
+        return false;
+      }
+      connections[id] = connection;
+    } else if (header.op != kOpChunkInfo) {
+      *why = "unexpected record (op " + std::to_string(header.op) + ") at " + At(pos);
+      return false;
+    }
+    return true;
+  }
+
+  /// The entries of an index data record, which follows its chunk.
+  bool AddIndexData(BagFile& file,
+                    const RecordHeader& header,
+                    uint64_t pos,
+                    std::vector<uint8_t>* data,
+                    std::string* why) {
+    uint32_t version = 0, connection = 0, count = 0;
+    if (chunks.empty() || !FieldU32(header.fields, "ver", &version) || version != 1 ||
+        !FieldU32(header.fields, "conn", &connection) ||
+        !FieldU32(header.fields, "count", &count) || uint64_t{count} * 12 != header.data_len ||
+        !file.ReadData(header, data)) {
+      *why = "corrupt index data record at " + At(pos);
+      return false;
+    }
+    for (uint32_t i = 0; i < count; ++i) {
+      IndexEntry entry;
+      entry.time_ns = ReadTime(data->data() + 12 * i);
+      entry.offset = ReadU32(data->data() + 12 * i + 8);
+      entry.chunk = static_cast<uint32_t>(chunks.size() - 1);
+      entry.connection = connection;
+      entries.push_back(entry);
+    }
+    return true;
+  }
+
+  /// The index agrees with the bag header's counts, and every entry with its chunk.
+  bool Consistent(const BagFile& file, std::string* why) const {
     if (chunks.size() != file.chunk_count() || connections.size() != file.conn_count()) {
       *why = "the index lists " + std::to_string(chunks.size()) + " chunks and " +
              std::to_string(connections.size()) + " connections, the bag header " +
@@ -439,9 +469,6 @@ struct BagIndex {
         return false;
       }
     }
-    std::stable_sort(entries.begin(), entries.end(), [](const IndexEntry& a, const IndexEntry& b) {
-      return a.time_ns < b.time_ns;
-    });
     return true;
   }
 };
@@ -1019,6 +1046,92 @@ struct TopicRole {
   const char* name = "";  // "lidar", "imu", ... for messages
 };
 
+/// A LiDAR frame from a Livox CustomMsg or a PointCloud2.
+bool DecodeLidar(const TopicRole& role,
+                 const std::string& type,
+                 const uint8_t* data,
+                 size_t size,
+                 SensorMessage* out,
+                 std::string* error) {
+  LidarFrame frame;
+  if (type == RosType<livox_ros_driver::CustomMsg>()) {
+    livox_ros_driver::CustomMsg msg;
+    if (!Deserialize(data, size, &msg, error)) return false;
+    if (msg.point_num != msg.points.size()) {
+      *error = "CustomMsg point_num " + std::to_string(msg.point_num) + " but " +
+               std::to_string(msg.points.size()) + " points";
+      return false;
+    }
+    ConvertCustomMsg(msg, &frame);
+  } else {
+    sensor_msgs::PointCloud2 msg;
+    if (!Deserialize(data, size, &msg, error)) return false;
+    if (!ConvertPointCloud2(msg, role.lidar_index, &frame, error)) return false;
+  }
+  out->data = std::move(frame);
+  return true;
+}
+
+/// An IMU sample from a sensor_msgs/Imu.
+bool DecodeImu(const uint8_t* data, size_t size, SensorMessage* out, std::string* error) {
+  sensor_msgs::Imu msg;
+  if (!Deserialize(data, size, &msg, error)) return false;
+  ImuSample sample;
+  sample.stamp_ns = ToNs(msg.header.stamp);
+  sample.frame_id = msg.header.frame_id;
+  sample.angular_velocity_radps = {
+      msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z};
+  sample.linear_acceleration_mps2 = {
+      msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z};
+  // -1 in element 0 means "unknown" (sensor_msgs/Imu); that becomes variance 0.
+  sample.gyro_noise_var = std::max(0.0, msg.angular_velocity_covariance[0]);
+  sample.accel_noise_var = std::max(0.0, msg.linear_acceleration_covariance[0]);
+  out->data = std::move(sample);
+  return true;
+}
+
+/// A GNSS fix from a sensor_msgs/NavSatFix.
+bool DecodeGnss(const uint8_t* data, size_t size, SensorMessage* out, std::string* error) {
+  sensor_msgs::NavSatFix msg;
+  if (!Deserialize(data, size, &msg, error)) return false;
+  GnssFix fix;
+  fix.stamp_ns = ToNs(msg.header.stamp);
+  fix.frame_id = msg.header.frame_id;
+  fix.status = msg.status.status;
+  fix.service = msg.status.service;
+  fix.latitude_deg = msg.latitude;
+  fix.longitude_deg = msg.longitude;
+  fix.altitude_m = msg.altitude;
+  for (size_t i = 0; i < 9; ++i) fix.position_covariance[i] = msg.position_covariance[i];
+  fix.position_covariance_type = msg.position_covariance_type;
+  out->data = std::move(fix);
+  return true;
+}
+
+/// The odometer is the JointState's joint named "wheel".
+bool DecodeOdometer(const uint8_t* data, size_t size, SensorMessage* out, std::string* error) {
+  sensor_msgs::JointState msg;
+  if (!Deserialize(data, size, &msg, error)) return false;
+  auto it = std::find(msg.name.begin(), msg.name.end(), "wheel");
+  if (it == msg.name.end()) {
+    *error = "JointState has no joint named 'wheel'";
+    return false;
+  }
+  const size_t i = static_cast<size_t>(it - msg.name.begin());
+  if (i >= msg.position.size() || i >= msg.velocity.size()) {
+    *error = "JointState lacks position or velocity for joint 'wheel'";
+    return false;
+  }
+  WheelOdometry odometry;
+  odometry.stamp_ns = ToNs(msg.header.stamp);
+  odometry.frame_id = msg.header.frame_id;
+  odometry.position_rad = msg.position[i];
+  odometry.velocity_radps = msg.velocity[i];
+  out->data = std::move(odometry);
+  return true;
+}
+
+/// Decodes a message of the topic's role into `out`.
 bool Decode(const TopicRole& role,
             const std::string& type,
             const uint8_t* data,
@@ -1026,78 +1139,14 @@ bool Decode(const TopicRole& role,
             SensorMessage* out,
             std::string* error) {
   switch (role.role) {
-    case Role::kLidar: {
-      LidarFrame frame;
-      if (type == RosType<livox_ros_driver::CustomMsg>()) {
-        livox_ros_driver::CustomMsg msg;
-        if (!Deserialize(data, size, &msg, error)) return false;
-        if (msg.point_num != msg.points.size()) {
-          *error = "CustomMsg point_num " + std::to_string(msg.point_num) + " but " +
-                   std::to_string(msg.points.size()) + " points";
-          return false;
-        }
-        ConvertCustomMsg(msg, &frame);
-      } else {
-        sensor_msgs::PointCloud2 msg;
-        if (!Deserialize(data, size, &msg, error)) return false;
-        if (!ConvertPointCloud2(msg, role.lidar_index, &frame, error)) return false;
-      }
-      out->data = std::move(frame);
-      return true;
-    }
-    case Role::kImu: {
-      sensor_msgs::Imu msg;
-      if (!Deserialize(data, size, &msg, error)) return false;
-      ImuSample sample;
-      sample.stamp_ns = ToNs(msg.header.stamp);
-      sample.frame_id = msg.header.frame_id;
-      sample.angular_velocity_radps = {
-          msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z};
-      sample.linear_acceleration_mps2 = {
-          msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z};
-      // -1 in element 0 means "unknown" (sensor_msgs/Imu); that becomes variance 0.
-      sample.gyro_noise_var = std::max(0.0, msg.angular_velocity_covariance[0]);
-      sample.accel_noise_var = std::max(0.0, msg.linear_acceleration_covariance[0]);
-      out->data = std::move(sample);
-      return true;
-    }
-    case Role::kGnss: {
-      sensor_msgs::NavSatFix msg;
-      if (!Deserialize(data, size, &msg, error)) return false;
-      GnssFix fix;
-      fix.stamp_ns = ToNs(msg.header.stamp);
-      fix.frame_id = msg.header.frame_id;
-      fix.status = msg.status.status;
-      fix.service = msg.status.service;
-      fix.latitude_deg = msg.latitude;
-      fix.longitude_deg = msg.longitude;
-      fix.altitude_m = msg.altitude;
-      for (size_t i = 0; i < 9; ++i) fix.position_covariance[i] = msg.position_covariance[i];
-      fix.position_covariance_type = msg.position_covariance_type;
-      out->data = std::move(fix);
-      return true;
-    }
-    case Role::kOdometer: {
-      sensor_msgs::JointState msg;
-      if (!Deserialize(data, size, &msg, error)) return false;
-      auto it = std::find(msg.name.begin(), msg.name.end(), "wheel");
-      if (it == msg.name.end()) {
-        *error = "JointState has no joint named 'wheel'";
-        return false;
-      }
-      const size_t i = static_cast<size_t>(it - msg.name.begin());
-      if (i >= msg.position.size() || i >= msg.velocity.size()) {
-        *error = "JointState lacks position or velocity for joint 'wheel'";
-        return false;
-      }
-      WheelOdometry odometry;
-      odometry.stamp_ns = ToNs(msg.header.stamp);
-      odometry.frame_id = msg.header.frame_id;
-      odometry.position_rad = msg.position[i];
-      odometry.velocity_radps = msg.velocity[i];
-      out->data = std::move(odometry);
-      return true;
-    }
+    case Role::kLidar:
+      return DecodeLidar(role, type, data, size, out, error);
+    case Role::kImu:
+      return DecodeImu(data, size, out, error);
+    case Role::kGnss:
+      return DecodeGnss(data, size, out, error);
+    case Role::kOdometer:
+      return DecodeOdometer(data, size, out, error);
   }
   return false;
 }
