@@ -58,29 +58,32 @@ int EpsgOfUtmZone(const std::string& utm_zone) {
   return (hemisphere == 'N' ? 32600 : 32700) + zone;
 }
 
-bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
+namespace {
+
+/// Why the points do not fit LAS 1.2 at 1 mm (count, bounds, span), or an empty string.
+std::string WhyNotLas12(const Header& header,
+                        const Eigen::Vector3d& min,
+                        const Eigen::Vector3d& max) {
   if (header.points > std::numeric_limits<uint32_t>::max()) {
-    *error = "LAS 1.2 holds at most 4294967295 points, not " + std::to_string(header.points);
-    return false;
+    return "LAS 1.2 holds at most 4294967295 points, not " + std::to_string(header.points);
   }
-  const Eigen::Vector3d min = MinOf(header), max = MaxOf(header);
-  if (!min.allFinite() || !max.allFinite()) {
-    *error = "the points' bounds are not finite";
-    return false;
-  }
+  if (!min.allFinite() || !max.allFinite()) return "the points' bounds are not finite";
   const Eigen::Vector3d offset = OffsetOf(header);
   const double reach =
       std::max((max - offset).cwiseAbs().maxCoeff(), (min - offset).cwiseAbs().maxCoeff());
   if (reach / kScale >= std::numeric_limits<int32_t>::max()) {
-    *error = "the points span " + std::to_string(static_cast<int64_t>(reach)) +
-             " m, beyond what LAS 1.2 holds at 1 mm (2147 km)";
-    return false;
+    return "the points span " + std::to_string(static_cast<int64_t>(reach)) +
+           " m, beyond what LAS 1.2 holds at 1 mm (2147 km)";
   }
-  // The GeoTIFF key directory (mandatory in LAS 1.2): its own header (version 1.1.0 and the
-  // number of keys), then one entry per key, sorted, each four shorts (key, location 0: the value
-  // is in the entry, count 1, value). A frame that is no UTM zone is a user-defined projected
-  // system in metres.
-  const int epsg = EpsgOfUtmZone(header.utm_zone);
+  return "";
+}
+
+/// The GeoTIFF key directory (mandatory in LAS 1.2): its own header (version 1.1.0 and the
+/// number of keys), then one entry per key, sorted, each four shorts (key, location 0: the value
+/// is in the entry, count 1, value). A frame that is no UTM zone is a user-defined projected
+/// system in metres.
+std::vector<uint16_t> GeoKeyDirectory(const std::string& utm_zone) {
+  const int epsg = EpsgOfUtmZone(utm_zone);
   std::vector<uint16_t> keys = {1, 1, 0, 0};
   auto key = [&](uint16_t id, uint16_t value) {
     keys.insert(keys.end(), {id, 0, 1, value});
@@ -91,9 +94,16 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
   key(kProjectedCsType, static_cast<uint16_t>(epsg != 0 ? epsg : kUserDefined));
   key(kProjLinearUnits, kLinearMetre);
   key(kVerticalUnits, kLinearMetre);  // ellipsoidal height in metres
-  const size_t key_bytes = keys.size() * sizeof(uint16_t);
-  const size_t header_bytes = kLasHeader + kLasVlrHeader + key_bytes;
-  out->assign(header_bytes, '\0');
+  return keys;
+}
+
+/// Fills the public header block: signature, version, frame, date, sizes, scale, offset and
+/// the bounds of the points as stored.
+void PutPublicHeader(const Header& header,
+                     size_t header_bytes,
+                     const Eigen::Vector3d& min,
+                     const Eigen::Vector3d& max,
+                     std::string* out) {
   std::memcpy(&(*out)[0], "LASF", 4);
   (*out)[24] = 1;  // version 1.2
   (*out)[25] = 2;
@@ -117,6 +127,7 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
   PutAt(out, 105, static_cast<uint16_t>(kRecordBytes));  // record length
   PutAt(out, 107, n);                                    // legacy point count
   PutAt(out, 111, n);                                    // points by return (first return)
+  const Eigen::Vector3d offset = OffsetOf(header);
   for (int a = 0; a < 3; ++a) PutAt(out, 131 + 8 * a, kScale);
   for (int a = 0; a < 3; ++a) PutAt(out, 155 + 8 * a, offset[a]);
   // The bounds of the points as stored (rounded to the millimetre), so that every point read
@@ -128,6 +139,22 @@ bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
     PutAt(out, 179 + 16 * a, stored(max[a]));
     PutAt(out, 187 + 16 * a, stored(min[a]));
   }
+}
+
+}  // namespace
+
+bool EncodeHeader(const Header& header, std::string* out, std::string* error) {
+  const Eigen::Vector3d min = MinOf(header), max = MaxOf(header);
+  const std::string why = WhyNotLas12(header, min, max);
+  if (!why.empty()) {
+    *error = why;
+    return false;
+  }
+  const std::vector<uint16_t> keys = GeoKeyDirectory(header.utm_zone);
+  const size_t key_bytes = keys.size() * sizeof(uint16_t);
+  const size_t header_bytes = kLasHeader + kLasVlrHeader + key_bytes;
+  out->assign(header_bytes, '\0');
+  PutPublicHeader(header, header_bytes, min, max, out);
   // The key record's header: reserved, user id, record id, length after the header, description.
   PutText(out, kLasHeader + 2, 16, "LASF_Projection");
   PutAt(out, kLasHeader + 18, kGeoKeyDirectory);
