@@ -226,6 +226,70 @@ bool MapExporter::WriteMapFile(const std::string& tmp,
   return true;
 }
 
+namespace {
+
+/// What a PLY or PCD header says of its points; `pos` is the first byte of the points once
+/// `done`.
+struct TextHeaderInfo {
+  size_t pos = 0, count = 0;
+  bool have_count = false, done = false;
+};
+
+/// Reads one header line (its first word `key`); returns why it is not the exporter's layout,
+/// or an empty string.
+std::string ReadHeaderLine(bool ply,
+                           const std::string& key,
+                           std::istringstream& ls,
+                           std::string* comment,
+                           TextHeaderInfo* h) {
+  if (comment && (key == "comment" || key == "#")) {
+    std::getline(ls, *comment);
+  } else if (ply && key == "element") {
+    std::string what;
+    ls >> what >> h->count;
+    h->have_count = what == "vertex";
+  } else if (ply && key == "format") {
+    std::string format;
+    ls >> format;
+    if (format != "binary_little_endian") return "not binary little-endian PLY";
+  } else if (ply && key == "property") {
+    std::string type, name;
+    ls >> type >> name;
+    if ((name == "intensity" && type != "float") || (name != "intensity" && type != "double"))
+      return "property " + name + " is " + type + ", not the exporter's layout";
+  } else if (!ply && key == "SIZE") {
+    std::string rest;
+    std::getline(ls, rest);
+    if (rest != " 8 8 8 4") return "SIZE is '" + rest + "', not the exporter's 8 8 8 4";
+  } else if (!ply && key == "POINTS") {
+    ls >> h->count;
+    h->have_count = true;
+  } else if ((ply && key == "end_header") || (!ply && key == "DATA")) {
+    h->done = true;
+  }
+  return "";
+}
+
+/// Reads a PLY or PCD header up to its last line; returns why it is bad, or an empty string.
+std::string ReadTextHeader(const std::string& bytes, std::string* comment, TextHeaderInfo* h) {
+  const bool ply = bytes.rfind("ply\n", 0) == 0;
+  while (h->pos < bytes.size() && !h->done) {
+    const size_t end = bytes.find('\n', h->pos);
+    if (end == std::string::npos) break;
+    const std::string line = bytes.substr(h->pos, end - h->pos);
+    h->pos = end + 1;
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    const std::string why = ReadHeaderLine(ply, key, ls, comment, h);
+    if (!why.empty()) return why;
+  }
+  if (!h->done || !h->have_count) return "no complete PLY or PCD header";
+  return "";
+}
+
+}  // namespace
+
 bool ReadMapFile(const std::string& path,
                  std::vector<Eigen::Vector3d>* points,
                  std::vector<float>* intensities,
@@ -250,54 +314,18 @@ bool ReadMapFile(const std::string& path,
     if (comment) *comment = las.system_identifier;
     return true;
   }
-  size_t pos = 0, count = 0;
-  bool have_count = false, header_done = false;
-  const bool ply = bytes.rfind("ply\n", 0) == 0;
-  while (pos < bytes.size()) {
-    const size_t end = bytes.find('\n', pos);
-    if (end == std::string::npos) break;
-    const std::string line = bytes.substr(pos, end - pos);
-    pos = end + 1;
-    std::istringstream ls(line);
-    std::string key;
-    ls >> key;
-    if (comment && (key == "comment" || key == "#")) {
-      std::getline(ls, *comment);
-    } else if (ply && key == "element") {
-      std::string what;
-      ls >> what >> count;
-      have_count = what == "vertex";
-    } else if (ply && key == "format") {
-      std::string format;
-      ls >> format;
-      if (format != "binary_little_endian") return fail("not binary little-endian PLY");
-    } else if (ply && key == "property") {
-      std::string type, name;
-      ls >> type >> name;
-      if ((name == "intensity" && type != "float") || (name != "intensity" && type != "double"))
-        return fail("property " + name + " is " + type + ", not the exporter's layout");
-    } else if (!ply && key == "SIZE") {
-      std::string rest;
-      std::getline(ls, rest);
-      if (rest != " 8 8 8 4") return fail("SIZE is '" + rest + "', not the exporter's 8 8 8 4");
-    } else if (!ply && key == "POINTS") {
-      ls >> count;
-      have_count = true;
-    } else if ((ply && key == "end_header") || (!ply && key == "DATA")) {
-      header_done = true;
-      break;
-    }
+  TextHeaderInfo h;
+  const std::string why = ReadTextHeader(bytes, comment, &h);
+  if (!why.empty()) return fail(why);
+  if (bytes.size() - h.pos != h.count * kRecordBytes) {
+    return fail("expected " + std::to_string(h.count) + " points (" +
+                std::to_string(h.count * kRecordBytes) + " bytes), found " +
+                std::to_string(bytes.size() - h.pos) + " bytes");
   }
-  if (!header_done || !have_count) return fail("no complete PLY or PCD header");
-  if (bytes.size() - pos != count * kRecordBytes) {
-    return fail("expected " + std::to_string(count) + " points (" +
-                std::to_string(count * kRecordBytes) + " bytes), found " +
-                std::to_string(bytes.size() - pos) + " bytes");
-  }
-  points->resize(count);
-  intensities->resize(count);
-  for (size_t i = 0; i < count; ++i) {
-    const char* r = bytes.data() + pos + i * kRecordBytes;
+  points->resize(h.count);
+  intensities->resize(h.count);
+  for (size_t i = 0; i < h.count; ++i) {
+    const char* r = bytes.data() + h.pos + i * kRecordBytes;
     std::memcpy((*points)[i].data(), r, 3 * sizeof(double));
     std::memcpy(&(*intensities)[i], r + 3 * sizeof(double), sizeof(float));
   }
