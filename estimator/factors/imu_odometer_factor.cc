@@ -51,6 +51,137 @@ double MisalignmentWeight(const Preintegration& pre) {
   return walk > 0.0 ? 1.0 / (walk * std::sqrt(std::max(pre.sum_dt(), 1e-6))) : 1e6;
 }
 
+/// What every Jacobian block of the factor shares: the states, the whitened error and the
+/// rotations of eq. (18-19) at them.
+struct Linearization {
+  Linearization(const Preintegration& pre_in,
+                const Eigen::Matrix<double, 19, 19>& sqrt_info_in,
+                const NavState& i_in,
+                const NavState& j_in,
+                const Eigen::Matrix<double, 21, 1>& error_in)
+      : pre(pre_in), sqrt_info(sqrt_info_in), i(i_in), j(j_in), error(error_in) {}
+
+  const Preintegration& pre;
+  const Eigen::Matrix<double, 19, 19>& sqrt_info;
+  NavState i, j;
+  Eigen::Matrix<double, 21, 1> error;
+  /// sqrt_info with the metre residual's odometer-unit scaling folded in.
+  Eigen::Matrix<double, 19, 19> whitening;
+  double dt;
+  Vector3d g_w;
+  Matrix3d Ri_t, R_ij;
+  Vector3d dtheta_bg;
+  /// The corrected gamma of eq. (18) and the rotation error quaternion e = gamma^-1 qi^-1 qj.
+  Quaterniond gamma, qij, e;
+};
+
+Linearization Linearize(const Preintegration& pre,
+                        const Eigen::Matrix<double, 19, 19>& sqrt_info,
+                        const NavState& i,
+                        const NavState& j,
+                        const Eigen::Matrix<double, 21, 1>& error) {
+  Linearization l(pre, sqrt_info, i, j, error);
+  // The Jacobians of the metre residual go through the same odometer-unit scaling.
+  l.whitening = sqrt_info;
+  l.whitening.middleCols<3>(kPhi) = sqrt_info.middleCols<3>(kPhi) * PhiScaling(pre, i.c);
+  l.dt = pre.sum_dt();
+  l.g_w = Vector3d(0.0, 0.0, pre.gravity_mps2());
+  l.Ri_t = i.q.toRotationMatrix().transpose();
+  const Matrix3d Rj = j.q.toRotationMatrix();
+  l.R_ij = l.Ri_t * Rj;
+  const Eigen::Matrix<double, 19, 19>& J = pre.jacobian();
+  l.dtheta_bg = J.block<3, 3>(kTheta, kBg) * (i.bg - pre.linearized_bg());
+  l.gamma = (pre.gamma() * ExpQuaternion(l.dtheta_bg)).normalized();
+  l.qij = i.q.conjugate() * j.q;
+  l.e = l.gamma.conjugate() * l.qij;
+  return l;
+}
+
+/// d r / d pose_i (7 columns, the last, the quaternion's fourth, zero).
+void PoseIJacobian(const Linearization& l, double* jacobian) {
+  const NavState& i = l.i;
+  const NavState& j = l.j;
+  const double dt = l.dt;
+  Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
+  d.block<3, 3>(kAlpha, 0) = -l.Ri_t;
+  d.block<3, 3>(kAlpha, 3) = Skew(l.Ri_t * (j.p - i.p + 0.5 * l.g_w * dt * dt - i.v * dt));
+  d.block<3, 3>(kBeta, 3) = Skew(l.Ri_t * (j.v + l.g_w * dt - i.v));
+  d.block<3, 3>(kTheta, 3) = -QleftQrightVec(l.gamma.conjugate(), l.qij);
+  d.block<3, 3>(kPhi, 0) = -l.Ri_t;
+  d.block<3, 3>(kPhi, 3) = Skew(l.Ri_t * (j.p - i.p)) + l.pre.LeverTermJacobianI(l.R_ij);
+  Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  out.topLeftCorner<19, 6>() = l.whitening * d;
+}
+
+/// d r / d [v, ba, bg]_i.
+void SpeedBiasIJacobian(const Linearization& l, double* jacobian) {
+  const Eigen::Matrix<double, 19, 19>& J = l.pre.jacobian();
+  Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
+  d.block<3, 3>(kAlpha, 0) = -l.Ri_t * l.dt;
+  d.block<3, 6>(kAlpha, 3) = -J.block<3, 6>(kAlpha, kBa);
+  d.block<3, 3>(kBeta, 0) = -l.Ri_t;
+  d.block<3, 6>(kBeta, 3) = -J.block<3, 6>(kBeta, kBa);
+  // e = Exp(-Jr J dbg) (x) e to first order: the left perturbation through Qright(e).
+  const Matrix3d e_right = l.e.w() * Matrix3d::Identity() - Skew(l.e.vec());
+  d.block<3, 3>(kTheta, 6) = -e_right * RightJacobian(l.dtheta_bg) * J.block<3, 3>(kTheta, kBg);
+  d.block<3, 3>(kBa, 3) = -Matrix3d::Identity();
+  d.block<3, 3>(kBg, 6) = -Matrix3d::Identity();
+  d.block<3, 6>(kPhi, 3) = -J.block<3, 6>(kPhi, kBa);
+  Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  out.topRows<19>() = l.whitening * d;
+}
+
+/// d r / d [c, m]_i: the odometer scale and misalignment.
+void OdometerIJacobian(const Linearization& l, double misalignment_weight, double* jacobian) {
+  Eigen::Matrix<double, 19, 1> d = -l.pre.jacobian().col(kC);
+  d(kC) = -1.0;
+  Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  // The scaled row also depends on c_i through c_lin / c_i: d/dc_i of (c_lin / c_i) e is
+  // -(scaled row) / c_i.
+  const Vector3d axis = l.pre.R_body_odo().col(0);
+  const Vector3d along = axis * axis.dot(l.error.segment<3>(kPhi));
+  out.block<19, 1>(0, 0) = l.whitening * d - l.sqrt_info.middleCols<3>(kPhi) * along / l.i.c;
+  // d_phi = ... - phi_misalignment m_i.
+  out.block<19, 2>(0, 1) = -l.whitening.middleCols<3>(kPhi) * l.pre.phi_misalignment();
+  out.block<2, 2>(ImuOdometerFactor::kMisalignment, 1) =
+      -misalignment_weight * Eigen::Matrix2d::Identity();
+}
+
+/// d r / d pose_j.
+void PoseJJacobian(const Linearization& l, double* jacobian) {
+  Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
+  d.block<3, 3>(kAlpha, 0) = l.Ri_t;
+  d.block<3, 3>(kTheta, 3) = l.e.w() * Matrix3d::Identity() + Skew(l.e.vec());
+  d.block<3, 3>(kPhi, 0) = l.Ri_t;
+  d.block<3, 3>(kPhi, 3) = l.pre.LeverTermJacobianJ(l.R_ij);
+  Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  out.topLeftCorner<19, 6>() = l.whitening * d;
+}
+
+/// d r / d [v, ba, bg]_j.
+void SpeedBiasJJacobian(const Linearization& l, double* jacobian) {
+  Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
+  d.block<3, 3>(kBeta, 0) = l.Ri_t;
+  d.block<3, 3>(kBa, 3).setIdentity();
+  d.block<3, 3>(kBg, 6).setIdentity();
+  Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  out.topRows<19>() = l.whitening * d;
+}
+
+/// d r / d [c, m]_j.
+void OdometerJJacobian(const Linearization& l, double misalignment_weight, double* jacobian) {
+  Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobian);
+  out.setZero();
+  out.block<19, 1>(0, 0) = l.whitening.col(kC);
+  out.block<2, 2>(ImuOdometerFactor::kMisalignment, 1) =
+      misalignment_weight * Eigen::Matrix2d::Identity();
+}
+
 }  // namespace
 
 ImuOdometerFactor::ImuOdometerFactor(std::shared_ptr<const Preintegration> preintegration)
@@ -89,89 +220,13 @@ bool ImuOdometerFactor::Evaluate(double const* const* parameters,
   r.head<19>() = sqrt_info * error.head<19>();
   r.tail<2>() = misalignment_weight_ * error.tail<2>();
   if (jacobians == nullptr) return true;
-  // The Jacobians of the metre residual go through the same odometer-unit scaling.
-  Eigen::Matrix<double, 19, 19> whitening = sqrt_info;
-  whitening.middleCols<3>(kPhi) = sqrt_info.middleCols<3>(kPhi) * PhiScaling(pre, i.c);
-
-  const double dt = pre.sum_dt();
-  const Vector3d g_w(0.0, 0.0, pre.gravity_mps2());
-  const Matrix3d Ri_t = i.q.toRotationMatrix().transpose();
-  const Matrix3d Rj = j.q.toRotationMatrix();
-  const Matrix3d R_ij = Ri_t * Rj;
-  const Eigen::Matrix<double, 19, 19>& J = pre.jacobian();
-  // The corrected gamma of eq. (18) and the rotation error quaternion e = gamma^-1 qi^-1 qj.
-  const Vector3d dtheta_bg = J.block<3, 3>(kTheta, kBg) * (i.bg - pre.linearized_bg());
-  const Quaterniond gamma = (pre.gamma() * ExpQuaternion(dtheta_bg)).normalized();
-  const Quaterniond qij = i.q.conjugate() * j.q;
-  const Quaterniond e = gamma.conjugate() * qij;
-
-  if (jacobians[0] != nullptr) {
-    Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
-    d.block<3, 3>(kAlpha, 0) = -Ri_t;
-    d.block<3, 3>(kAlpha, 3) = Skew(Ri_t * (j.p - i.p + 0.5 * g_w * dt * dt - i.v * dt));
-    d.block<3, 3>(kBeta, 3) = Skew(Ri_t * (j.v + g_w * dt - i.v));
-    d.block<3, 3>(kTheta, 3) = -QleftQrightVec(gamma.conjugate(), qij);
-    d.block<3, 3>(kPhi, 0) = -Ri_t;
-    d.block<3, 3>(kPhi, 3) = Skew(Ri_t * (j.p - i.p)) + pre.LeverTermJacobianI(R_ij);
-    Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobians[0]);
-    out.setZero();
-    out.topLeftCorner<19, 6>() = whitening * d;
-  }
-  if (jacobians[1] != nullptr) {
-    Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
-    d.block<3, 3>(kAlpha, 0) = -Ri_t * dt;
-    d.block<3, 6>(kAlpha, 3) = -J.block<3, 6>(kAlpha, kBa);
-    d.block<3, 3>(kBeta, 0) = -Ri_t;
-    d.block<3, 6>(kBeta, 3) = -J.block<3, 6>(kBeta, kBa);
-    // e = Exp(-Jr J dbg) (x) e to first order: the left perturbation through Qright(e).
-    const Matrix3d e_right = e.w() * Matrix3d::Identity() - Skew(e.vec());
-    d.block<3, 3>(kTheta, 6) = -e_right * RightJacobian(dtheta_bg) * J.block<3, 3>(kTheta, kBg);
-    d.block<3, 3>(kBa, 3) = -Matrix3d::Identity();
-    d.block<3, 3>(kBg, 6) = -Matrix3d::Identity();
-    d.block<3, 6>(kPhi, 3) = -J.block<3, 6>(kPhi, kBa);
-    Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobians[1]);
-    out.setZero();
-    out.topRows<19>() = whitening * d;
-  }
-  if (jacobians[2] != nullptr) {
-    Eigen::Matrix<double, 19, 1> d = -J.col(kC);
-    d(kC) = -1.0;
-    Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobians[2]);
-    out.setZero();
-    // The scaled row also depends on c_i through c_lin / c_i: d/dc_i of (c_lin / c_i) e is
-    // -(scaled row) / c_i.
-    const Vector3d axis = pre.R_body_odo().col(0);
-    const Vector3d along = axis * axis.dot(error.segment<3>(kPhi));
-    out.block<19, 1>(0, 0) = whitening * d - sqrt_info.middleCols<3>(kPhi) * along / i.c;
-    // d_phi = ... - phi_misalignment m_i.
-    out.block<19, 2>(0, 1) = -whitening.middleCols<3>(kPhi) * pre.phi_misalignment();
-    out.block<2, 2>(kMisalignment, 1) = -misalignment_weight_ * Eigen::Matrix2d::Identity();
-  }
-  if (jacobians[3] != nullptr) {
-    Eigen::Matrix<double, 19, 6> d = Eigen::Matrix<double, 19, 6>::Zero();
-    d.block<3, 3>(kAlpha, 0) = Ri_t;
-    d.block<3, 3>(kTheta, 3) = e.w() * Matrix3d::Identity() + Skew(e.vec());
-    d.block<3, 3>(kPhi, 0) = Ri_t;
-    d.block<3, 3>(kPhi, 3) = pre.LeverTermJacobianJ(R_ij);
-    Eigen::Map<Eigen::Matrix<double, 21, 7, Eigen::RowMajor>> out(jacobians[3]);
-    out.setZero();
-    out.topLeftCorner<19, 6>() = whitening * d;
-  }
-  if (jacobians[4] != nullptr) {
-    Eigen::Matrix<double, 19, 9> d = Eigen::Matrix<double, 19, 9>::Zero();
-    d.block<3, 3>(kBeta, 0) = Ri_t;
-    d.block<3, 3>(kBa, 3).setIdentity();
-    d.block<3, 3>(kBg, 6).setIdentity();
-    Eigen::Map<Eigen::Matrix<double, 21, 9, Eigen::RowMajor>> out(jacobians[4]);
-    out.setZero();
-    out.topRows<19>() = whitening * d;
-  }
-  if (jacobians[5] != nullptr) {
-    Eigen::Map<Eigen::Matrix<double, 21, 3, Eigen::RowMajor>> out(jacobians[5]);
-    out.setZero();
-    out.block<19, 1>(0, 0) = whitening.col(kC);
-    out.block<2, 2>(kMisalignment, 1) = misalignment_weight_ * Eigen::Matrix2d::Identity();
-  }
+  const Linearization l = Linearize(pre, sqrt_info, i, j, error);
+  if (jacobians[0] != nullptr) PoseIJacobian(l, jacobians[0]);
+  if (jacobians[1] != nullptr) SpeedBiasIJacobian(l, jacobians[1]);
+  if (jacobians[2] != nullptr) OdometerIJacobian(l, misalignment_weight_, jacobians[2]);
+  if (jacobians[3] != nullptr) PoseJJacobian(l, jacobians[3]);
+  if (jacobians[4] != nullptr) SpeedBiasJJacobian(l, jacobians[4]);
+  if (jacobians[5] != nullptr) OdometerJJacobian(l, misalignment_weight_, jacobians[5]);
   return true;
 }
 
