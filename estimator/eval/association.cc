@@ -17,6 +17,56 @@ bool StrictlyIncreasing(const api::Trajectory& trajectory, size_t* bad_index) {
   return true;
 }
 
+/// False with a message naming the first pose whose stamp does not increase, truth first.
+bool CheckStamps(const api::Trajectory& estimate,
+                 const api::Trajectory& truth,
+                 std::string* error) {
+  size_t bad = 0;
+  if (!StrictlyIncreasing(truth, &bad)) {
+    *error = "truth stamps do not increase at pose " + std::to_string(bad);
+    return false;
+  }
+  if (!StrictlyIncreasing(estimate, &bad)) {
+    *error = "estimate stamps do not increase at pose " + std::to_string(bad);
+    return false;
+  }
+  return true;
+}
+
+/// Along-track distances of the truth poses (m), zero at the first.
+std::vector<double> CumulativeDistances(const std::vector<api::StampedPose>& gt) {
+  // Cumulative truth path length at every truth pose, so the along-track distance of any stamp
+  // is O(1): cumulative[k] + |p(t) - p_k|.
+  std::vector<double> cumulative_m(gt.size(), 0.0);
+  for (size_t k = 1; k < gt.size(); ++k) {
+    cumulative_m[k] = cumulative_m[k - 1] + (gt[k].p_world - gt[k - 1].p_world).norm();
+  }
+  return cumulative_m;
+}
+
+/// Whether the truth is known at a stamp, or why not.
+enum class TruthLookup { kFound, kOutside, kAcrossGap };
+
+/// The truth at stamp t: moves the bracket start *k forward to t and interpolates there.
+TruthLookup TruthAt(const std::vector<api::StampedPose>& gt,
+                    int64_t t,
+                    int64_t max_gap_ns,
+                    size_t* k,
+                    api::StampedPose* truth_pose) {
+  if (gt.empty() || t < gt.front().stamp_ns || t > gt.back().stamp_ns) {
+    return TruthLookup::kOutside;
+  }
+  while (*k + 1 < gt.size() && gt[*k + 1].stamp_ns <= t) ++*k;
+  if (gt[*k].stamp_ns == t) {
+    *truth_pose = gt[*k];
+    return TruthLookup::kFound;
+  }
+  // Here gt[k].stamp_ns < t < gt[k + 1].stamp_ns.
+  if (gt[*k + 1].stamp_ns - gt[*k].stamp_ns > max_gap_ns) return TruthLookup::kAcrossGap;
+  *truth_pose = InterpolatePose(gt[*k], gt[*k + 1], t);
+  return TruthLookup::kFound;
+}
+
 }  // namespace
 
 bool AssociationOptions::IsValid(std::string* error) const {
@@ -64,46 +114,25 @@ Association AssociatePoses(const api::Trajectory& estimate,
   result.num_estimate_poses = estimate.poses.size();
   result.num_truth_poses = truth.poses.size();
   if (!options.IsValid(&result.error)) return result;
-  size_t bad = 0;
-  if (!StrictlyIncreasing(truth, &bad)) {
-    result.error = "truth stamps do not increase at pose " + std::to_string(bad);
-    return result;
-  }
-  if (!StrictlyIncreasing(estimate, &bad)) {
-    result.error = "estimate stamps do not increase at pose " + std::to_string(bad);
-    return result;
-  }
+  if (!CheckStamps(estimate, truth, &result.error)) return result;
   const std::vector<api::StampedPose>& gt = truth.poses;
   const int64_t max_gap_ns = static_cast<int64_t>(std::llround(options.max_gap_s * 1e9));
-
-  // Cumulative truth path length at every truth pose, so the along-track distance of any stamp
-  // is O(1): cumulative[k] + |p(t) - p_k|.
-  std::vector<double> cumulative_m(gt.size(), 0.0);
-  for (size_t k = 1; k < gt.size(); ++k) {
-    cumulative_m[k] = cumulative_m[k - 1] + (gt[k].p_world - gt[k - 1].p_world).norm();
-  }
+  const std::vector<double> cumulative_m = CumulativeDistances(gt);
 
   bool have_first = false;
   double first_distance_m = 0.0;
   result.pairs.reserve(estimate.poses.size());
   size_t k = 0;  // Bracket start; stamps increase, so it only moves forward.
   for (const api::StampedPose& est : estimate.poses) {
-    const int64_t t = est.stamp_ns;
-    if (gt.empty() || t < gt.front().stamp_ns || t > gt.back().stamp_ns) {
+    api::StampedPose truth_pose;
+    const TruthLookup lookup = TruthAt(gt, est.stamp_ns, max_gap_ns, &k, &truth_pose);
+    if (lookup == TruthLookup::kOutside) {
       ++result.num_skipped_outside;
       continue;
     }
-    while (k + 1 < gt.size() && gt[k + 1].stamp_ns <= t) ++k;
-    api::StampedPose truth_pose;
-    if (gt[k].stamp_ns == t) {
-      truth_pose = gt[k];
-    } else {
-      // Here gt[k].stamp_ns < t < gt[k + 1].stamp_ns.
-      if (gt[k + 1].stamp_ns - gt[k].stamp_ns > max_gap_ns) {
-        ++result.num_skipped_gap;
-        continue;
-      }
-      truth_pose = InterpolatePose(gt[k], gt[k + 1], t);
+    if (lookup == TruthLookup::kAcrossGap) {
+      ++result.num_skipped_gap;
+      continue;
     }
     const double distance_m = cumulative_m[k] + (truth_pose.p_world - gt[k].p_world).norm();
     if (!have_first) {
@@ -111,7 +140,7 @@ Association AssociatePoses(const api::Trajectory& estimate,
       first_distance_m = distance_m;
     }
     PosePair pair;
-    pair.stamp_ns = t;
+    pair.stamp_ns = est.stamp_ns;
     pair.T_world_est = ToIsometry(est);
     pair.T_world_truth = ToIsometry(truth_pose);
     pair.distance_m = distance_m - first_distance_m;

@@ -117,15 +117,17 @@ struct RailSegment {
   std::vector<RailSample> samples;
 };
 
-}  // namespace
+/// A mesh triangle in UTM with its unit normal and material.
+struct Candidate {
+  Vec3 a, b, c, n;
+  sim::Material material;
+};
 
-std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
-                                                        const Eigen::Vector3d& origin_utm) {
-  struct Candidate {
-    Vec3 a, b, c, n;
-    sim::Material material;
-  };
-  std::vector<Candidate> planes, rail_tops;
+/// Sorts the mesh's triangles, moved into UTM, into candidate planes and rail faces.
+void SortCandidates(const sim::Mesh& mesh,
+                    const Eigen::Vector3d& origin_utm,
+                    std::vector<Candidate>* planes,
+                    std::vector<Candidate>* rail_tops) {
   for (size_t i = 0; i < mesh.triangles.size(); ++i) {
     const Eigen::Vector3i& t = mesh.triangles[i];
     Candidate c{mesh.vertices[t[0]].cast<double>() + origin_utm,
@@ -141,18 +143,26 @@ std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
     // caster does not care), and a platform's underside is never seen anyway.
     if ((c.material == sim::Material::kPlatform && up > 0.95) ||
         (c.material == sim::Material::kBuilding && up < 0.05)) {
-      planes.push_back(c);
+      planes->push_back(c);
     } else if (c.material == sim::Material::kRail && up > 0.9) {
-      rail_tops.push_back(c);
+      rail_tops->push_back(c);
     }
   }
-  // A rail's horizontal faces are its head top, the head's underside 5 cm below it and its foot
-  // 16 cm below (either way up, as above; the foot reaches 4 cm beyond the head on each side).
-  // The head top is the face with no face of its rail higher by more than a centimetre (a canted
-  // head tilts by millimetres across its width) within 10 cm in plan; the other rail of the
-  // track is 1.5 m away.
-  constexpr double kSameRailM = 0.1;
-  std::map<Cell2, std::vector<const Candidate*>> grid;
+}
+
+// A rail's horizontal faces are its head top, the head's underside 5 cm below it and its foot
+// 16 cm below (either way up, as above; the foot reaches 4 cm beyond the head on each side).
+// The head top is the face with no face of its rail higher by more than a centimetre (a canted
+// head tilts by millimetres across its width) within 10 cm in plan; the other rail of the
+// track is 1.5 m away.
+constexpr double kSameRailM = 0.1;
+
+/// Rail faces by the grid cells within kSameRailM of them.
+using RailFaceGrid = std::map<Cell2, std::vector<const Candidate*>>;
+
+/// Puts every rail face into the grid cells its box, grown by kSameRailM, touches.
+RailFaceGrid GridRailFaces(const std::vector<Candidate>& rail_tops) {
+  RailFaceGrid grid;
   for (const Candidate& c : rail_tops) {
     const Eigen::AlignedBox3d box = Eigen::AlignedBox3d(c.a).extend(c.b).extend(c.c);
     const Cell2 lo = GridCell(box.min() - Vec3::Constant(kSameRailM));
@@ -161,27 +171,37 @@ std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
       for (int64_t y = lo.second; y <= hi.second; ++y) grid[{x, y}].push_back(&c);
     }
   }
-  const auto covered = [&](const Candidate& c) {
-    const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
-    const auto cell = grid.find(GridCell(centroid));  // its own face put it there
-    for (const Candidate* other : cell->second) {
-      if (other == &c || PlanDistance(other->a, other->b, other->c, centroid) > kSameRailM)
-        continue;
-      // The other face's height where the centroid is (faces are within 25 degrees of level;
-      // the track's grade tilts them along its length).
-      const double z =
-          other->a.z() -
-          other->n.head<2>().dot(centroid.head<2>() - other->a.head<2>()) / other->n.z();
-      if (z > centroid.z() + 0.01) return true;
-    }
-    return false;
-  };
+  return grid;
+}
+
+/// Whether another face of the rail lies more than a centimetre above the face's centroid.
+bool Covered(const Candidate& c, const RailFaceGrid& grid) {
+  const Vec3 centroid = (c.a + c.b + c.c) / 3.0;
+  const auto cell = grid.find(GridCell(centroid));  // its own face put it there
+  for (const Candidate* other : cell->second) {
+    if (other == &c || PlanDistance(other->a, other->b, other->c, centroid) > kSameRailM) continue;
+    // The other face's height where the centroid is (faces are within 25 degrees of level;
+    // the track's grade tilts them along its length).
+    const double z = other->a.z() -
+                     other->n.head<2>().dot(centroid.head<2>() - other->a.head<2>()) / other->n.z();
+    if (z > centroid.z() + 0.01) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+std::vector<ReferenceTriangle> SelectReferenceTriangles(const sim::Mesh& mesh,
+                                                        const Eigen::Vector3d& origin_utm) {
+  std::vector<Candidate> planes, rail_tops;
+  SortCandidates(mesh, origin_utm, &planes, &rail_tops);
+  const RailFaceGrid grid = GridRailFaces(rail_tops);
   std::vector<ReferenceTriangle> out;
   for (const Candidate& c : planes) {
     out.push_back({ReferenceTriangle::Kind::kPlane, c.a, c.b, c.c});
   }
   for (const Candidate& c : rail_tops) {
-    if (!covered(c)) out.push_back({ReferenceTriangle::Kind::kRailHead, c.a, c.b, c.c});
+    if (!Covered(c, grid)) out.push_back({ReferenceTriangle::Kind::kRailHead, c.a, c.b, c.c});
   }
   return out;
 }

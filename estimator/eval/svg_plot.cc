@@ -109,6 +109,117 @@ void Extend(const std::vector<Eigen::Vector2d>& points, Eigen::Vector2d* lo, Eig
   }
 }
 
+/// Sizes (px) of the plot and its two panels.
+struct PlotLayout {
+  double width, margin_left, plot_w, title_h, top_h, gap_h, error_h, height;
+};
+
+/// The plot's layout for the options' width (at least 400 px).
+PlotLayout Layout(const SvgPlotOptions& options) {
+  PlotLayout layout;
+  layout.width = std::max(400, options.width_px);
+  layout.margin_left = 90;
+  const double margin_right = 30;
+  layout.plot_w = layout.width - layout.margin_left - margin_right;
+  layout.title_h = 40;
+  layout.top_h = layout.plot_w * 0.75;
+  layout.gap_h = 90;
+  layout.error_h = layout.plot_w * 0.35;
+  layout.height = layout.title_h + layout.top_h + layout.gap_h + layout.error_h + 70;
+  return layout;
+}
+
+/// The XML declaration, the opening svg element, a white background and the title.
+std::string SvgHeader(const PlotLayout& layout, const std::string& title) {
+  std::string svg = "<?xml version=\"1.0\" encoding=\"UTF-8\" standalone=\"no\"?>\n";
+  svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" version=\"1.1\" width=\"" + Num(layout.width) +
+         "\" height=\"" + Num(layout.height) + "\" viewBox=\"0 0 " + Num(layout.width) + " " +
+         Num(layout.height) + "\" font-family=\"sans-serif\" font-size=\"12\">\n";
+  svg += "<rect width=\"100%\" height=\"100%\" fill=\"#fff\"/>\n";
+  svg += Text(layout.width / 2, 24, title, "text-anchor=\"middle\" font-size=\"15\"");
+  return svg;
+}
+
+/// The top-down panel: both tracks centred, with equal metres per pixel on both axes.
+Panel TopDownRange(const PlotData& data, const PlotLayout& layout) {
+  // Panel 1: top-down xy with one metre the same length on both axes.
+  Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector2d hi = -lo;
+  Extend(data.xy_truth_m, &lo, &hi);
+  Extend(data.xy_est_m, &lo, &hi);
+  if (!lo.allFinite() || !hi.allFinite()) lo = hi = Eigen::Vector2d::Zero();
+  const Eigen::Vector2d centre = 0.5 * (lo + hi);
+  Eigen::Vector2d span = (hi - lo) * 1.05;
+  span = span.cwiseMax(Eigen::Vector2d::Constant(1.0));
+  const double metres_per_px = std::max(span.x() / layout.plot_w, span.y() / layout.top_h);
+  return Panel{layout.margin_left,
+               layout.title_h + 10,
+               layout.plot_w,
+               layout.top_h,
+               centre.x() - 0.5 * layout.plot_w * metres_per_px,
+               centre.x() + 0.5 * layout.plot_w * metres_per_px,
+               centre.y() - 0.5 * layout.top_h * metres_per_px,
+               centre.y() + 0.5 * layout.top_h * metres_per_px};
+}
+
+/// Panel 1's group: axes, the truth and the aligned estimate (decimated evenly), a legend.
+std::string TopDownPanel(const PlotData& data,
+                         const SvgPlotOptions& options,
+                         const PlotLayout& layout) {
+  const Panel xy = TopDownRange(data, layout);
+  std::string svg = "<g id=\"top-down\">\n";
+  svg += Axes(xy, "x east (m), from " + data.origin_label, "y north (m)");
+  auto to_px = [&](const std::vector<Eigen::Vector2d>& points) {
+    std::vector<Eigen::Vector2d> px;
+    for (size_t i : DecimateEvenly(points.size(), options.max_points_per_line)) {
+      px.emplace_back(xy.X(points[i].x()), xy.Y(points[i].y()));
+    }
+    return px;
+  };
+  svg += Polyline(to_px(data.xy_truth_m), kTruthColour);
+  svg += Polyline(to_px(data.xy_est_m), kEstColour);
+  svg += "<rect x=\"" + Num(xy.left_px + 10) + "\" y=\"" + Num(xy.top_px + 10) +
+         "\" width=\"170\" height=\"48\" fill=\"#fff\" fill-opacity=\"0.85\" stroke=\"#999\"/>\n";
+  svg += LegendEntry(xy.left_px + 20, xy.top_px + 26, kTruthColour, "truth");
+  svg += LegendEntry(xy.left_px + 20, xy.top_px + 44, kEstColour, "estimate (aligned)");
+  svg += "</g>\n";
+  return svg;
+}
+
+/// Panel 2's group: axes over the distance and the largest error, the min-max decimated line.
+std::string ErrorPanel(const PlotData& data,
+                       const SvgPlotOptions& options,
+                       const PlotLayout& layout) {
+  // Panel 2: error along the truth distance.
+  const size_t n = std::min(data.distance_m.size(), data.error_m.size());
+  double d_lo = 0.0, d_hi = 1.0, e_hi = 1e-3;
+  if (n > 0) {
+    d_lo = data.distance_m.front();
+    d_hi = std::max(data.distance_m[n - 1], d_lo + 1e-3);
+    for (size_t i = 0; i < n; ++i) {
+      if (std::isfinite(data.error_m[i])) e_hi = std::max(e_hi, data.error_m[i]);
+    }
+  }
+  Panel err{layout.margin_left,
+            layout.title_h + layout.top_h + layout.gap_h,
+            layout.plot_w,
+            layout.error_h,
+            d_lo,
+            d_hi,
+            0.0,
+            e_hi * 1.05};
+  std::string svg = "<g id=\"error\">\n";
+  svg += Axes(err, "distance along truth (m)", "translational error (m)");
+  std::vector<Eigen::Vector2d> error_px;
+  const std::vector<double> errors(data.error_m.begin(), data.error_m.begin() + n);
+  for (size_t i : DecimateMinMax(errors, options.max_points_per_line)) {
+    error_px.emplace_back(err.X(data.distance_m[i]), err.Y(data.error_m[i]));
+  }
+  svg += Polyline(error_px, kErrorColour);
+  svg += "</g>\n";
+  return svg;
+}
+
 }  // namespace
 
 bool IsSupportedPlotPath(const std::string& path, std::string* error) {
@@ -187,77 +298,10 @@ std::vector<double> NiceTicks(double lo, double hi, int target) {
 }
 
 std::string RenderSvgPlot(const PlotData& data, const SvgPlotOptions& options) {
-  const double width = std::max(400, options.width_px);
-  const double margin_left = 90, margin_right = 30;
-  const double plot_w = width - margin_left - margin_right;
-  const double title_h = 40;
-  const double top_h = plot_w * 0.75;
-  const double gap_h = 90;
-  const double error_h = plot_w * 0.35;
-  const double height = title_h + top_h + gap_h + error_h + 70;
-
-  std::string svg = "<?xml version=\"1.0\" encoding=\"UTF-8\" standalone=\"no\"?>\n";
-  svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" version=\"1.1\" width=\"" + Num(width) +
-         "\" height=\"" + Num(height) + "\" viewBox=\"0 0 " + Num(width) + " " + Num(height) +
-         "\" font-family=\"sans-serif\" font-size=\"12\">\n";
-  svg += "<rect width=\"100%\" height=\"100%\" fill=\"#fff\"/>\n";
-  svg += Text(width / 2, 24, data.title, "text-anchor=\"middle\" font-size=\"15\"");
-
-  // Panel 1: top-down xy with one metre the same length on both axes.
-  Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector2d hi = -lo;
-  Extend(data.xy_truth_m, &lo, &hi);
-  Extend(data.xy_est_m, &lo, &hi);
-  if (!lo.allFinite() || !hi.allFinite()) lo = hi = Eigen::Vector2d::Zero();
-  const Eigen::Vector2d centre = 0.5 * (lo + hi);
-  Eigen::Vector2d span = (hi - lo) * 1.05;
-  span = span.cwiseMax(Eigen::Vector2d::Constant(1.0));
-  const double metres_per_px = std::max(span.x() / plot_w, span.y() / top_h);
-  Panel xy{margin_left,
-           title_h + 10,
-           plot_w,
-           top_h,
-           centre.x() - 0.5 * plot_w * metres_per_px,
-           centre.x() + 0.5 * plot_w * metres_per_px,
-           centre.y() - 0.5 * top_h * metres_per_px,
-           centre.y() + 0.5 * top_h * metres_per_px};
-  svg += "<g id=\"top-down\">\n";
-  svg += Axes(xy, "x east (m), from " + data.origin_label, "y north (m)");
-  auto to_px = [&](const std::vector<Eigen::Vector2d>& points) {
-    std::vector<Eigen::Vector2d> px;
-    for (size_t i : DecimateEvenly(points.size(), options.max_points_per_line)) {
-      px.emplace_back(xy.X(points[i].x()), xy.Y(points[i].y()));
-    }
-    return px;
-  };
-  svg += Polyline(to_px(data.xy_truth_m), kTruthColour);
-  svg += Polyline(to_px(data.xy_est_m), kEstColour);
-  svg += "<rect x=\"" + Num(xy.left_px + 10) + "\" y=\"" + Num(xy.top_px + 10) +
-         "\" width=\"170\" height=\"48\" fill=\"#fff\" fill-opacity=\"0.85\" stroke=\"#999\"/>\n";
-  svg += LegendEntry(xy.left_px + 20, xy.top_px + 26, kTruthColour, "truth");
-  svg += LegendEntry(xy.left_px + 20, xy.top_px + 44, kEstColour, "estimate (aligned)");
-  svg += "</g>\n";
-
-  // Panel 2: error along the truth distance.
-  const size_t n = std::min(data.distance_m.size(), data.error_m.size());
-  double d_lo = 0.0, d_hi = 1.0, e_hi = 1e-3;
-  if (n > 0) {
-    d_lo = data.distance_m.front();
-    d_hi = std::max(data.distance_m[n - 1], d_lo + 1e-3);
-    for (size_t i = 0; i < n; ++i) {
-      if (std::isfinite(data.error_m[i])) e_hi = std::max(e_hi, data.error_m[i]);
-    }
-  }
-  Panel err{margin_left, title_h + top_h + gap_h, plot_w, error_h, d_lo, d_hi, 0.0, e_hi * 1.05};
-  svg += "<g id=\"error\">\n";
-  svg += Axes(err, "distance along truth (m)", "translational error (m)");
-  std::vector<Eigen::Vector2d> error_px;
-  const std::vector<double> errors(data.error_m.begin(), data.error_m.begin() + n);
-  for (size_t i : DecimateMinMax(errors, options.max_points_per_line)) {
-    error_px.emplace_back(err.X(data.distance_m[i]), err.Y(data.error_m[i]));
-  }
-  svg += Polyline(error_px, kErrorColour);
-  svg += "</g>\n";
+  const PlotLayout layout = Layout(options);
+  std::string svg = SvgHeader(layout, data.title);
+  svg += TopDownPanel(data, options, layout);
+  svg += ErrorPanel(data, options, layout);
   svg += "</svg>\n";
   return svg;
 }
