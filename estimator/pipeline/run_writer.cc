@@ -166,23 +166,17 @@ void RunWriter::WriteHeader(const FrameResult* first) {
   std::fflush(trajectory_);
 }
 
-void RunWriter::WriteFrame(const FrameResult& f) {
-  WriteHeader(&f);
-  Eigen::Isometry3d T = f.T_world_body;
-  if (f.georeferenced) T.translation() += f.origin_utm;
-  const std::string line = PoseLine(f.stamp_ns, T);
-  std::fputs(line.c_str(), trajectory_);
-  std::fflush(trajectory_);
-  const double total = f.frontend_ms + f.backend_ms;
-  frame_ms_.push_back(total);
-  frontend_ms_.push_back(f.frontend_ms);
-  backend_ms_.push_back(f.backend_ms);
-  std::fprintf(timing_,
+namespace {
+
+/// The timing row's first columns: stamp, times, solver and cue flags, and the state's scale,
+/// speed and biases.
+void WriteStateColumns(std::FILE* out, const FrameResult& f) {
+  std::fprintf(out,
                "%s,%.3f,%.3f,%.3f,%d,%d,%d,%d,%.4f,%d,%.5f,%.3f",
                api::FormatStampSeconds(f.stamp_ns).c_str(),
                f.frontend_ms,
                f.backend_ms,
-               total,
+               f.frontend_ms + f.backend_ms,
                f.solver_iterations,
                f.odometer_used ? 1 : 0,
                f.rail_plane ? 1 : 0,
@@ -191,7 +185,7 @@ void RunWriter::WriteFrame(const FrameResult& f) {
                f.projected ? 1 : 0,
                f.odometer_scale,
                f.v_world.norm());
-  std::fprintf(timing_,
+  std::fprintf(out,
                ",%.3e,%.3e,%.3e,%.3e,%.3e,%.3e",
                f.gyro_bias.x(),
                f.gyro_bias.y(),
@@ -199,10 +193,14 @@ void RunWriter::WriteFrame(const FrameResult& f) {
                f.accel_bias.x(),
                f.accel_bias.y(),
                f.accel_bias.z());
+}
+
+/// The two LiDARs' columns (a missing one as no points and unit favour factors).
+void WriteLidarColumns(std::FILE* out, const std::vector<LidarDiagnostics>& lidars) {
   for (size_t i = 0; i < 2; ++i) {
-    if (i < f.lidars.size()) {
-      const LidarDiagnostics& d = f.lidars[i];
-      std::fprintf(timing_,
+    if (i < lidars.size()) {
+      const LidarDiagnostics& d = lidars[i];
+      std::fprintf(out,
                    ",%zu,%zu,%zu,%zu,%.4f,%.0f,%.0f,%.2f",
                    d.points,
                    d.edges,
@@ -213,22 +211,43 @@ void RunWriter::WriteFrame(const FrameResult& f) {
                    d.xi_degeneracy,
                    d.xi_pose);
     } else {
-      std::fprintf(timing_, ",0,0,0,0,0,1,1,1");
+      std::fprintf(out, ",0,0,0,0,0,1,1,1");
     }
   }
+}
+
+/// The last columns: sleeper shift, heading information and hold, odometer misalignment.
+void WriteTrackColumns(std::FILE* out, const FrameResult& f) {
   // Empty when the sleepers gave no measurement.
   if (f.bed_shift_m) {
-    std::fprintf(timing_, ",%.4f", *f.bed_shift_m);
+    std::fprintf(out, ",%.4f", *f.bed_shift_m);
   } else {
-    std::fprintf(timing_, ",");
+    std::fprintf(out, ",");
   }
-  std::fprintf(timing_,
+  std::fprintf(out,
                ",%.3f,%d,%d,%.4f,%.4f\n",
                f.heading_information,
                f.heading_projected ? 1 : 0,
                f.straight_hold ? 1 : 0,
                f.odometer_misalignment.x() * 1e3,
                f.odometer_misalignment.y() * 1e3);
+}
+
+}  // namespace
+
+void RunWriter::WriteFrame(const FrameResult& f) {
+  WriteHeader(&f);
+  Eigen::Isometry3d T = f.T_world_body;
+  if (f.georeferenced) T.translation() += f.origin_utm;
+  const std::string line = PoseLine(f.stamp_ns, T);
+  std::fputs(line.c_str(), trajectory_);
+  std::fflush(trajectory_);
+  frame_ms_.push_back(f.frontend_ms + f.backend_ms);
+  frontend_ms_.push_back(f.frontend_ms);
+  backend_ms_.push_back(f.backend_ms);
+  WriteStateColumns(timing_, f);
+  WriteLidarColumns(timing_, f.lidars);
+  WriteTrackColumns(timing_, f);
   if (frame_ms_.size() % 50 == 0) std::fflush(timing_);
 }
 
