@@ -461,6 +461,33 @@ bool FinishIngest(const Options& o, api::IngestClient* ingest, std::string* erro
   return true;
 }
 
+/// Prints what runs from where, and the config.
+void PrintStart(const Options& o, const EstimatorConfig& config, const Source& source) {
+  std::cerr << "raillomer-estimator: "
+            << (source.bag ? "bag " + o.bag_path : "simulator " + o.sim_scenario) << " -> "
+            << o.out_dir << "\n";
+  std::istringstream lines(config.Describe());
+  for (std::string text; std::getline(lines, text);) std::cerr << "  " << text << "\n";
+}
+
+/// Opens the run's files (trajectory, timing, keyframes, submaps), the map and the ingest client.
+bool OpenOutputs(const Options& o,
+                 const EstimatorConfig& config,
+                 RunWriter* writer,
+                 std::unique_ptr<MapExporter>* map,
+                 std::unique_ptr<api::IngestClient>* ingest,
+                 std::string* error) {
+  std::ostringstream header;
+  header << "# raillomer-estimator " << config.options.switches.Name()
+         << ": body pose at every LiDAR frame, local frame "
+         << "(first state at the origin, yaw 0, gravity-aligned), rig " << config.rig.rig << "\n";
+  if (!writer->Open(o.out_dir, config.options.write_keyframes, header.str(), error)) return false;
+  if (!OpenMap(o, map, error)) return false;
+  if (!o.no_submaps && !writer->OpenSubmaps(error)) return false;
+  if (o.provisional_submaps && !writer->OpenProvisional(error)) return false;
+  return StartIngest(o, ingest, error);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -481,27 +508,11 @@ int main(int argc, char** argv) {
   std::string error;
   if (!OpenSource(o, &config, &source, &error)) return Fail(error);
   ApplyAblations(o, &config);
-  if (!o.quiet) {
-    std::cerr << "raillomer-estimator: "
-              << (source.bag ? "bag " + o.bag_path : "simulator " + o.sim_scenario) << " -> "
-              << o.out_dir << "\n";
-    std::istringstream lines(config.Describe());
-    for (std::string text; std::getline(lines, text);) std::cerr << "  " << text << "\n";
-  }
-
+  if (!o.quiet) PrintStart(o, config, source);
   RunWriter writer;
-  std::ostringstream header;
-  header << "# raillomer-estimator " << config.options.switches.Name()
-         << ": body pose at every LiDAR frame, local frame "
-         << "(first state at the origin, yaw 0, gravity-aligned), rig " << config.rig.rig << "\n";
-  if (!writer.Open(o.out_dir, config.options.write_keyframes, header.str(), &error))
-    return Fail(error);
   std::unique_ptr<MapExporter> map;
-  if (!OpenMap(o, &map, &error)) return Fail(error);
-  if (!o.no_submaps && !writer.OpenSubmaps(&error)) return Fail(error);
-  if (o.provisional_submaps && !writer.OpenProvisional(&error)) return Fail(error);
   std::unique_ptr<api::IngestClient> ingest;
-  if (!StartIngest(o, &ingest, &error)) return Fail(error);
+  if (!OpenOutputs(o, config, &writer, &map, &ingest, &error)) return Fail(error);
 
   Stream stream;
   stream.writer = &writer;
