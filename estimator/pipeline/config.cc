@@ -56,9 +56,8 @@ void ParseLidars(MapReader& root, RigConfig* rig) {
     root.Fail(root.Node("lidars"), "key 'lidars' must list at least one LiDAR");
 }
 
-void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationNoise* noise) {
-  if (!root.Has("estimator")) return;
-  MapReader r(root.Node("estimator"), "estimator", root.source());
+/// The sliding window, the solver, the local map and feature matching.
+void ReadWindowAndMatching(MapReader& r, EstimatorOptions* o) {
   r.Read("window_size", &o->window_size);
   r.Read("registration_rounds", &o->registration_rounds);
   r.Read("max_solver_iterations", &o->max_solver_iterations);
@@ -71,6 +70,10 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("edge_max_spread_m", &o->edge_max_spread_m);
   r.Read("down_edge_soft_spread_m", &o->down_edge_soft_spread_m);
   r.Read("map_insert_lag", &o->map_insert_lag);
+}
+
+/// The rail and height-descriptor factors, the favour factors and the projections.
+void ReadRailAndFavour(MapReader& r, EstimatorOptions* o) {
   r.Read("rail_normal_sigma_rad", &o->rail_normal_sigma_rad);
   r.Read("rail_distance_sigma_m", &o->rail_distance_sigma_m);
   r.Read("rail_line_sigma_m", &o->rail_line_sigma_m);
@@ -81,6 +84,10 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("degeneracy_projection", &o->degeneracy_projection);
   r.Read("degeneracy_projection_along", &o->degeneracy_projection_along);
   r.Read("heading_projection", &o->heading_projection);
+}
+
+/// Odometer sway, deskewing, the initial sigmas and keyframes.
+void ReadPriorsAndKeyframes(MapReader& r, EstimatorOptions* o) {
   r.Read("odometer_sway_time_constant_s", &o->odometer_sway_time_constant_s);
   r.Read("deskew_step_s", &o->deskew_step_s);
   r.Read("initial_velocity_sigma_mps", &o->initial_velocity_sigma_mps);
@@ -93,6 +100,10 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("keyframe_distance_m", &o->keyframe_distance_m);
   r.Read("keyframe_angle_deg", &o->keyframe_angle_deg);
   r.Read("write_keyframes", &o->write_keyframes);
+}
+
+/// The submaps: size, ICP, NDT, the GNSS pull and the chain.
+void ReadSubmapOptions(MapReader& r, EstimatorOptions* o) {
   r.Read("submap_keyframes", &o->submap.keyframes);
   r.Read("submap_voxel_m", &o->submap.voxel_m);
   r.Read("submap_max_range_m", &o->submap.max_range_m);
@@ -110,10 +121,12 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
   r.Read("submap_chain_reset_m", &o->submap.chain_reset_m);
   r.Read("submap_ndt_min_turn_arm_m", &o->submap.ndt_min_turn_arm_m);
   r.Read("submap_ndt_min_along_information_revisit", &o->submap.ndt_min_along_information_revisit);
-  r.Read("init_gravity_s", &o->init_gravity_s);
-  r.Read("gravity_align_s", &o->gravity_align_s);
+}
+
+/// The estimator.gnss section: the fusion's factors, gates and latencies.
+void ReadGnssOptions(MapReader& r, EstimatorOptions* o) {
   if (r.Has("gnss")) {
-    MapReader g(r.Node("gnss"), r.Path("gnss"), root.source());
+    MapReader g(r.Node("gnss"), r.Path("gnss"), r.source());
     g.Read("factor_period_s", &o->gnss.factor_period_s);
     g.Read("sigma_horizontal_m", &o->gnss.sigma_horizontal_m);
     g.Read("sigma_vertical_m", &o->gnss.sigma_vertical_m);
@@ -130,13 +143,12 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     g.Read("continuity_max_step_m", &o->gnss.continuity_max_step_m);
     g.Finish();
   }
-  r.Read("odometer_speed_density", &noise->odometer_speed_density);
-  r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
-  r.Read("odometer_misalignment_walk", &noise->odometer_misalignment_walk);
-  r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
-  r.Read("odometer_vertical_density", &noise->odometer_vertical_density);
+}
+
+/// The estimator's preprocess, height_descriptor, track_bed and straight_track sections.
+void ReadSubsections(MapReader& r, EstimatorOptions* o) {
   if (r.Has("preprocess")) {
-    MapReader p(r.Node("preprocess"), r.Path("preprocess"), root.source());
+    MapReader p(r.Node("preprocess"), r.Path("preprocess"), r.source());
     p.Read("min_range_m", &o->preprocess.min_range_m);
     p.Read("max_range_m", &o->preprocess.max_range_m);
     p.Read("flicker_cell_size_m", &o->preprocess.flicker_cell_size_m);
@@ -146,13 +158,13 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     p.Finish();
   }
   if (r.Has("height_descriptor")) {
-    MapReader h(r.Node("height_descriptor"), r.Path("height_descriptor"), root.source());
+    MapReader h(r.Node("height_descriptor"), r.Path("height_descriptor"), r.source());
     h.Read("max_shift_search_m", &o->height.max_shift_search_m);
     h.Read("min_score", &o->height.min_score);
     h.Finish();
   }
   if (r.Has("track_bed")) {
-    MapReader b(r.Node("track_bed"), r.Path("track_bed"), root.source());
+    MapReader b(r.Node("track_bed"), r.Path("track_bed"), r.source());
     b.Read("sigma_m", &o->track_bed.sigma_m);
     b.Read("min_forward_m", &o->track_bed.min_forward_m);
     b.Read("max_forward_m", &o->track_bed.max_forward_m);
@@ -169,13 +181,31 @@ void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationN
     b.Finish();
   }
   if (r.Has("straight_track")) {
-    MapReader st(r.Node("straight_track"), r.Path("straight_track"), root.source());
+    MapReader st(r.Node("straight_track"), r.Path("straight_track"), r.source());
     st.Read("sigma_rad", &o->straight_track.sigma_rad);
     st.Read("detect_s", &o->straight_track.detect_s);
     st.Read("tolerance_rad", &o->straight_track.tolerance_rad);
     st.Read("max_rate_rps", &o->straight_track.max_rate_rps);
     st.Finish();
   }
+}
+
+void ParseEstimatorSection(MapReader& root, EstimatorOptions* o, PreintegrationNoise* noise) {
+  if (!root.Has("estimator")) return;
+  MapReader r(root.Node("estimator"), "estimator", root.source());
+  ReadWindowAndMatching(r, o);
+  ReadRailAndFavour(r, o);
+  ReadPriorsAndKeyframes(r, o);
+  ReadSubmapOptions(r, o);
+  r.Read("init_gravity_s", &o->init_gravity_s);
+  r.Read("gravity_align_s", &o->gravity_align_s);
+  ReadGnssOptions(r, o);
+  r.Read("odometer_speed_density", &noise->odometer_speed_density);
+  r.Read("odometer_scale_walk", &noise->odometer_scale_walk);
+  r.Read("odometer_misalignment_walk", &noise->odometer_misalignment_walk);
+  r.Read("odometer_lateral_density", &noise->odometer_lateral_density);
+  r.Read("odometer_vertical_density", &noise->odometer_vertical_density);
+  ReadSubsections(r, o);
   r.Finish();
 }
 
@@ -295,6 +325,117 @@ MatchOptions LidarMatchOptions(const EstimatorOptions& options, bool looks_down)
   return match;
 }
 
+namespace {
+
+/// What is wrong with the GNSS fusion options, or an empty string.
+std::string GnssProblem(const EstimatorOptions& o) {
+  if (!(o.gnss.factor_period_s >= 0.5 && o.gnss.factor_period_s <= 600.0))
+    return "gnss.factor_period_s must be in [0.5, 600] s";
+  if (!(o.gnss.sigma_horizontal_m > 0.0 && o.gnss.sigma_vertical_m > 0.0))
+    return "gnss.sigma_horizontal_m and gnss.sigma_vertical_m must be > 0";
+  if (!(o.gnss.gate_m > 0.0)) return "gnss.gate_m must be > 0";
+  if (!(o.gnss.drift_fraction >= 0.0 && o.gnss.drift_fraction < 0.5))
+    return "gnss.drift_fraction must be in [0, 0.5)";
+  if (!(o.gnss.vertical_drift_fraction >= 0.0 && o.gnss.vertical_drift_fraction < 0.5))
+    return "gnss.vertical_drift_fraction must be in [0, 0.5)";
+  if (!(o.gnss.alignment.min_extent_m >= 10.0)) return "gnss.align_distance_m must be >= 10 m";
+  if (!(o.gnss_max_hold_s >= 10.0)) return "gnss.max_hold_s must be >= 10 s";
+  if (!(o.gnss_max_latency_s >= 0.0 && o.gnss_max_latency_s <= 600.0))
+    return "gnss.max_latency_s must be in [0, 600] s";
+  if (!(o.gnss_prompt_latency_s >= 0.0 && o.gnss_prompt_latency_s <= 600.0))
+    return "gnss.prompt_latency_s must be in [0, 600] s";
+  if (!(o.gnss_provisional_after_s >= 0.0 && o.gnss_provisional_after_s <= 600.0))
+    return "gnss.provisional_after_s must be in [0, 600] s";
+  if (!(o.gnss.factor_window_s >= 0.0 && o.gnss.factor_window_s <= 2.0 * o.gnss.factor_period_s))
+    return "gnss.factor_window_s must be in [0, 2 * factor_period_s]";
+  if (!(o.gnss.continuity_length_m >= 0.0) || !(o.gnss.continuity_max_step_m >= 0.0))
+    return "gnss.continuity_length_m and gnss.continuity_max_step_m must be >= 0";
+  return "";
+}
+
+/// What is wrong with the solver and submap options, or an empty string.
+std::string SubmapProblem(const EstimatorOptions& o) {
+  if (o.max_solver_iterations < 1) return "max_solver_iterations must be >= 1";
+  if (!(o.submap.gnss_pull >= 0.0 && o.submap.gnss_pull <= 1.0) ||
+      !(o.submap.gnss_pull_vertical >= 0.0 && o.submap.gnss_pull_vertical <= 1.0))
+    return "submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]";
+  if (!(o.submap.side_slip_max_jump_m > 0.0)) return "submap_side_slip_max_jump_m must be > 0 m";
+  if (!(o.submap.gnss_pull_excess >= 0.0 && o.submap.gnss_pull_excess <= 1.0))
+    return "submap_gnss_pull_excess must be in [0, 1]";
+  if (!(o.submap.gnss_pull_along_excess >= 0.0 && o.submap.gnss_pull_along_excess <= 1.0))
+    return "submap_gnss_pull_along_excess must be in [0, 1]";
+  if (!(o.submap.chain_reset_m > 0.0)) return "submap_chain_reset_m must be > 0 m";
+  if (!(o.submap.ndt_min_along_information_revisit >= 0.0 &&
+        o.submap.ndt_min_along_information_revisit <= 1.0))
+    return "submap_ndt_min_along_information_revisit must be in [0, 1] (0: always NDT's "
+           "along-track correction onto an earlier pass)";
+  if (!(o.submap.ndt_min_turn_arm_m >= 0.0 && o.submap.ndt_min_turn_arm_m <= 100.0))
+    return "submap_ndt_min_turn_arm_m must be in [0, 100] m (0: always NDT's turn)";
+  if (!(o.submap.gnss_height_length_m >= 0.0))
+    return "submap_gnss_height_length_m must be 0 (off) or a length in metres";
+  if (!(o.submap.gnss_heading_length_m >= 0.0))
+    return "submap_gnss_heading_length_m must be 0 (off) or a length in metres";
+  if (!(o.submap.gnss_max_turn_rate_rad_per_m > 0.0))
+    return "submap_gnss_turn_rate_rad_per_m must be > 0";
+  if (o.submap.keyframes < 1 || o.submap.keyframes > 1000)
+    return "submap_keyframes must be in [1, 1000]";
+  if (!(o.submap.voxel_m >= 0.0 && o.submap.voxel_m <= 5.0))
+    return "submap_voxel_m must be in [0, 5] m (0: every point)";
+  if (!(o.submap.max_range_m >= 0.0)) return "submap_max_range_m must be >= 0 m (0: every point)";
+  return "";
+}
+
+/// What is wrong with the local map, matching and rail options, or an empty string.
+std::string MatchingProblem(const EstimatorOptions& o) {
+  if (!(o.map_voxel_m > 0.05)) return "map_voxel_m must be > 0.05";
+  if (o.map_points_per_voxel < 5) return "map_points_per_voxel must be >= 5";
+  if (!(o.map_radius_m > 10.0)) return "map_radius_m must be > 10";
+  if (!(o.plane_sigma_m > 0.0) || !(o.edge_sigma_m > 0.0)) return "LiDAR sigmas must be > 0";
+  if (!(o.max_correspondence_m > 0.0)) return "max_correspondence_m must be > 0";
+  if (!(o.edge_max_spread_m >= 0.0)) return "edge_max_spread_m must be >= 0 (0 = no check)";
+  if (!(o.down_edge_soft_spread_m >= 0.0)) return "down_edge_soft_spread_m must be >= 0 (0 = off)";
+  if (o.map_insert_lag < 0) return "map_insert_lag must be >= 0";
+  if (!(o.rail_line_sigma_m >= 0.0)) return "rail_line_sigma_m must be >= 0 (0 = off)";
+  if (!(o.rail_line_max_forward_m >= 0.0))
+    return "rail_line_max_forward_m must be >= 0 (0 = no limit)";
+  if (!(o.rail_normal_sigma_rad > 0.0) || !(o.rail_distance_sigma_m > 0.0)) {
+    return "rail-plane sigmas must be > 0";
+  }
+  return "";
+}
+
+/// What is wrong with the priors, keyframes, remapping and deskewing options, or an empty
+/// string.
+std::string PriorProblem(const EstimatorOptions& o) {
+  if (!(o.initial_velocity_sigma_mps > 0.0) || !(o.initial_accel_bias_sigma > 0.0) ||
+      !(o.relevelled_accel_bias_sigma > 0.0) || !(o.initial_gyro_bias_sigma > 0.0) ||
+      !(o.initial_scale_sigma > 0.0)) {
+    return "initial_*_sigma and relevelled_accel_bias_sigma must be > 0";
+  }
+  if (!(o.odometer_pitch_sigma_rad >= 0.0 && o.odometer_pitch_sigma_rad <= 0.1) ||
+      !(o.odometer_yaw_sigma_rad >= 0.0 && o.odometer_yaw_sigma_rad <= 0.1))
+    return "odometer_pitch_sigma_rad and odometer_yaw_sigma_rad must be in [0, 0.1] rad (0 = "
+           "held at zero)";
+  if (!(o.keyframe_distance_m > 0.0) || !(o.keyframe_angle_deg > 0.0)) {
+    return "keyframe thresholds must be > 0";
+  }
+  if (!(o.degeneracy_threshold >= 0.0 && o.degeneracy_threshold < 1.0))
+    return "degeneracy_threshold must be in [0, 1)";
+  if (!(o.degeneracy_projection >= 0.0 && o.degeneracy_projection < 1.0))
+    return "degeneracy_projection must be in [0, 1) (0 = no remapping)";
+  if (!(o.degeneracy_projection_along >= 0.0 && o.degeneracy_projection_along < 1.0))
+    return "degeneracy_projection_along must be in [0, 1) (0 = no along-track remapping)";
+  if (!(o.heading_projection >= 0.0 && o.heading_projection < 1e6))
+    return "heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)";
+  if (!(o.odometer_sway_time_constant_s >= 0.0 && o.odometer_sway_time_constant_s <= 60.0))
+    return "odometer_sway_time_constant_s must be in [0, 60] s (0 = off)";
+  if (!(o.deskew_step_s >= 0.0 && o.deskew_step_s <= 0.1))
+    return "deskew_step_s must be in [0, 0.1] s (0 = linear from end to end)";
+  return "";
+}
+
+}  // namespace
+
 bool EstimatorOptions::IsValid(std::string* error) const {
   auto fail = [&](const std::string& m) {
     if (error) *error = m;
@@ -306,97 +447,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
     return fail("init_gravity_s must be in [0.1, 10] s");
   if (!(gravity_align_s == 0.0 || (gravity_align_s >= 3.0 && gravity_align_s <= 120.0)))
     return fail("gravity_align_s must be 0 (off) or in [3, 120] s");
-  if (!(gnss.factor_period_s >= 0.5 && gnss.factor_period_s <= 600.0))
-    return fail("gnss.factor_period_s must be in [0.5, 600] s");
-  if (!(gnss.sigma_horizontal_m > 0.0 && gnss.sigma_vertical_m > 0.0))
-    return fail("gnss.sigma_horizontal_m and gnss.sigma_vertical_m must be > 0");
-  if (!(gnss.gate_m > 0.0)) return fail("gnss.gate_m must be > 0");
-  if (!(gnss.drift_fraction >= 0.0 && gnss.drift_fraction < 0.5))
-    return fail("gnss.drift_fraction must be in [0, 0.5)");
-  if (!(gnss.vertical_drift_fraction >= 0.0 && gnss.vertical_drift_fraction < 0.5))
-    return fail("gnss.vertical_drift_fraction must be in [0, 0.5)");
-  if (!(gnss.alignment.min_extent_m >= 10.0)) return fail("gnss.align_distance_m must be >= 10 m");
-  if (!(gnss_max_hold_s >= 10.0)) return fail("gnss.max_hold_s must be >= 10 s");
-  if (!(gnss_max_latency_s >= 0.0 && gnss_max_latency_s <= 600.0))
-    return fail("gnss.max_latency_s must be in [0, 600] s");
-  if (!(gnss_prompt_latency_s >= 0.0 && gnss_prompt_latency_s <= 600.0))
-    return fail("gnss.prompt_latency_s must be in [0, 600] s");
-  if (!(gnss_provisional_after_s >= 0.0 && gnss_provisional_after_s <= 600.0))
-    return fail("gnss.provisional_after_s must be in [0, 600] s");
-  if (!(gnss.factor_window_s >= 0.0 && gnss.factor_window_s <= 2.0 * gnss.factor_period_s))
-    return fail("gnss.factor_window_s must be in [0, 2 * factor_period_s]");
-  if (!(gnss.continuity_length_m >= 0.0) || !(gnss.continuity_max_step_m >= 0.0))
-    return fail("gnss.continuity_length_m and gnss.continuity_max_step_m must be >= 0");
-  if (max_solver_iterations < 1) return fail("max_solver_iterations must be >= 1");
-  if (!(submap.gnss_pull >= 0.0 && submap.gnss_pull <= 1.0) ||
-      !(submap.gnss_pull_vertical >= 0.0 && submap.gnss_pull_vertical <= 1.0))
-    return fail("submap_gnss_pull and submap_gnss_pull_vertical must be in [0, 1]");
-  if (!(submap.side_slip_max_jump_m > 0.0))
-    return fail("submap_side_slip_max_jump_m must be > 0 m");
-  if (!(submap.gnss_pull_excess >= 0.0 && submap.gnss_pull_excess <= 1.0))
-    return fail("submap_gnss_pull_excess must be in [0, 1]");
-  if (!(submap.gnss_pull_along_excess >= 0.0 && submap.gnss_pull_along_excess <= 1.0))
-    return fail("submap_gnss_pull_along_excess must be in [0, 1]");
-  if (!(submap.chain_reset_m > 0.0)) return fail("submap_chain_reset_m must be > 0 m");
-  if (!(submap.ndt_min_along_information_revisit >= 0.0 &&
-        submap.ndt_min_along_information_revisit <= 1.0))
-    return fail(
-        "submap_ndt_min_along_information_revisit must be in [0, 1] (0: always NDT's "
-        "along-track correction onto an earlier pass)");
-  if (!(submap.ndt_min_turn_arm_m >= 0.0 && submap.ndt_min_turn_arm_m <= 100.0))
-    return fail("submap_ndt_min_turn_arm_m must be in [0, 100] m (0: always NDT's turn)");
-  if (!(submap.gnss_height_length_m >= 0.0))
-    return fail("submap_gnss_height_length_m must be 0 (off) or a length in metres");
-  if (!(submap.gnss_heading_length_m >= 0.0))
-    return fail("submap_gnss_heading_length_m must be 0 (off) or a length in metres");
-  if (!(submap.gnss_max_turn_rate_rad_per_m > 0.0))
-    return fail("submap_gnss_turn_rate_rad_per_m must be > 0");
-  if (submap.keyframes < 1 || submap.keyframes > 1000)
-    return fail("submap_keyframes must be in [1, 1000]");
-  if (!(submap.voxel_m >= 0.0 && submap.voxel_m <= 5.0))
-    return fail("submap_voxel_m must be in [0, 5] m (0: every point)");
-  if (!(submap.max_range_m >= 0.0))
-    return fail("submap_max_range_m must be >= 0 m (0: every point)");
-  if (!(map_voxel_m > 0.05)) return fail("map_voxel_m must be > 0.05");
-  if (map_points_per_voxel < 5) return fail("map_points_per_voxel must be >= 5");
-  if (!(map_radius_m > 10.0)) return fail("map_radius_m must be > 10");
-  if (!(plane_sigma_m > 0.0) || !(edge_sigma_m > 0.0)) return fail("LiDAR sigmas must be > 0");
-  if (!(max_correspondence_m > 0.0)) return fail("max_correspondence_m must be > 0");
-  if (!(edge_max_spread_m >= 0.0)) return fail("edge_max_spread_m must be >= 0 (0 = no check)");
-  if (!(down_edge_soft_spread_m >= 0.0))
-    return fail("down_edge_soft_spread_m must be >= 0 (0 = off)");
-  if (map_insert_lag < 0) return fail("map_insert_lag must be >= 0");
-  if (!(rail_line_sigma_m >= 0.0)) return fail("rail_line_sigma_m must be >= 0 (0 = off)");
-  if (!(rail_line_max_forward_m >= 0.0))
-    return fail("rail_line_max_forward_m must be >= 0 (0 = no limit)");
-  if (!(rail_normal_sigma_rad > 0.0) || !(rail_distance_sigma_m > 0.0)) {
-    return fail("rail-plane sigmas must be > 0");
+  for (const std::string& why :
+       {GnssProblem(*this), SubmapProblem(*this), MatchingProblem(*this), PriorProblem(*this)}) {
+    if (!why.empty()) return fail(why);
   }
-  if (!(initial_velocity_sigma_mps > 0.0) || !(initial_accel_bias_sigma > 0.0) ||
-      !(relevelled_accel_bias_sigma > 0.0) || !(initial_gyro_bias_sigma > 0.0) ||
-      !(initial_scale_sigma > 0.0)) {
-    return fail("initial_*_sigma and relevelled_accel_bias_sigma must be > 0");
-  }
-  if (!(odometer_pitch_sigma_rad >= 0.0 && odometer_pitch_sigma_rad <= 0.1) ||
-      !(odometer_yaw_sigma_rad >= 0.0 && odometer_yaw_sigma_rad <= 0.1))
-    return fail(
-        "odometer_pitch_sigma_rad and odometer_yaw_sigma_rad must be in [0, 0.1] rad (0 = "
-        "held at zero)");
-  if (!(keyframe_distance_m > 0.0) || !(keyframe_angle_deg > 0.0)) {
-    return fail("keyframe thresholds must be > 0");
-  }
-  if (!(degeneracy_threshold >= 0.0 && degeneracy_threshold < 1.0))
-    return fail("degeneracy_threshold must be in [0, 1)");
-  if (!(degeneracy_projection >= 0.0 && degeneracy_projection < 1.0))
-    return fail("degeneracy_projection must be in [0, 1) (0 = no remapping)");
-  if (!(degeneracy_projection_along >= 0.0 && degeneracy_projection_along < 1.0))
-    return fail("degeneracy_projection_along must be in [0, 1) (0 = no along-track remapping)");
-  if (!(heading_projection >= 0.0 && heading_projection < 1e6))
-    return fail("heading_projection must be in [0, 1e6) 1/rad^2 (0 = never)");
-  if (!(odometer_sway_time_constant_s >= 0.0 && odometer_sway_time_constant_s <= 60.0))
-    return fail("odometer_sway_time_constant_s must be in [0, 60] s (0 = off)");
-  if (!(deskew_step_s >= 0.0 && deskew_step_s <= 0.1))
-    return fail("deskew_step_s must be in [0, 0.1] s (0 = linear from end to end)");
   std::string stage;
   if (!preprocess.IsValid(&stage)) return fail("preprocess: " + stage);
   if (!loam.IsValid(&stage)) return fail("loam: " + stage);
@@ -407,8 +461,10 @@ bool EstimatorOptions::IsValid(std::string* error) const {
   return true;
 }
 
-std::string EstimatorConfig::Describe() const {
-  std::ostringstream s;
+namespace {
+
+/// The rig: LiDARs, IMU, odometer and vehicle.
+void DescribeRig(const RigConfig& rig, std::ostream& s) {
   s << "rig: " << rig.rig << "\n";
   for (const LidarRig& l : rig.lidars) {
     const Eigen::Vector3d t = l.T_body_lidar.translation();
@@ -430,7 +486,10 @@ std::string EstimatorConfig::Describe() const {
     << " m\n";
   s << "vehicle: body " << rig.body_above_rail_top_m << " m above rail top, gauge " << rig.gauge_m
     << " m\n";
-  const EstimatorOptions& o = options;
+}
+
+/// The ablation, the window, the local map and the LiDAR and rail matching.
+void DescribeMatching(const EstimatorOptions& o, std::ostream& s) {
   s << "ablation: " << o.switches.Name() << "\n";
   s << "window_size: " << o.window_size << ", registration_rounds: " << o.registration_rounds
     << ", max_solver_iterations: " << o.max_solver_iterations << "\n";
@@ -459,6 +518,10 @@ std::string EstimatorConfig::Describe() const {
   } else {
     s << "not matched\n";
   }
+}
+
+/// The priors, the favour factors and remapping, odometer sway and deskewing.
+void DescribePriors(const EstimatorOptions& o, std::ostream& s) {
   s << "initial sigmas: velocity " << o.initial_velocity_sigma_mps << " m/s, accel bias "
     << o.initial_accel_bias_sigma << " m/s^2 (after re-levelling " << o.relevelled_accel_bias_sigma
     << "), gyro bias " << o.initial_gyro_bias_sigma << " rad/s, odometer scale "
@@ -482,6 +545,10 @@ std::string EstimatorConfig::Describe() const {
   } else {
     s << "linear from the frame's start to its end\n";
   }
+}
+
+/// Preprocessing, the height descriptor, the sleepers and the straight-track hold.
+void DescribeCues(const EstimatorOptions& o, std::ostream& s) {
   s << "preprocess: range [" << o.preprocess.min_range_m << ", " << o.preprocess.max_range_m
     << "] m, flicker cell " << o.preprocess.flicker_cell_size_m << " m min "
     << o.preprocess.flicker_min_points_per_cell << ", hidden sector "
@@ -506,6 +573,10 @@ std::string EstimatorConfig::Describe() const {
   } else {
     s << "off\n";
   }
+}
+
+/// Keyframes, levelling and the GNSS fusion.
+void DescribeGnss(const EstimatorOptions& o, std::ostream& s) {
   s << "keyframes: every " << o.keyframe_distance_m << " m or " << o.keyframe_angle_deg
     << " deg, written: " << (o.write_keyframes ? "yes" : "no") << "\n";
   s << "initial levelling: " << o.init_gravity_s << " s of IMU data, re-levelled after "
@@ -520,6 +591,10 @@ std::string EstimatorConfig::Describe() const {
     << (o.gnss_provisional_after_s > 0.0 ? std::to_string(o.gnss_provisional_after_s) + " s"
                                          : std::string("(off)"))
     << "\n";
+}
+
+/// The submaps.
+void DescribeSubmaps(const EstimatorOptions& o, std::ostream& s) {
   const SubmapOptions& m = o.submap;
   s << "submaps: " << m.keyframes << " keyframes, voxel " << m.voxel_m << " m, points within ";
   if (m.max_range_m > 0.0) {
@@ -542,6 +617,18 @@ std::string EstimatorConfig::Describe() const {
     << " m across / " << 2.0 * m.chain_reset_m << " m along; ndt's turn kept from a lever arm of "
     << m.ndt_min_turn_arm_m << " m; ndt along the track onto an earlier pass from an information "
     << "share of " << m.ndt_min_along_information_revisit << "\n";
+}
+
+}  // namespace
+
+std::string EstimatorConfig::Describe() const {
+  std::ostringstream s;
+  DescribeRig(rig, s);
+  DescribeMatching(options, s);
+  DescribePriors(options, s);
+  DescribeCues(options, s);
+  DescribeGnss(options, s);
+  DescribeSubmaps(options, s);
   return s.str();
 }
 
