@@ -387,43 +387,7 @@ std::shared_ptr<Preintegration> Estimator::Preintegrate(
 bool Estimator::Initialize(double t_end) {
   NavState s;
   Eigen::Vector3d v_body = Eigen::Vector3d::Zero();
-  if (config_.options.switches.use_imu) {
-    // Roll and pitch from the first init_gravity_s of IMU data, with the velocity change from
-    // the odometer's path (InertialBuffer::UpInBody). A roll error at speed reads as a turn
-    // (lateral gravity = v * yaw rate): the gyro bias soaks it up and the heading drifts, and
-    // no later LiDAR map on a plain line undoes it.
-    const double span = config_.options.init_gravity_s;
-    const auto& imu = inertial_.imu();
-    if (imu.empty() || imu.back().t - imu.front().t < span - 1e-3 ||
-        t_end - imu.front().t < span - 1e-3) {
-      if (warning_counts_["init-imu"]++ == 0 && sinks_.on_info) {
-        sinks_.on_info("initialising: levelling on the first " + Seconds(span) +
-                       " of IMU data; no poses before that");
-      }
-      return false;
-    }
-    Eigen::Vector3d f;
-    if (inertial_.HasOdometer()) {
-      if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f, &v_body))
-        return false;
-    } else {
-      // Without the odometer the path is unknown and the train is taken to stand still: level
-      // on the first second only (a train that pulls away later would read its acceleration
-      // as pitch, 1.6 deg at 0.8 m/s^2), then carry the up direction to t_end on the gyro.
-      const double t0 = imu.front().t;
-      const double t1 = std::min(t0 + 1.0, t_end);
-      Eigen::Vector3d up_t1;
-      if (!inertial_.UpInBody(t0, t1, config_.rig.gravity_mps2, &up_t1)) return false;
-      bool unused = false;
-      const auto pre = Preintegrate(t1, t_end, NavState(), false, &unused);
-      f = pre->gamma().conjugate() * up_t1;
-    }
-    s.q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
-    // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
-    const Eigen::Vector3d x = s.q * Eigen::Vector3d::UnitX();
-    const double yaw = std::atan2(x.y(), x.x());
-    s.q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * s.q;
-  }
+  if (config_.options.switches.use_imu && !Level(t_end, &s.q, &v_body)) return false;
   // Initial velocity: with IMU and odometer, from the levelling fit over its whole span;
   // otherwise from the odometer over up to the last 0.2 s (the train may start at speed).
   if (config_.options.switches.use_imu && inertial_.HasOdometer()) {
@@ -441,6 +405,45 @@ bool Estimator::Initialize(double t_end) {
   window_->Push(t_end, s, nullptr);
   initialized_ = true;
   last_node_t_ = t_end;
+  return true;
+}
+
+bool Estimator::Level(double t_end, Eigen::Quaterniond* q, Eigen::Vector3d* v_body) {
+  // Roll and pitch from the first init_gravity_s of IMU data, with the velocity change from
+  // the odometer's path (InertialBuffer::UpInBody). A roll error at speed reads as a turn
+  // (lateral gravity = v * yaw rate): the gyro bias soaks it up and the heading drifts, and
+  // no later LiDAR map on a plain line undoes it.
+  const double span = config_.options.init_gravity_s;
+  const auto& imu = inertial_.imu();
+  if (imu.empty() || imu.back().t - imu.front().t < span - 1e-3 ||
+      t_end - imu.front().t < span - 1e-3) {
+    if (warning_counts_["init-imu"]++ == 0 && sinks_.on_info) {
+      sinks_.on_info("initialising: levelling on the first " + Seconds(span) +
+                     " of IMU data; no poses before that");
+    }
+    return false;
+  }
+  Eigen::Vector3d f;
+  if (inertial_.HasOdometer()) {
+    if (!inertial_.UpInBody(t_end - span, t_end, config_.rig.gravity_mps2, &f, v_body))
+      return false;
+  } else {
+    // Without the odometer the path is unknown and the train is taken to stand still: level
+    // on the first second only (a train that pulls away later would read its acceleration
+    // as pitch, 1.6 deg at 0.8 m/s^2), then carry the up direction to t_end on the gyro.
+    const double t0 = imu.front().t;
+    const double t1 = std::min(t0 + 1.0, t_end);
+    Eigen::Vector3d up_t1;
+    if (!inertial_.UpInBody(t0, t1, config_.rig.gravity_mps2, &up_t1)) return false;
+    bool unused = false;
+    const auto pre = Preintegrate(t1, t_end, NavState(), false, &unused);
+    f = pre->gamma().conjugate() * up_t1;
+  }
+  *q = Eigen::Quaterniond::FromTwoVectors(f.normalized(), Eigen::Vector3d::UnitZ());
+  // Keep yaw zero: remove the yaw FromTwoVectors may have introduced.
+  const Eigen::Vector3d x = *q * Eigen::Vector3d::UnitX();
+  const double yaw = std::atan2(x.y(), x.x());
+  *q = Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()) * *q;
   return true;
 }
 

@@ -214,6 +214,9 @@ class Estimator {
   /// Records the newest state in the frame's result, then emits the states leaving the window.
   void FinishFrame(double t_end, std::chrono::steady_clock::time_point t_frontend);
   bool Initialize(double t_end);
+  /// The first state's orientation, level with yaw zero, from the IMU (and the odometer's
+  /// velocity in the body, `v_body`); false until there is enough IMU data.
+  bool Level(double t_end, Eigen::Quaterniond* q, Eigen::Vector3d* v_body);
   /// IMU (and, when use_odometer, odometer) preintegration over [t0, t1] from `start`'s biases.
   std::shared_ptr<Preintegration> Preintegrate(
       double t0, double t1, const NavState& start, bool use_odometer, bool* odometer_ok) const;
