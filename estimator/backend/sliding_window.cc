@@ -207,41 +207,14 @@ std::vector<WindowTerm> SlidingWindow::AllTerms() const {
 WindowSummary SlidingWindow::Optimize() {
   WindowSummary summary;
   if (nodes_.empty()) return summary;
-  // Relinearise preintegrations whose biases or scale moved far from their linearisation point.
-  for (size_t i = 1; i < nodes_.size(); ++i) {
-    Node& n = *nodes_[i];
-    if (!n.preintegration || n.links.empty()) continue;
-    const Node& prev = *nodes_[i - 1];
-    Eigen::Map<const Eigen::Vector3d> ba(prev.speed_bias + 3), bg(prev.speed_bias + 6);
-    if ((ba - n.preintegration->linearized_ba()).norm() > 0.05 ||
-        (bg - n.preintegration->linearized_bg()).norm() > 2e-3 ||
-        std::abs(prev.odometer[0] - n.preintegration->linearized_c()) > 0.01) {
-      n.preintegration->Repropagate(ba, bg, prev.odometer[0]);
-      n.links.front().cost = std::make_shared<ImuOdometerFactor>(n.preintegration);
-    }
-  }
-
+  RelinearizeDrifted();
   ceres::Problem::Options problem_options;
   problem_options.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.enable_fast_removal = false;
   ceres::Problem problem(problem_options);
-  static PoseManifold manifold;
-  for (const auto& n : nodes_) {
-    problem.AddParameterBlock(n->pose, kPoseSize, &manifold);
-    if (options_.use_imu) {
-      problem.AddParameterBlock(n->speed_bias, kSpeedBiasSize);
-      problem.AddParameterBlock(n->odometer, kOdometerBlockSize, odometer_manifold_.get());
-      if (static_cast<int>(odometer_held_.size()) == kOdometerBlockSize)
-        problem.SetParameterBlockConstant(n->odometer);
-    }
-  }
-  if (!options_.use_imu) {
-    // Without the IMU the states are independent: only the newest is solved.
-    for (size_t i = 0; i + 1 < nodes_.size(); ++i)
-      problem.SetParameterBlockConstant(nodes_[i]->pose);
-  }
+  AddParameterBlocks(&problem);
   for (const WindowTerm& t : AllTerms()) {
     problem.AddResidualBlock(t.cost.get(), t.loss.get(), t.blocks);
     ++summary.residual_blocks;
@@ -260,6 +233,39 @@ WindowSummary SlidingWindow::Optimize() {
   summary.final_cost = ceres_summary.final_cost;
   summary.converged = ceres_summary.termination_type == ceres::CONVERGENCE;
   return summary;
+}
+
+void SlidingWindow::RelinearizeDrifted() {
+  for (size_t i = 1; i < nodes_.size(); ++i) {
+    Node& n = *nodes_[i];
+    if (!n.preintegration || n.links.empty()) continue;
+    const Node& prev = *nodes_[i - 1];
+    Eigen::Map<const Eigen::Vector3d> ba(prev.speed_bias + 3), bg(prev.speed_bias + 6);
+    if ((ba - n.preintegration->linearized_ba()).norm() > 0.05 ||
+        (bg - n.preintegration->linearized_bg()).norm() > 2e-3 ||
+        std::abs(prev.odometer[0] - n.preintegration->linearized_c()) > 0.01) {
+      n.preintegration->Repropagate(ba, bg, prev.odometer[0]);
+      n.links.front().cost = std::make_shared<ImuOdometerFactor>(n.preintegration);
+    }
+  }
+}
+
+void SlidingWindow::AddParameterBlocks(ceres::Problem* problem) const {
+  static PoseManifold manifold;
+  for (const auto& n : nodes_) {
+    problem->AddParameterBlock(n->pose, kPoseSize, &manifold);
+    if (options_.use_imu) {
+      problem->AddParameterBlock(n->speed_bias, kSpeedBiasSize);
+      problem->AddParameterBlock(n->odometer, kOdometerBlockSize, odometer_manifold_.get());
+      if (static_cast<int>(odometer_held_.size()) == kOdometerBlockSize)
+        problem->SetParameterBlockConstant(n->odometer);
+    }
+  }
+  if (!options_.use_imu) {
+    // Without the IMU the states are independent: only the newest is solved.
+    for (size_t i = 0; i + 1 < nodes_.size(); ++i)
+      problem->SetParameterBlockConstant(nodes_[i]->pose);
+  }
 }
 
 bool SlidingWindow::Full() const { return static_cast<int>(nodes_.size()) > options_.size; }

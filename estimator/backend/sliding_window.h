@@ -12,6 +12,7 @@ namespace ceres {
 class CostFunction;
 class LossFunction;
 class Manifold;
+class Problem;
 }  // namespace ceres
 
 namespace raillomer {
@@ -105,6 +106,12 @@ class SlidingWindow {
   void RotateWorld(const Eigen::Matrix3d& R_new_old, bool forget_tilt_gyro_bias = false);
 
  private:
+  /// Relinearises the preintegrations whose biases or scale moved far from their
+  /// linearisation point.
+  void RelinearizeDrifted();
+  /// The states' blocks, the odometer's held constant while it is held, and without the IMU
+  /// every state but the newest.
+  void AddParameterBlocks(ceres::Problem* problem) const;
   struct Node;
   std::vector<WindowTerm> AllTerms() const;
   /// The priors that anchor the frame at a state (the first one, or after RotateWorld).
