@@ -121,42 +121,10 @@ LidarFrameCost::LidarFrameCost(std::vector<PlaneTerm> planes,
 bool LidarFrameCost::Evaluate(double const* const* parameters,
                               double* residuals,
                               double** jacobians) const {
-  const PoseBlock pose(parameters[0]);
   const bool jacobian_wanted = JacobianWanted(jacobians);
-  const double b = huber_ * huber_;
-  // ceres::HuberLoss on s = |r|^2: rho = s below b, 2 sqrt(b s) - b above; rho' = min(1,
-  // sqrt(b/s)).
-  auto robust = [&](double s, double* rho1) {
-    if (s <= b) {
-      *rho1 = 1.0;
-      return s;
-    }
-    const double root = std::sqrt(s);
-    *rho1 = huber_ / root;
-    return 2.0 * huber_ * root - b;
-  };
-  double cost = 0.0;  // sum of rho, twice Ceres' cost
   Matrix6d H = Matrix6d::Zero();
   Vector6d g = Vector6d::Zero();
-  RowJacobian1x6 j_plane;
-  for (const PlaneTerm& m : planes_) {
-    const double r = PlaneResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_plane : nullptr);
-    double rho1 = 1.0;
-    cost += robust(r * r, &rho1);
-    if (!jacobian_wanted) continue;
-    H.selfadjointView<Eigen::Upper>().rankUpdate(j_plane.transpose(), rho1);
-    g += (rho1 * r) * j_plane.transpose();
-  }
-  RowJacobian3x6 j_line;
-  for (const LineTerm& m : lines_) {
-    const Eigen::Vector3d r =
-        LineResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_line : nullptr);
-    double rho1 = 1.0;
-    cost += robust(r.squaredNorm(), &rho1);
-    if (!jacobian_wanted) continue;
-    H.selfadjointView<Eigen::Upper>().rankUpdate(j_line.transpose(), rho1);
-    g += rho1 * j_line.transpose() * r;
-  }
+  const double cost = Accumulate(parameters[0], jacobian_wanted ? &H : nullptr, &g);
   Eigen::Map<Eigen::Matrix<double, 7, 1>> out(residuals);
   out.setZero();
   if (!jacobian_wanted) {
@@ -179,6 +147,46 @@ bool LidarFrameCost::Evaluate(double const* const* parameters,
   }
   out(6) = std::sqrt(std::max(cost - out.head<6>().squaredNorm(), 0.0));
   return true;
+}
+
+double LidarFrameCost::Accumulate(const double* pose_parameters,
+                                  Eigen::Matrix<double, 6, 6>* H,
+                                  Eigen::Matrix<double, 6, 1>* g) const {
+  const PoseBlock pose(pose_parameters);
+  const bool jacobian_wanted = H != nullptr;
+  const double b = huber_ * huber_;
+  // ceres::HuberLoss on s = |r|^2: rho = s below b, 2 sqrt(b s) - b above; rho' = min(1,
+  // sqrt(b/s)).
+  auto robust = [&](double s, double* rho1) {
+    if (s <= b) {
+      *rho1 = 1.0;
+      return s;
+    }
+    const double root = std::sqrt(s);
+    *rho1 = huber_ / root;
+    return 2.0 * huber_ * root - b;
+  };
+  double cost = 0.0;  // sum of rho, twice Ceres' cost
+  RowJacobian1x6 j_plane;
+  for (const PlaneTerm& m : planes_) {
+    const double r = PlaneResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_plane : nullptr);
+    double rho1 = 1.0;
+    cost += robust(r * r, &rho1);
+    if (!jacobian_wanted) continue;
+    H->selfadjointView<Eigen::Upper>().rankUpdate(j_plane.transpose(), rho1);
+    *g += (rho1 * r) * j_plane.transpose();
+  }
+  RowJacobian3x6 j_line;
+  for (const LineTerm& m : lines_) {
+    const Eigen::Vector3d r =
+        LineResidual(m, pose.rotation, pose.t, jacobian_wanted ? &j_line : nullptr);
+    double rho1 = 1.0;
+    cost += robust(r.squaredNorm(), &rho1);
+    if (!jacobian_wanted) continue;
+    H->selfadjointView<Eigen::Upper>().rankUpdate(j_line.transpose(), rho1);
+    *g += rho1 * j_line.transpose() * r;
+  }
+  return cost;
 }
 
 RailPlaneFactor::RailPlaneFactor(const Eigen::Vector3d& normal_i,

@@ -90,6 +90,11 @@ class LidarFrameCost : public ceres::SizedCostFunction<7, 7> {
   size_t size() const { return planes_.size() + lines_.size(); }
 
  private:
+  /// The terms' robustified cost (the sum of rho) at the pose; with H given, their
+  /// Huber-weighted normal equations H (upper triangle) and g.
+  double Accumulate(const double* pose_parameters,
+                    Eigen::Matrix<double, 6, 6>* H,
+                    Eigen::Matrix<double, 6, 1>* g) const;
   std::vector<PlaneTerm> planes_;
   std::vector<LineTerm> lines_;
   double huber_;
