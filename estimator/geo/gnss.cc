@@ -83,63 +83,100 @@ FourDof FitFourDof(const std::vector<Eigen::Vector3d>& from,
   return result;
 }
 
+namespace {
+
+/// Horizontal span (the bounding box's diagonal) of the first n positions; 0 for none.
+double HorizontalExtent(const std::vector<Eigen::Vector3d>& p, size_t n) {
+  Eigen::Vector2d lo(1e300, 1e300), hi(-1e300, -1e300);
+  for (size_t i = 0; i < n; ++i) {
+    lo = lo.cwiseMin(p[i].head<2>());
+    hi = hi.cwiseMax(p[i].head<2>());
+  }
+  return n > 0 ? (hi - lo).norm() : 0.0;
+}
+
+/// Why n pairs spanning extent_m are too few or too short to align on; empty if they will do.
+std::string Insufficient(size_t n, double extent_m, const GnssAlignmentOptions& options) {
+  if (static_cast<int>(n) < options.min_inliers)
+    return std::to_string(n) + " fixes, " + std::to_string(options.min_inliers) + " needed";
+  if (extent_m < options.min_extent_m) {
+    return "the train has moved " + std::to_string(static_cast<int>(extent_m)) + " m of the " +
+           std::to_string(static_cast<int>(options.min_extent_m)) + " m needed";
+  }
+  return "";
+}
+
+/// Weights each pair 1 within one round's gate of the fit's horizontal residuals, else 0.
+void GateRound(const FourDof& fit,
+               const std::vector<Eigen::Vector3d>& p_odom,
+               const std::vector<Eigen::Vector3d>& p_enu,
+               double min_gate_m,
+               bool last,
+               std::vector<double>* w) {
+  const size_t n = w->size();
+  std::vector<double> residuals(n);
+  for (size_t i = 0; i < n; ++i) residuals[i] = (fit.Apply(p_odom[i]) - p_enu[i]).head<2>().norm();
+  std::vector<double> sorted = residuals;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(n / 2), sorted.end());
+  const double median = sorted[n / 2];
+  const double gate = last ? min_gate_m : std::max(min_gate_m, 3.0 * median);
+  for (size_t i = 0; i < n; ++i) (*w)[i] = residuals[i] <= gate ? 1.0 : 0.0;
+}
+
+/// Fits and gates `rounds` times; false when a fit's heading is not determined.
+bool GateOutliers(const std::vector<Eigen::Vector3d>& p_odom,
+                  const std::vector<Eigen::Vector3d>& p_enu,
+                  const GnssAlignmentOptions& options,
+                  std::vector<double>* w) {
+  for (int round = 0; round < options.rounds; ++round) {
+    bool degenerate = false;
+    const FourDof fit = FitFourDof(p_odom, p_enu, *w, &degenerate);
+    if (degenerate) return false;
+    GateRound(fit, p_odom, p_enu, options.inlier_gate_m, round + 1 == options.rounds, w);
+  }
+  return true;
+}
+
+/// Counts the inliers (weight > 0) and outliers, and the inliers' horizontal RMS residual.
+void Score(const FourDof& fit,
+           const std::vector<Eigen::Vector3d>& p_odom,
+           const std::vector<Eigen::Vector3d>& p_enu,
+           const std::vector<double>& w,
+           GnssAlignment* out) {
+  double sum_sq = 0.0;
+  for (size_t i = 0; i < w.size(); ++i) {
+    if (w[i] > 0.0) {
+      ++out->inliers;
+      sum_sq += (fit.Apply(p_odom[i]) - p_enu[i]).head<2>().squaredNorm();
+    } else {
+      ++out->outliers;
+    }
+  }
+  out->rms_m = out->inliers > 0 ? std::sqrt(sum_sq / out->inliers) : 0.0;
+}
+
+}  // namespace
+
 GnssAlignment AlignToGnss(const std::vector<Eigen::Vector3d>& p_odom,
                           const std::vector<Eigen::Vector3d>& p_enu,
                           const GnssAlignmentOptions& options) {
   GnssAlignment out;
   const size_t n = std::min(p_odom.size(), p_enu.size());
-  Eigen::Vector2d lo(1e300, 1e300), hi(-1e300, -1e300);
-  for (size_t i = 0; i < n; ++i) {
-    lo = lo.cwiseMin(p_odom[i].head<2>());
-    hi = hi.cwiseMax(p_odom[i].head<2>());
-  }
-  out.extent_m = n > 0 ? (hi - lo).norm() : 0.0;
-  if (static_cast<int>(n) < options.min_inliers) {
-    out.reason = std::to_string(n) + " fixes, " + std::to_string(options.min_inliers) + " needed";
-    return out;
-  }
-  if (out.extent_m < options.min_extent_m) {
-    out.reason = "the train has moved " + std::to_string(static_cast<int>(out.extent_m)) +
-                 " m of the " + std::to_string(static_cast<int>(options.min_extent_m)) +
-                 " m needed";
-    return out;
-  }
+  out.extent_m = HorizontalExtent(p_odom, n);
+  out.reason = Insufficient(n, out.extent_m, options);
+  if (!out.reason.empty()) return out;
   // First fit on all pairs, then on those within the gate: a gate that starts at the median
   // residual's scale keeps a 30 m multipath jump from dragging the first fit far enough to
   // make the good pairs look bad.
   std::vector<double> w(n, 1.0);
-  FourDof fit;
-  for (int round = 0; round < options.rounds; ++round) {
-    bool degenerate = false;
-    fit = FitFourDof(p_odom, p_enu, w, &degenerate);
-    if (degenerate) {
-      out.reason = "the odometry positions do not fix a heading";
-      return out;
-    }
-    std::vector<double> residuals(n);
-    for (size_t i = 0; i < n; ++i)
-      residuals[i] = (fit.Apply(p_odom[i]) - p_enu[i]).head<2>().norm();
-    std::vector<double> sorted = residuals;
-    std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(n / 2), sorted.end());
-    const double median = sorted[n / 2];
-    const bool last = round + 1 == options.rounds;
-    const double gate =
-        last ? options.inlier_gate_m : std::max(options.inlier_gate_m, 3.0 * median);
-    for (size_t i = 0; i < n; ++i) w[i] = residuals[i] <= gate ? 1.0 : 0.0;
+  if (!GateOutliers(p_odom, p_enu, options, &w)) {
+    out.reason = "the odometry positions do not fix a heading";
+    return out;
   }
   bool degenerate = false;
-  fit = FitFourDof(p_odom, p_enu, w, &degenerate);
-  double sum_sq = 0.0;
-  for (size_t i = 0; i < n; ++i) {
-    if (w[i] > 0.0) {
-      ++out.inliers;
-      sum_sq += (fit.Apply(p_odom[i]) - p_enu[i]).head<2>().squaredNorm();
-    } else {
-      ++out.outliers;
-    }
-  }
+  const FourDof fit = FitFourDof(p_odom, p_enu, w, &degenerate);
+  Score(fit, p_odom, p_enu, w, &out);
   out.T_enu_odom = fit;
-  out.rms_m = out.inliers > 0 ? std::sqrt(sum_sq / out.inliers) : 0.0;
   if (degenerate || out.inliers < options.min_inliers) {
     out.reason = std::to_string(out.inliers) + " fixes agree with each other within " +
                  std::to_string(options.inlier_gate_m) + " m, " +

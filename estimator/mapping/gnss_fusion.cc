@@ -35,6 +35,46 @@ void SpanFit(const Eigen::Vector3d& from,
   p->head<2>() = from.head<2>() + R * (*p - from).head<2>();
 }
 
+/// The weak prior at zero on the odometry's drift over the window: [ln scale, heading rate].
+ceres::CostFunction* DriftPrior(const GnssFusionOptions& options) {
+  return new ceres::NormalPrior(Eigen::Vector2d(1.0 / options.scale_prior_sigma,
+                                                1.0 / options.heading_drift_prior_sigma_rad_per_m)
+                                    .asDiagonal()
+                                    .toDenseMatrix(),
+                                ceres::Vector::Zero(2));
+}
+
+/// A soft prior that holds the oldest node (x: its [x, y, z, yaw]) where dropped nodes put it.
+ceres::CostFunction* OldestNodePrior(const double* x, const GnssFusionOptions& options) {
+  return new GnssPositionFactor(Eigen::Vector3d(x[0], x[1], x[2]),
+                                Eigen::Vector3d::Zero(),
+                                0.5 * options.sigma_horizontal_m,
+                                0.5 * options.sigma_vertical_m);
+}
+
+/// The odometry link between consecutive nodes `dist` m apart, its noise growing with `dist`.
+ceres::CostFunction* OdometryLink(const Eigen::Vector3d& dp,
+                                  double dyaw,
+                                  double dist,
+                                  const GnssFusionOptions& options) {
+  return new FourDofBetweenFactor(dp,
+                                  dyaw,
+                                  dist,
+                                  options.drift_fraction * dist + 0.05,
+                                  options.vertical_drift_fraction * dist + 0.05,
+                                  options.yaw_drift_rad_per_m * dist + 1e-4);
+}
+
+/// Solves the pose graph: sparse normal Cholesky, at most 20 iterations, no logging.
+void SolveQuietly(ceres::Problem* problem) {
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  solver_options.max_num_iterations = 20;
+  solver_options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, problem, &summary);
+}
+
 }  // namespace
 
 double GnssFusion::Correction::SignedLength(const Eigen::Vector3d& p_odom) const {
@@ -341,24 +381,12 @@ void GnssFusion::Optimize() {
     ceres::Problem problem(problem_options);
     for (Node& n : nodes_) problem.AddParameterBlock(n.x, 4);
     // The odometry's systematic drift over the window, with a weak prior at zero.
-    problem.AddResidualBlock(
-        new ceres::NormalPrior(Eigen::Vector2d(1.0 / options_.scale_prior_sigma,
-                                               1.0 / options_.heading_drift_prior_sigma_rad_per_m)
-                                   .asDiagonal()
-                                   .toDenseMatrix(),
-                               ceres::Vector::Zero(2)),
-        nullptr,
-        drift_);
+    problem.AddResidualBlock(DriftPrior(options_), nullptr, drift_);
     // Every node is free: its fix places it, the odometry links orient it. Once older nodes
     // have left the graph, the oldest keeps what they told it as a soft prior.
     if (nodes_dropped_) {
-      const Node& o = nodes_.front();
-      problem.AddResidualBlock(new GnssPositionFactor(Eigen::Vector3d(o.x[0], o.x[1], o.x[2]),
-                                                      Eigen::Vector3d::Zero(),
-                                                      0.5 * options_.sigma_horizontal_m,
-                                                      0.5 * options_.sigma_vertical_m),
-                               nullptr,
-                               nodes_.front().x);
+      problem.AddResidualBlock(
+          OldestNodePrior(nodes_.front().x, options_), nullptr, nodes_.front().x);
     }
     for (size_t k = 0; k < nodes_.size(); ++k) {
       Node& n = nodes_[k];
@@ -373,23 +401,13 @@ void GnssFusion::Optimize() {
       const double dist = std::max(0.0, n.distance_m - prev.distance_m);
       const Eigen::Vector3d dp = Rz(-prev.yaw_odom) * (n.p_odom - prev.p_odom);
       problem.AddResidualBlock(
-          new FourDofBetweenFactor(dp,
-                                   WrapAngle(n.yaw_odom - prev.yaw_odom),
-                                   dist,
-                                   options_.drift_fraction * dist + 0.05,
-                                   options_.vertical_drift_fraction * dist + 0.05,
-                                   options_.yaw_drift_rad_per_m * dist + 1e-4),
+          OdometryLink(dp, WrapAngle(n.yaw_odom - prev.yaw_odom), dist, options_),
           nullptr,
           prev.x,
           n.x,
           drift_);
     }
-    ceres::Solver::Options solver_options;
-    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    solver_options.max_num_iterations = 20;
-    solver_options.logging_type = ceres::SILENT;
-    ceres::Solver::Summary summary;
-    ceres::Solve(solver_options, &problem, &summary);
+    SolveQuietly(&problem);
   }
   // The correction maps the newest node's odometry pose onto its georeferenced one.
   const Node& n = nodes_.back();

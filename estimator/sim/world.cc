@@ -100,6 +100,89 @@ std::vector<Eigen::Vector2d> TunnelProfile() {
   return profile;
 }
 
+/// One catenary span: the contact wire straight, the messenger sagging by `sag`, droppers.
+void AddSpanWires(
+    const Vec3& c0, const Vec3& c1, const Vec3& m0, const Vec3& m1, double sag, Mesh* wires) {
+  wires->AddCylinder(c0, c1, 0.0065, 4, Material::kWire);
+  const double span = (c1 - c0).norm();
+  const int pieces = std::max(2, static_cast<int>(span / 5.0));
+  auto messenger_at = [&](double u) -> Vec3 {
+    return m0 + u * (m1 - m0) - Vec3(0, 0, sag * 4.0 * u * (1.0 - u));
+  };
+  for (int k = 0; k < pieces; ++k) {
+    wires->AddCylinder(messenger_at(double(k) / pieces),
+                       messenger_at(double(k + 1) / pieces),
+                       0.006,
+                       4,
+                       Material::kWire);
+  }
+  const int droppers = std::max(1, static_cast<int>(span / 9.0));
+  for (int k = 1; k < droppers; ++k) {
+    const double u = double(k) / droppers;
+    wires->AddCylinder(c0 + u * (c1 - c0), messenger_at(u), 0.003, 3, Material::kWire);
+  }
+}
+
+/// A station's platform in 10 m blocks, each with its canopy pillar, roof and lamp post.
+WorldObject Platform(const Alignment& alignment, const Station& st) {
+  const double side = st.side;
+  WorldObject platform;
+  platform.kind = "platform";
+  platform.chainage_m = st.at_m + 0.5 * st.length_m;
+  platform.lateral_m = side * 4.75;
+  for (double s = st.at_m; s < st.at_m + st.length_m; s += 10.0) {
+    const double mid = s + 5.0;
+    const TrackPoint p = alignment.At(mid);
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
+    const double bottom = kFormationM, top = st.platform_height_m;
+    platform.mesh.AddBox(alignment.Beside(mid, side * 4.75, 0.5 * (top + bottom)),
+                         R,
+                         Vec3(5.0, 3.0, 0.5 * (top - bottom)),
+                         Material::kPlatform);
+    // Canopy pillars and roof, lamp posts.
+    platform.mesh.AddCylinder(alignment.Beside(mid, side * 5.6, top),
+                              alignment.Beside(mid, side * 5.6, top + 4.4),
+                              0.15,
+                              6,
+                              Material::kMast);
+    platform.mesh.AddBox(
+        alignment.Beside(mid, side * 5.6, top + 4.5), R, Vec3(5.0, 2.0, 0.1), Material::kRoof);
+    platform.mesh.AddCylinder(alignment.Beside(s, side * 7.4, top),
+                              alignment.Beside(s, side * 7.4, top + 5.0),
+                              0.06,
+                              4,
+                              Material::kMast);
+  }
+  return platform;
+}
+
+/// A level crossing at chainage `at`: road panel, barrier posts and booms, cross-buck signs.
+WorldObject LevelCrossing(const Alignment& alignment, double at) {
+  WorldObject crossing;
+  crossing.kind = "level_crossing";
+  crossing.chainage_m = at;
+  const TrackPoint p = alignment.At(at);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
+  crossing.mesh.AddBox(alignment.Beside(at, 0.0, 0.5 * (-0.01 + kFormationM)),
+                       R,
+                       Vec3(3.0, 20.0, 0.5 * (kFormationM + 0.01) * -1.0),
+                       Material::kRoad);
+  for (double side : {1.0, -1.0}) {
+    const double along = side * 5.0;
+    const Vec3 post = alignment.Beside(at + along, side * 4.5, kFormationM);
+    crossing.mesh.AddCylinder(post, post + Vec3(0, 0, 1.3), 0.12, 6, Material::kMast);
+    crossing.mesh.AddCylinder(post + Vec3(0, 0, 1.1),
+                              alignment.Beside(at + along, side * 10.0, kFormationM + 1.1),
+                              0.05,
+                              4,
+                              Material::kSign);
+    const Vec3 sign = alignment.Beside(at - along, side * 4.0, kFormationM);
+    crossing.mesh.AddCylinder(sign, sign + Vec3(0, 0, 2.8), 0.05, 4, Material::kMast);
+    crossing.mesh.AddBox(sign + Vec3(0, 0, 2.6), R, Vec3(0.03, 0.6, 0.1), Material::kSign);
+  }
+  return crossing;
+}
+
 }  // namespace
 
 double MaterialReflectivity(Material material) {
@@ -442,155 +525,109 @@ void World::BuildTunnels(Mesh* mesh) {
 
 void World::BuildCatenary(std::mt19937& rng) {
   if (!scenario_.catenary) return;
+  std::vector<Vec3> contact_supports, messenger_supports;
+  Mesh wires;
+  PlaceMasts(rng, &contact_supports, &messenger_supports, &wires);
+  // Contact wire: straight between supports. Messenger: parabolic sag, with droppers.
+  for (size_t i = 0; i + 1 < contact_supports.size(); ++i) {
+    AddSpanWires(contact_supports[i],
+                 contact_supports[i + 1],
+                 messenger_supports[i],
+                 messenger_supports[i + 1],
+                 scenario_.system_height_m - 0.5,
+                 &wires);
+  }
+  mesh_.Append(wires);
+}
+
+void World::PlaceMasts(std::mt19937& rng,
+                       std::vector<Vec3>* contact_supports,
+                       std::vector<Vec3>* messenger_supports,
+                       Mesh* wires) {
   const double length = alignment_.length_m();
   const double contact = scenario_.contact_wire_height_m;
   const double messenger = contact + scenario_.system_height_m;
-  std::vector<Vec3> contact_supports, messenger_supports, feeder_supports;
-  Mesh wires;
+  std::vector<Vec3> feeder_supports;
   int index = 0;
   for (double s = Uniform(rng, 5.0, 30.0); s < length;
        s += Uniform(rng, scenario_.mast_spacing_min_m, scenario_.mast_spacing_max_m), ++index) {
     const double stagger = (index % 2 ? 1.0 : -1.0) * scenario_.stagger_m;
     const Vec3 contact_point = alignment_.Beside(s, stagger, contact);
     const Vec3 messenger_point = alignment_.Beside(s, 0.0, messenger);
-    contact_supports.push_back(contact_point);
-    messenger_supports.push_back(messenger_point);
+    contact_supports->push_back(contact_point);
+    messenger_supports->push_back(messenger_point);
     if (InTunnel(s, 2.0)) {
       // Drop bracket from the tunnel crown.
-      wires.AddCylinder(alignment_.Beside(s, 0.0, kTunnelSpringM + kTunnelHalfWidthM - 0.05),
-                        contact_point,
-                        0.04,
-                        4,
-                        Material::kMast);
+      wires->AddCylinder(alignment_.Beside(s, 0.0, kTunnelSpringM + kTunnelHalfWidthM - 0.05),
+                         contact_point,
+                         0.04,
+                         4,
+                         Material::kMast);
       feeder_supports.clear();
       continue;
     }
     const double offset = scenario_.mast_side *
                           Uniform(rng, scenario_.mast_offset_min_m, scenario_.mast_offset_max_m);
-    WorldObject mast;
-    mast.kind = "mast";
-    mast.chainage_m = s;
-    mast.lateral_m = offset;
-    const Vec3 base = alignment_.Beside(s, offset, GroundHeight(s, offset));
-    const Vec3 top = alignment_.Beside(s, offset, scenario_.mast_height_m);
-    mast.mesh.AddCylinder(base, top, 0.17, 8, Material::kMast);
-    const double inner = offset - scenario_.mast_side * 0.2;
-    mast.mesh.AddCylinder(
-        alignment_.Beside(s, inner, messenger + 0.3), messenger_point, 0.03, 4, Material::kMast);
-    mast.mesh.AddCylinder(alignment_.Beside(s, inner, contact + 0.2),
-                          alignment_.Beside(s, stagger, contact + 0.15),
-                          0.03,
-                          4,
-                          Material::kMast);
-    mast.mesh.AddCylinder(
-        contact_point + Vec3(0, 0, 0.15), messenger_point, 0.02, 4, Material::kMast);
-    objects_.push_back(std::move(mast));
+    objects_.push_back(Mast(s, offset, stagger, contact_point, messenger_point));
     const Vec3 feeder = alignment_.Beside(s, offset, scenario_.mast_height_m - 0.3);
     if (!feeder_supports.empty()) {
-      wires.AddCylinder(feeder_supports.back(), feeder, 0.01, 4, Material::kWire);
+      wires->AddCylinder(feeder_supports.back(), feeder, 0.01, 4, Material::kWire);
     }
     feeder_supports.push_back(feeder);
   }
-  // Contact wire: straight between supports. Messenger: parabolic sag, with droppers.
-  for (size_t i = 0; i + 1 < contact_supports.size(); ++i) {
-    const Vec3& c0 = contact_supports[i];
-    const Vec3& c1 = contact_supports[i + 1];
-    const Vec3& m0 = messenger_supports[i];
-    const Vec3& m1 = messenger_supports[i + 1];
-    wires.AddCylinder(c0, c1, 0.0065, 4, Material::kWire);
-    const double span = (c1 - c0).norm();
-    const int pieces = std::max(2, static_cast<int>(span / 5.0));
-    const double sag = scenario_.system_height_m - 0.5;
-    auto messenger_at = [&](double u) -> Vec3 {
-      return m0 + u * (m1 - m0) - Vec3(0, 0, sag * 4.0 * u * (1.0 - u));
-    };
-    for (int k = 0; k < pieces; ++k) {
-      wires.AddCylinder(messenger_at(double(k) / pieces),
-                        messenger_at(double(k + 1) / pieces),
-                        0.006,
+}
+
+WorldObject World::Mast(double s,
+                        double offset,
+                        double stagger,
+                        const Vec3& contact_point,
+                        const Vec3& messenger_point) const {
+  const double contact = scenario_.contact_wire_height_m;
+  const double messenger = contact + scenario_.system_height_m;
+  WorldObject mast;
+  mast.kind = "mast";
+  mast.chainage_m = s;
+  mast.lateral_m = offset;
+  const Vec3 base = alignment_.Beside(s, offset, GroundHeight(s, offset));
+  const Vec3 top = alignment_.Beside(s, offset, scenario_.mast_height_m);
+  mast.mesh.AddCylinder(base, top, 0.17, 8, Material::kMast);
+  const double inner = offset - scenario_.mast_side * 0.2;
+  mast.mesh.AddCylinder(
+      alignment_.Beside(s, inner, messenger + 0.3), messenger_point, 0.03, 4, Material::kMast);
+  mast.mesh.AddCylinder(alignment_.Beside(s, inner, contact + 0.2),
+                        alignment_.Beside(s, stagger, contact + 0.15),
+                        0.03,
                         4,
-                        Material::kWire);
-    }
-    const int droppers = std::max(1, static_cast<int>(span / 9.0));
-    for (int k = 1; k < droppers; ++k) {
-      const double u = double(k) / droppers;
-      wires.AddCylinder(c0 + u * (c1 - c0), messenger_at(u), 0.003, 3, Material::kWire);
-    }
-  }
-  mesh_.Append(wires);
+                        Material::kMast);
+  mast.mesh.AddCylinder(
+      contact_point + Vec3(0, 0, 0.15), messenger_point, 0.02, 4, Material::kMast);
+  return mast;
 }
 
 void World::BuildStations() {
   for (const Station& st : scenario_.stations) {
-    const double side = st.side;
-    WorldObject platform;
-    platform.kind = "platform";
-    platform.chainage_m = st.at_m + 0.5 * st.length_m;
-    platform.lateral_m = side * 4.75;
-    for (double s = st.at_m; s < st.at_m + st.length_m; s += 10.0) {
-      const double mid = s + 5.0;
-      const TrackPoint p = alignment_.At(mid);
-      const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-      const double bottom = kFormationM, top = st.platform_height_m;
-      platform.mesh.AddBox(alignment_.Beside(mid, side * 4.75, 0.5 * (top + bottom)),
-                           R,
-                           Vec3(5.0, 3.0, 0.5 * (top - bottom)),
-                           Material::kPlatform);
-      // Canopy pillars and roof, lamp posts.
-      platform.mesh.AddCylinder(alignment_.Beside(mid, side * 5.6, top),
-                                alignment_.Beside(mid, side * 5.6, top + 4.4),
-                                0.15,
-                                6,
-                                Material::kMast);
-      platform.mesh.AddBox(
-          alignment_.Beside(mid, side * 5.6, top + 4.5), R, Vec3(5.0, 2.0, 0.1), Material::kRoof);
-      platform.mesh.AddCylinder(alignment_.Beside(s, side * 7.4, top),
-                                alignment_.Beside(s, side * 7.4, top + 5.0),
-                                0.06,
-                                4,
-                                Material::kMast);
-    }
-    objects_.push_back(std::move(platform));
-    WorldObject building;
-    building.kind = "station_building";
-    const double mid = st.at_m + 0.5 * st.length_m;
-    building.chainage_m = mid;
-    building.lateral_m = side * 16.0;
-    const TrackPoint p = alignment_.At(mid);
-    const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-    const double ground = GroundHeight(mid, side * 16.0);
-    building.mesh.AddBox(alignment_.Beside(mid, side * 16.0, ground + 4.0),
-                         R,
-                         Vec3(std::min(30.0, 0.2 * st.length_m), 5.0, 4.0),
-                         Material::kBuilding);
-    objects_.push_back(std::move(building));
+    objects_.push_back(Platform(alignment_, st));
+    objects_.push_back(StationBuilding(st));
   }
   // Level crossings: road panel, barrier posts and booms, cross-buck signs.
-  for (double at : scenario_.level_crossings_m) {
-    WorldObject crossing;
-    crossing.kind = "level_crossing";
-    crossing.chainage_m = at;
-    const TrackPoint p = alignment_.At(at);
-    const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
-    crossing.mesh.AddBox(alignment_.Beside(at, 0.0, 0.5 * (-0.01 + kFormationM)),
-                         R,
-                         Vec3(3.0, 20.0, 0.5 * (kFormationM + 0.01) * -1.0),
-                         Material::kRoad);
-    for (double side : {1.0, -1.0}) {
-      const double along = side * 5.0;
-      const Vec3 post = alignment_.Beside(at + along, side * 4.5, kFormationM);
-      crossing.mesh.AddCylinder(post, post + Vec3(0, 0, 1.3), 0.12, 6, Material::kMast);
-      crossing.mesh.AddCylinder(post + Vec3(0, 0, 1.1),
-                                alignment_.Beside(at + along, side * 10.0, kFormationM + 1.1),
-                                0.05,
-                                4,
-                                Material::kSign);
-      const Vec3 sign = alignment_.Beside(at - along, side * 4.0, kFormationM);
-      crossing.mesh.AddCylinder(sign, sign + Vec3(0, 0, 2.8), 0.05, 4, Material::kMast);
-      crossing.mesh.AddBox(sign + Vec3(0, 0, 2.6), R, Vec3(0.03, 0.6, 0.1), Material::kSign);
-    }
-    objects_.push_back(std::move(crossing));
-  }
+  for (double at : scenario_.level_crossings_m) objects_.push_back(LevelCrossing(alignment_, at));
+}
+
+WorldObject World::StationBuilding(const Station& st) const {
+  const double side = st.side;
+  WorldObject building;
+  building.kind = "station_building";
+  const double mid = st.at_m + 0.5 * st.length_m;
+  building.chainage_m = mid;
+  building.lateral_m = side * 16.0;
+  const TrackPoint p = alignment_.At(mid);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
+  const double ground = GroundHeight(mid, side * 16.0);
+  building.mesh.AddBox(alignment_.Beside(mid, side * 16.0, ground + 4.0),
+                       R,
+                       Vec3(std::min(30.0, 0.2 * st.length_m), 5.0, 4.0),
+                       Material::kBuilding);
+  return building;
 }
 
 void World::BuildCorridor(std::mt19937& rng) {

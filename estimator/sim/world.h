@@ -115,8 +115,21 @@ class World {
   void BuildTrack(Mesh* mesh);
   void BuildTerrain(Mesh* mesh);
   void BuildCatenary(std::mt19937& rng);
+  /// Places masts (drop brackets in tunnels) and the feeder wire; collects the wire supports.
+  void PlaceMasts(std::mt19937& rng,
+                  std::vector<Eigen::Vector3d>* contact_supports,
+                  std::vector<Eigen::Vector3d>* messenger_supports,
+                  Mesh* wires);
+  /// A mast at (s, offset): its pole and the arms that hold the wires at their supports.
+  WorldObject Mast(double s,
+                   double offset,
+                   double stagger,
+                   const Eigen::Vector3d& contact_point,
+                   const Eigen::Vector3d& messenger_point) const;
   void BuildCorridor(std::mt19937& rng);
   void BuildStations();
+  /// The station building behind a station's platform.
+  WorldObject StationBuilding(const Station& st) const;
   void BuildTunnels(Mesh* mesh);
   void PlaceSignals();
   void PlaceKmPosts();
