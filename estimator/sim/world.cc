@@ -9,6 +9,15 @@ namespace raillomer::sim {
 
 namespace {
 
+/// A trackside object of `kind` at a chainage and lateral offset, its mesh still empty.
+WorldObject Object(const std::string& kind, double chainage_m, double lateral_m) {
+  WorldObject object;
+  object.kind = kind;
+  object.chainage_m = chainage_m;
+  object.lateral_m = lateral_m;
+  return object;
+}
+
 constexpr double kRailHeadCentreM = 0.7535;  // half gauge (0.7175) + half head width (0.036)
 constexpr double kBallastTopM = -0.36;       // below the rail-top plane
 constexpr double kBallastShoulderM = 1.75;   // half width of the ballast top
@@ -126,10 +135,7 @@ void AddSpanWires(
 /// A station's platform in 10 m blocks, each with its canopy pillar, roof and lamp post.
 WorldObject Platform(const Alignment& alignment, const Station& st) {
   const double side = st.side;
-  WorldObject platform;
-  platform.kind = "platform";
-  platform.chainage_m = st.at_m + 0.5 * st.length_m;
-  platform.lateral_m = side * 4.75;
+  WorldObject platform = Object("platform", st.at_m + 0.5 * st.length_m, side * 4.75);
   for (double s = st.at_m; s < st.at_m + st.length_m; s += 10.0) {
     const double mid = s + 5.0;
     const TrackPoint p = alignment.At(mid);
@@ -584,10 +590,7 @@ WorldObject World::Mast(double s,
                         const Vec3& messenger_point) const {
   const double contact = scenario_.contact_wire_height_m;
   const double messenger = contact + scenario_.system_height_m;
-  WorldObject mast;
-  mast.kind = "mast";
-  mast.chainage_m = s;
-  mast.lateral_m = offset;
+  WorldObject mast = Object("mast", s, offset);
   const Vec3 base = alignment_.Beside(s, offset, GroundHeight(s, offset));
   const Vec3 top = alignment_.Beside(s, offset, scenario_.mast_height_m);
   mast.mesh.AddCylinder(base, top, 0.17, 8, Material::kMast);
@@ -648,10 +651,7 @@ void World::PlaceSignals() {
   for (double s = 300.0; s < length - 50.0; s += scenario_.signal_spacing_m) {
     if (InTunnel(s, 5.0)) continue;
     const double lateral = -scenario_.mast_side * 3.2;
-    WorldObject signal;
-    signal.kind = "signal";
-    signal.chainage_m = s;
-    signal.lateral_m = lateral;
+    WorldObject signal = Object("signal", s, lateral);
     const TrackPoint p = alignment_.At(s);
     const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
     const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
@@ -665,10 +665,7 @@ void World::PlaceSignals() {
 void World::PlaceKmPosts() {
   for (double s = 1000.0; s < alignment_.length_m(); s += 1000.0) {
     if (InTunnel(s, 5.0)) continue;
-    WorldObject post;
-    post.kind = "km_post";
-    post.chainage_m = s;
-    post.lateral_m = 3.6;
+    WorldObject post = Object("km_post", s, 3.6);
     const Vec3 base = alignment_.Beside(s, 3.6, GroundHeight(s, 3.6));
     post.mesh.AddBox(base + Vec3(0, 0, 0.65),
                      Eigen::Matrix3d::Identity(),
@@ -698,10 +695,7 @@ void World::PlaceRandomly(const Density& density,
 }
 
 WorldObject World::Tree(double s, double lateral, std::mt19937& rng) const {
-  WorldObject tree;
-  tree.kind = "tree";
-  tree.chainage_m = s;
-  tree.lateral_m = lateral;
+  WorldObject tree = Object("tree", s, lateral);
   const double trunk = Uniform(rng, 1.5, 4.0);
   const double crown = std::min(Uniform(rng, 1.5, 4.0), std::fabs(lateral) - 3.0);
   const Vec3 base = alignment_.Beside(s, lateral, GroundHeight(s, lateral));
@@ -719,10 +713,7 @@ WorldObject World::Tree(double s, double lateral, std::mt19937& rng) const {
 }
 
 WorldObject World::Bush(double s, double lateral, std::mt19937& rng) const {
-  WorldObject bush;
-  bush.kind = "bush";
-  bush.chainage_m = s;
-  bush.lateral_m = lateral;
+  WorldObject bush = Object("bush", s, lateral);
   const int blobs = 1 + static_cast<int>(rng() % 3);
   const double side = lateral > 0.0 ? 1.0 : -1.0;
   for (int b = 0; b < blobs; ++b) {
@@ -740,10 +731,7 @@ WorldObject World::Bush(double s, double lateral, std::mt19937& rng) const {
 }
 
 WorldObject World::Building(double s, double lateral, std::mt19937& rng) const {
-  WorldObject building;
-  building.kind = "building";
-  building.chainage_m = s;
-  building.lateral_m = lateral;
+  WorldObject building = Object("building", s, lateral);
   const TrackPoint p = alignment_.At(s);
   const Eigen::Matrix3d R =
       Eigen::AngleAxisd(p.heading_rad + Uniform(rng, -0.3, 0.3), Vec3::UnitZ()).toRotationMatrix();
@@ -828,10 +816,7 @@ ChangeRecord World::Record(const std::string& kind, const WorldObject& object) c
 }
 
 void World::AddObject(const Change& c) {
-  WorldObject box;
-  box.kind = "box";
-  box.chainage_m = c.at_m;
-  box.lateral_m = c.offset_m;
+  WorldObject box = Object("box", c.at_m, c.offset_m);
   const TrackPoint p = alignment_.At(c.at_m);
   const Eigen::Matrix3d R = Eigen::AngleAxisd(p.heading_rad, Vec3::UnitZ()).toRotationMatrix();
   const double ground =
