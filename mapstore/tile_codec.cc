@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <string>
 
 #include <draco/compression/decode.h>
 #include <draco/compression/encode.h>
@@ -43,39 +44,38 @@ bool TileQuantization::Covers(const Eigen::Vector3f& p) const {
   return q.allFinite() && (q.array() >= 0.0f).all() && (q.array() <= range_m).all();
 }
 
-bool EncodeTile(const TilePoints& tile,
-                const TileQuantization& quantization,
-                int speed,
-                std::string* bytes,
-                std::string* error) {
+namespace {
+
+/// Why the tile cannot be encoded (no points, intensities missing, a point off the grid), or an
+/// empty string.
+std::string WhyNotEncodable(const TilePoints& tile, const TileQuantization& quantization) {
   const size_t n = tile.points.size();
-  if (n == 0) {
-    *error = "a tile needs at least one point";
-    return false;
-  }
+  if (n == 0) return "a tile needs at least one point";
   if (tile.intensities.size() != n) {
-    *error = "a tile needs one intensity per point (" + std::to_string(tile.intensities.size()) +
-             " for " + std::to_string(n) + " points)";
-    return false;
+    return "a tile needs one intensity per point (" + std::to_string(tile.intensities.size()) +
+           " for " + std::to_string(n) + " points)";
   }
   for (size_t i = 0; i < n; ++i) {
     if (!quantization.Covers(tile.points[i])) {
-      *error = "point " + std::to_string(i) + " lies off the tile's quantisation grid";
-      return false;
+      return "point " + std::to_string(i) + " lies off the tile's quantisation grid";
     }
   }
+  return "";
+}
+
+/// The tile as a Draco point cloud (positions, intensities) with its origin, zone and grid as
+/// metadata; null if Draco cannot build it.
+std::unique_ptr<draco::PointCloud> DracoCloud(const TilePoints& tile,
+                                              const TileQuantization& quantization) {
   draco::PointCloudBuilder builder;
-  builder.Start(static_cast<draco::PointIndex::ValueType>(n));
+  builder.Start(static_cast<draco::PointIndex::ValueType>(tile.points.size()));
   const int position =
       builder.AddAttribute(draco::GeometryAttribute::POSITION, 3, draco::DT_FLOAT32);
   const int intensity = builder.AddAttribute(draco::GeometryAttribute::GENERIC, 1, draco::DT_UINT8);
   builder.SetAttributeValuesForAllPoints(position, tile.points.data(), sizeof(Eigen::Vector3f));
   builder.SetAttributeValuesForAllPoints(intensity, tile.intensities.data(), 1);
   std::unique_ptr<draco::PointCloud> cloud = builder.Finalize(false);
-  if (!cloud) {
-    *error = "Draco could not build the point cloud";
-    return false;
-  }
+  if (!cloud) return cloud;
   auto metadata = std::make_unique<draco::GeometryMetadata>();
   metadata->AddEntryDoubleArray(kOrigin, {tile.origin.x(), tile.origin.y(), tile.origin.z()});
   metadata->AddEntryString(kZone, tile.utm_zone);
@@ -86,7 +86,26 @@ bool EncodeTile(const TilePoints& tile,
   metadata->AddEntryDouble(kGridRange, quantization.range_m);
   metadata->AddEntryInt(kGridBits, quantization.bits);
   cloud->AddMetadata(std::move(metadata));
+  return cloud;
+}
 
+}  // namespace
+
+bool EncodeTile(const TilePoints& tile,
+                const TileQuantization& quantization,
+                int speed,
+                std::string* bytes,
+                std::string* error) {
+  const std::string why = WhyNotEncodable(tile, quantization);
+  if (!why.empty()) {
+    *error = why;
+    return false;
+  }
+  const std::unique_ptr<draco::PointCloud> cloud = DracoCloud(tile, quantization);
+  if (!cloud) {
+    *error = "Draco could not build the point cloud";
+    return false;
+  }
   draco::Encoder encoder;
   encoder.SetSpeedOptions(std::clamp(speed, 0, 9), std::clamp(speed, 0, 9));
   encoder.SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION,

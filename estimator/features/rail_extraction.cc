@@ -497,6 +497,17 @@ Slices TrackBedSlices(const RailExtractionOptions& options,
   return slices;
 }
 
+/// The track model of the seed lines: their mean line, their half separation and heights.
+TrackModel SeedTrack(const Seeds& seeds) {
+  const double seed_slope = 0.5 * (seeds.b[0] + seeds.b[1]);
+  TrackModel track(seeds.x0,
+                   0.5 * (seeds.a[0] + seeds.a[1]),
+                   seed_slope,
+                   0.5 * (seeds.a[0] - seeds.a[1]) / std::sqrt(1.0 + seed_slope * seed_slope));
+  for (int r = 0; r < 2; ++r) track.SetHeight(r, seeds.d[r], seeds.e[r]);
+  return track;
+}
+
 /// Region growing from the seeds: both rails step outward together, accept points within
 /// rail_head_width_m of their current model and refit (a quadratic once long enough, so curves
 /// are followed). A step that breaks the gauge or the cross level is undone and ends the growth.
@@ -599,23 +610,29 @@ std::optional<RailPlane> RansacRailPlane(const RailExtractionOptions& options,
 }
 
 /// Refits the plane by least squares to its inliers, then twice to the rail tops; false if a
-/// fit is degenerate or tilts too far. `inliers` receives the final fit's points.
+/// fit is degenerate or tilts too far. `rms_m`: the final fit's RMS distance.
 bool RefineRailPlane(const std::array<std::vector<Eigen::Vector3d>, 2>& rail,
                      RailPlane* plane,
-                     std::vector<Eigen::Vector3d>* inliers) {
+                     double* rms_m) {
+  std::vector<Eigen::Vector3d> inliers;
   for (int pass = 0; pass < 3; ++pass) {
-    inliers->clear();
+    inliers.clear();
     for (int r = 0; r < 2; ++r) {
       for (const Eigen::Vector3d& p : rail[r]) {
         const bool in = pass == 0 ? std::fabs(plane->n.dot(p) + plane->d) < kPlaneInlierM
                                   : OnRailTop(*plane, p);
-        if (in) inliers->push_back(p);
+        if (in) inliers.push_back(p);
       }
     }
-    if (!FitPlane(*inliers, &plane->n, &plane->d) || plane->n.z() < std::cos(kMaxPlaneTiltRad)) {
+    if (!FitPlane(inliers, &plane->n, &plane->d) || plane->n.z() < std::cos(kMaxPlaneTiltRad)) {
       return false;
     }
   }
+  double sum_sq = 0.0;
+  for (const Eigen::Vector3d& p : inliers) {
+    sum_sq += (plane->n.dot(p) + plane->d) * (plane->n.dot(p) + plane->d);
+  }
+  *rms_m = std::sqrt(sum_sq / static_cast<double>(inliers.size()));
   return true;
 }
 
@@ -701,12 +718,7 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
     result.failure = seeds.failure;
     return result;
   }
-  const double seed_slope = 0.5 * (seeds.b[0] + seeds.b[1]);
-  TrackModel track(seeds.x0,
-                   0.5 * (seeds.a[0] + seeds.a[1]),
-                   seed_slope,
-                   0.5 * (seeds.a[0] - seeds.a[1]) / std::sqrt(1.0 + seed_slope * seed_slope));
-  for (int r = 0; r < 2; ++r) track.SetHeight(r, seeds.d[r], seeds.e[r]);
+  TrackModel track = SeedTrack(seeds);
   const std::array<std::vector<Point>, 2> grown = GrowRails(options, slices, seeds, rail_y, &track);
   std::array<std::vector<Eigen::Vector3d>, 2> rail;
   for (int r = 0; r < 2; ++r) {
@@ -726,19 +738,15 @@ RailExtraction ExtractRails(const RailExtractionOptions& options,
     result.failure = "no rail plane hypothesis (rails too short)";
     return result;
   }
-  std::vector<Eigen::Vector3d> inliers;
-  if (!RefineRailPlane(rail, &*plane, &inliers)) {
+  double rms_m = 0.0;
+  if (!RefineRailPlane(rail, &*plane, &rms_m)) {
     result.failure = "the rail plane fit is degenerate";
     return result;
   }
   if (!OutputRails(options, rail, track, *plane, &result)) return result;
-  double sum_sq = 0.0;
-  for (const Eigen::Vector3d& p : inliers) {
-    sum_sq += (plane->n.dot(p) + plane->d) * (plane->n.dot(p) + plane->d);
-  }
   result.normal = plane->n;
   result.distance = plane->d;
-  result.plane_rms_m = std::sqrt(sum_sq / static_cast<double>(inliers.size()));
+  result.plane_rms_m = rms_m;
   result.ok = true;
   return result;
 }
