@@ -922,6 +922,8 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
   const Result decoded = DecodeIngested(payload, &s);
   if (!decoded) return decoded;
   const std::string hash = Hex64(Fnv1a(payload));
+  Eigen::AlignedBox3d box;
+  for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
 
   std::unique_lock<std::mutex> lock(mu_);
   RunInfo run;
@@ -942,7 +944,7 @@ Result MapStore::IngestSubmap(int64_t run_id, const std::string& payload, Ingest
                 "submap " + std::to_string(s.sequence) + " is in UTM zone " + s.utm_zone +
                     ", run " + std::to_string(run_id) + " in " + run.utm_zone);
   }
-  r = StoreSubmapLocked(run_id, s, payload, hash);
+  r = StoreSubmapLocked(run_id, s, payload, hash, box);
   if (!r) return r;
   ++stats_.submaps_stored;
   IngestReceipt local;
@@ -1030,7 +1032,8 @@ Result MapStore::RestoreSubmapLocked(int64_t run_id,
 Result MapStore::StoreSubmapLocked(int64_t run_id,
                                    const api::Submap& s,
                                    const std::string& payload,
-                                   const std::string& hash) {
+                                   const std::string& hash,
+                                   const Eigen::AlignedBox3d& box) {
   // The payload waits in the incoming folder until its points are in written tiles; it is
   // there before the submap is committed, so an acknowledged submap always has it.
   const std::string incoming = IncomingPath(run_id, s.sequence);
@@ -1042,8 +1045,6 @@ Result MapStore::StoreSubmapLocked(int64_t run_id,
     std::filesystem::remove(incoming, ec);
     return Fail(Outcome::kError, message);
   };
-  Eigen::AlignedBox3d box;
-  for (const Eigen::Vector3f& p : s.points) box.extend(s.origin + p.cast<double>());
   Transaction t(*writer_);
   if (!t.ok()) return forget(writer_->Message());
   Statement insert(*writer_,

@@ -345,11 +345,13 @@ class MapStore {
                              const api::Submap& s,
                              const std::string& payload,
                              IngestReceipt* receipt);
-  /// Keeps a new submap's payload in the incoming folder and commits its row and counts.
+  /// Keeps a new submap's payload in the incoming folder and commits its row (with the points'
+  /// bounding `box`, computed before the lock) and counts.
   Result StoreSubmapLocked(int64_t run_id,
                            const api::Submap& s,
                            const std::string& payload,
-                           const std::string& hash);
+                           const std::string& hash,
+                           const Eigen::AlignedBox3d& box);
   /// Inserts the poses the run has not stored yet (`fresh` marks them, `added` counts them);
   /// kConflict for a stored sequence with other values or a new pose of a finished run.
   Result InsertPosesLocked(int64_t run_id,

@@ -61,10 +61,12 @@ struct Linearization {
                 const Eigen::Matrix<double, 21, 1>& error_in)
       : pre(pre_in), sqrt_info(sqrt_info_in), i(i_in), j(j_in), error(error_in) {}
 
+  // The inputs, held by reference: they outlive the linearisation (Evaluate's locals).
   const Preintegration& pre;
   const Eigen::Matrix<double, 19, 19>& sqrt_info;
-  NavState i, j;
-  Eigen::Matrix<double, 21, 1> error;
+  const NavState& i;
+  const NavState& j;
+  const Eigen::Matrix<double, 21, 1>& error;
   /// sqrt_info with the metre residual's odometer-unit scaling folded in.
   Eigen::Matrix<double, 19, 19> whitening;
   double dt;

@@ -59,27 +59,37 @@ CellPoints SortIntoCells(const HeightDescriptorOptions& options,
   return cells;
 }
 
+/// The support test of a point (see Supported), from the options once per descriptor.
+struct Support {
+  explicit Support(const HeightDescriptorOptions& options)
+      : radius2(static_cast<float>(options.support_radius_m * options.support_radius_m)),
+        reach(std::max(1, static_cast<int>(std::ceil(options.support_radius_m / options.bin_m)))),
+        min_points(options.min_support_points) {}
+
+  float radius2;   ///< support_radius_m squared
+  int reach;       ///< cells searched either way
+  int min_points;  ///< min_support_points
+};
+
 /// Whether point `self` (in cell row, col) has min_support_points others within
 /// support_radius_m: a real surface. Isolated returns (sun flicker, mixed returns, dust) would
 /// add random heights.
-bool Supported(const HeightDescriptorOptions& options,
+bool Supported(const Support& support,
                const HeightDescriptor& d,
                const CellPoints& cells,
                int row,
                int col,
                int self) {
-  if (options.min_support_points <= 0) return true;
-  const float radius2 = static_cast<float>(options.support_radius_m * options.support_radius_m);
-  const int reach =
-      std::max(1, static_cast<int>(std::ceil(options.support_radius_m / options.bin_m)));
+  if (support.min_points <= 0) return true;
+  const int reach = support.reach;
   const Eigen::Vector3f& p = cells.sorted[self];
   int found = 0;
   for (int r = std::max(0, row - reach); r <= std::min(d.rows - 1, row + reach); ++r) {
     for (int c = std::max(0, col - reach); c <= std::min(d.cols - 1, col + reach); ++c) {
       const int cell = r * d.cols + c;
       for (int k = cells.begin[cell]; k < cells.begin[cell + 1]; ++k) {
-        if (k != self && (cells.sorted[k] - p).squaredNorm() <= radius2 &&
-            ++found >= options.min_support_points) {
+        if (k != self && (cells.sorted[k] - p).squaredNorm() <= support.radius2 &&
+            ++found >= support.min_points) {
           return true;
         }
       }
@@ -183,6 +193,7 @@ HeightDescriptor ComputeHeightDescriptor(const HeightDescriptorOptions& options,
   d.cells = Eigen::MatrixXf::Zero(d.rows, d.cols);
   const float z_floor = static_cast<float>(options.z_floor_m);
   const CellPoints cells = SortIntoCells(options, d, points_body);
+  const Support support(options);
   // Each cell: the height of its highest supported point.
   for (int row = 0; row < d.rows; ++row) {
     for (int col = 0; col < d.cols; ++col) {
@@ -190,7 +201,7 @@ HeightDescriptor ComputeHeightDescriptor(const HeightDescriptorOptions& options,
       float best = 0.f;
       for (int k = cells.begin[cell]; k < cells.begin[cell + 1]; ++k) {
         const float h = cells.sorted[k].z() - z_floor;
-        if (h > best && Supported(options, d, cells, row, col, k)) best = h;
+        if (h > best && Supported(support, d, cells, row, col, k)) best = h;
       }
       d.cells(row, col) = best;
     }

@@ -44,6 +44,7 @@ LivoxHorizonModel::LivoxHorizonModel(const Scenario& scenario,
   const double az = scenario.sun_azimuth_deg * kDeg, el = scenario.sun_elevation_deg * kDeg;
   sun_world_ =
       Eigen::Vector3d(std::cos(el) * std::sin(az), std::cos(el) * std::cos(az), std::sin(el));
+  sun_cos_ = std::cos(scenario.sun_cone_deg * kDeg);
   // The roof in front of the sensor head: 0.3 m below the lower unit, ending 1 m ahead.
   body_box_ =
       Eigen::AlignedBox3d(Eigen::Vector3d(0.5, -1.4, -0.5), Eigen::Vector3d(1.0, 1.4, -0.15));
@@ -216,8 +217,8 @@ LivoxHorizonModel::Echo LivoxHorizonModel::Measure(const Eigen::Vector3d& dir,
       return echo;
     }
   }
-  const double sun_cos = std::cos(scenario_.sun_cone_deg * kDeg);
-  if (dir_world.dot(sun_world_) > sun_cos && noise->Uniform() < scenario_.sun_flicker_probability) {
+  if (dir_world.dot(sun_world_) > sun_cos_ &&
+      noise->Uniform() < scenario_.sun_flicker_probability) {
     echo.kind = PointKind::kSunFlicker;
     echo.measured = 2.0 + 48.0 * noise->Uniform();
     echo.reflectivity = 8.0 * noise->Uniform();

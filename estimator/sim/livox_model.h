@@ -70,6 +70,7 @@ class LivoxHorizonModel {
   int64_t period_ns_;
   uint32_t groups_per_sweep_;  ///< firings of the 6 lasers in one horizontal sweep
   Eigen::Vector3d sun_world_;
+  double sun_cos_;                ///< cosine of the sun cone's half angle (sun flicker)
   Eigen::AlignedBox3d body_box_;  ///< vehicle roof edge, body frame
 };
 
