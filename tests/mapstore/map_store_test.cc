@@ -368,6 +368,73 @@ int64_t StoreLineRun(MapStore& store) {
   return run;
 }
 
+/// The straight: no curvature, a 5 per mille rise, no cant, and the corridor's tiles cover it;
+/// the curve: 1 / 500 m to the left, 0.1 m of cant. Ranges off the line are refused.
+void ExpectLineATrackGeometry(MapStore& store) {
+  TrackSegment segment;
+  ASSERT_TRUE(store.Segment("Line A", 20.0, 120.0, &segment));
+  ASSERT_GE(segment.samples.size(), 99u);
+  EXPECT_NEAR(segment.samples.front().point.chainage_m, 20.0, 0.5);
+  for (const TrackSample& s : segment.samples) {
+    EXPECT_NEAR(s.curvature_per_m, 0.0, 1e-4);
+    EXPECT_NEAR(s.gradient, 0.005, 1e-4);
+    EXPECT_NEAR(s.point.cant_m, 0.0, 1e-6);
+  }
+  EXPECT_FALSE(segment.tiles.empty());
+  // The curve: 1 / 500 m to the left, 0.1 m of cant.
+  ASSERT_TRUE(store.Segment("Line A", 250.0, 350.0, &segment));
+  for (const TrackSample& s : segment.samples) {
+    EXPECT_NEAR(s.curvature_per_m, 1.0 / 500.0, 0.05 / 500.0) << s.point.chainage_m;
+    EXPECT_NEAR(s.point.cant_m, 0.1, 0.002);
+  }
+  EXPECT_EQ(store.Segment("Line A", 5000.0, 6000.0, &segment).outcome, Outcome::kNotFound);
+  EXPECT_EQ(store.Segment("Line A", 10.0, 5.0, &segment).outcome, Outcome::kInvalid);
+  EXPECT_EQ(store.Segment("Line B", 0.0, 5.0, &segment).outcome, Outcome::kNotFound);
+}
+
+/// A km post pinned at 100 m along the line makes that point km 12.400; one far off is refused.
+void ExpectKmPostPinned(MapStore& store) {
+  LineInfo line;
+  TrackSegment segment;
+  const Eigen::Vector2d post = (kStart + Eigen::Vector3d(100.0, 0.3, 0.0)).head<2>();
+  ASSERT_TRUE(store.PinKmPost("Line A", "km 12.4", 12400.0, post, &line));
+  EXPECT_NEAR(line.chainage_offset_m, 12300.0, 0.01);
+  ASSERT_TRUE(store.Segment("Line A", 12390.0, 12410.0, &segment));
+  const auto km =
+      std::min_element(segment.samples.begin(), segment.samples.end(), [](auto& a, auto& b) {
+        return std::abs(a.point.chainage_m - 12400.0) < std::abs(b.point.chainage_m - 12400.0);
+      });
+  EXPECT_NEAR(km->point.p.x(), kStart.x() + 100.0, 0.6);  // the centreline every metre
+  EXPECT_EQ(
+      store.PinKmPost("Line A", "far", 0.0, post + Eigen::Vector2d(0.0, 80.0), nullptr).outcome,
+      Outcome::kInvalid);
+}
+
+/// A second run of the line leaves its centreline as it was, and is referenced to it: its
+/// poses, 0.4 m to the side, get the chainage of the first run's (offset included); one 30 m
+/// off the line gets none.
+void ExpectSecondRunReferenced(MapStore& store, int64_t reference) {
+  const int64_t second = NewRunId(store, "Line A");
+  std::vector<api::StreamPose> later = LinePoses();
+  later.resize(100);
+  for (api::StreamPose& p : later) p.p.y() += 0.4;
+  later[50].p.y() += 30.0;
+  ASSERT_TRUE(store.IngestPoses(second, later, nullptr));
+  std::vector<double> chainage;
+  ASSERT_TRUE(store.ChainageOfPoses(second, later, &chainage));
+  for (size_t i = 0; i < later.size(); ++i) {
+    if (i == 50) {
+      EXPECT_TRUE(std::isnan(chainage[i]));
+      continue;
+    }
+    EXPECT_NEAR(chainage[i], 12300.0 + 1.5 * static_cast<double>(i), 0.01) << i;
+  }
+  ASSERT_TRUE(store.FinishRun(second, 1'600'000'100'000'000'000, nullptr));
+  LineInfo line;
+  ASSERT_TRUE(store.GetLine("Line A", &line));
+  EXPECT_EQ(line.reference_run, reference);
+}
+
 TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
@@ -389,60 +456,9 @@ TEST(MapStore, TheFirstRunOfALineDefinesItsChainageAndTrackGeometry) {
   // 420 m of line (the reversing adds nothing); chainage is the distance along it.
   EXPECT_NEAR(line.length_m, 420.0, 2.0);
 
-  // The straight: no curvature, a 5 per mille rise, no cant; the corridor's tiles cover it.
-  ASSERT_TRUE(store->Segment("Line A", 20.0, 120.0, &segment));
-  ASSERT_GE(segment.samples.size(), 99u);
-  EXPECT_NEAR(segment.samples.front().point.chainage_m, 20.0, 0.5);
-  for (const TrackSample& s : segment.samples) {
-    EXPECT_NEAR(s.curvature_per_m, 0.0, 1e-4);
-    EXPECT_NEAR(s.gradient, 0.005, 1e-4);
-    EXPECT_NEAR(s.point.cant_m, 0.0, 1e-6);
-  }
-  EXPECT_FALSE(segment.tiles.empty());
-  // The curve: 1 / 500 m to the left, 0.1 m of cant.
-  ASSERT_TRUE(store->Segment("Line A", 250.0, 350.0, &segment));
-  for (const TrackSample& s : segment.samples) {
-    EXPECT_NEAR(s.curvature_per_m, 1.0 / 500.0, 0.05 / 500.0) << s.point.chainage_m;
-    EXPECT_NEAR(s.point.cant_m, 0.1, 0.002);
-  }
-  EXPECT_EQ(store->Segment("Line A", 5000.0, 6000.0, &segment).outcome, Outcome::kNotFound);
-  EXPECT_EQ(store->Segment("Line A", 10.0, 5.0, &segment).outcome, Outcome::kInvalid);
-  EXPECT_EQ(store->Segment("Line B", 0.0, 5.0, &segment).outcome, Outcome::kNotFound);
-
-  // A km post pinned at 100 m along the line makes that point km 12.400.
-  const Eigen::Vector2d post = (kStart + Eigen::Vector3d(100.0, 0.3, 0.0)).head<2>();
-  ASSERT_TRUE(store->PinKmPost("Line A", "km 12.4", 12400.0, post, &line));
-  EXPECT_NEAR(line.chainage_offset_m, 12300.0, 0.01);
-  ASSERT_TRUE(store->Segment("Line A", 12390.0, 12410.0, &segment));
-  const auto km =
-      std::min_element(segment.samples.begin(), segment.samples.end(), [](auto& a, auto& b) {
-        return std::abs(a.point.chainage_m - 12400.0) < std::abs(b.point.chainage_m - 12400.0);
-      });
-  EXPECT_NEAR(km->point.p.x(), kStart.x() + 100.0, 0.6);  // the centreline every metre
-  EXPECT_EQ(
-      store->PinKmPost("Line A", "far", 0.0, post + Eigen::Vector2d(0.0, 80.0), nullptr).outcome,
-      Outcome::kInvalid);
-  // A second run of the line leaves its centreline as it was, and is referenced to it: its
-  // poses, 0.4 m to the side, get the chainage of the first run's (offset included); one 30 m
-  // off the line gets none.
-  const int64_t second = NewRunId(*store, "Line A");
-  std::vector<api::StreamPose> later = LinePoses();
-  later.resize(100);
-  for (api::StreamPose& p : later) p.p.y() += 0.4;
-  later[50].p.y() += 30.0;
-  ASSERT_TRUE(store->IngestPoses(second, later, nullptr));
-  std::vector<double> chainage;
-  ASSERT_TRUE(store->ChainageOfPoses(second, later, &chainage));
-  for (size_t i = 0; i < later.size(); ++i) {
-    if (i == 50) {
-      EXPECT_TRUE(std::isnan(chainage[i]));
-      continue;
-    }
-    EXPECT_NEAR(chainage[i], 12300.0 + 1.5 * static_cast<double>(i), 0.01) << i;
-  }
-  ASSERT_TRUE(store->FinishRun(second, 1'600'000'100'000'000'000, nullptr));
-  ASSERT_TRUE(store->GetLine("Line A", &line));
-  EXPECT_EQ(line.reference_run, run);
+  ASSERT_NO_FATAL_FAILURE(ExpectLineATrackGeometry(*store));
+  ASSERT_NO_FATAL_FAILURE(ExpectKmPostPinned(*store));
+  ASSERT_NO_FATAL_FAILURE(ExpectSecondRunReferenced(*store, run));
   std::vector<LineInfo> lines;
   ASSERT_TRUE(store->ListLines(&lines));
   ASSERT_EQ(lines.size(), 1u);

@@ -80,202 +80,339 @@ json TilesWhenWritten(const ServerProcess& server,
   return index;
 }
 
-TEST(Server, RestApiWithCurl) {
-  ScratchDir scratch("raillomer_server_");
-  ServerProcess server(scratch.path() / "data");
-  ASSERT_TRUE(server.ok()) << server.log();
-  const fs::path dir = scratch.path();
-  // The start-up log names every value in effect, never the token.
-  EXPECT_NE(server.log().find("store.tile_m"), std::string::npos);
-  EXPECT_EQ(server.log().find(server.token()), std::string::npos);
+/// One run through the REST API, step by step, on one server: each step checks a part of the
+/// API with curl and the tools that read what the server wrote.
+class RestApi : public ::testing::Test {
+ protected:
+  RestApi()
+      : scratch_("raillomer_server_"), server_(scratch_.path() / "data"), dir_(scratch_.path()) {}
 
-  CurlResult health = Curl(ShellQuote(server.Url("/health")), dir);
-  EXPECT_EQ(health.status, 200);
-  EXPECT_EQ(json::parse(health.body)["status"], "ok");
+  /// The start-up log and /health.
+  void CheckStartUp() {
+    ASSERT_TRUE(server_.ok()) << server_.log();
+    // The start-up log names every value in effect, never the token.
+    EXPECT_NE(server_.log().find("store.tile_m"), std::string::npos);
+    EXPECT_EQ(server_.log().find(server_.token()), std::string::npos);
+    const CurlResult health = Curl(ShellQuote(server_.Url("/health")), dir_);
+    EXPECT_EQ(health.status, 200);
+    EXPECT_EQ(json::parse(health.body)["status"], "ok");
+  }
 
-  const int64_t run = CreateRun(server, dir);
-  ASSERT_GT(run, 0);
+  /// A run with two submaps; a repeated submap is a duplicate, a different one a conflict.
+  void IngestSubmaps() {
+    run_ = CreateRun(server_, dir_);
+    ASSERT_GT(run_, 0);
+    runs_ = server_.Url("/api/v1/runs/" + std::to_string(run_));
+    const fs::path s0 = WriteSubmap(dir_, CorridorSubmap(0), "s0.pcd");
+    const fs::path s1 = WriteSubmap(dir_, CorridorSubmap(1), "s1.pcd");
+    CurlResult r = PostSubmap(s0);
+    EXPECT_EQ(r.status, 201) << r.body;
+    EXPECT_EQ(json::parse(r.body)["points"], CorridorSubmap(0).points.size());
+    r = PostSubmap(s1);
+    EXPECT_EQ(r.status, 201) << r.body;
+    // The same submap again changes nothing; a different one under its sequence is a conflict.
+    r = PostSubmap(s0);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(json::parse(r.body)["duplicate"], true);
+    api::Submap other = CorridorSubmap(0);
+    other.points[0].z() += 1.0f;
+    r = PostSubmap(WriteSubmap(dir_, other, "other.pcd"));
+    EXPECT_EQ(r.status, 409) << r.body;
+    EXPECT_EQ(json::parse(r.body)["error"]["code"], "conflict");
+  }
+
+  /// Poses, and the trajectory back as TUM and GeoJSON.
+  void PostPosesAndReadTheTrajectory() {
+    json poses = json::array();
+    for (int i = 0; i < 5; ++i) {
+      const Eigen::Vector3d p = CorridorStart() + Eigen::Vector3d(2.0 * i, 0.0, 2.0);
+      poses.push_back({{"sequence", 20 + i},
+                       {"stamp_ns", 1'600'000'000'000'000'000 + int64_t(i) * 100'000'000},
+                       {"georeferenced", true},
+                       {"utm_zone", "50N"},
+                       {"p", {p.x(), p.y(), p.z()}},
+                       {"q", {0.0, 0.0, 0.0, 1.0}}});
+    }
+    CurlResult r =
+        Curl(Bearer(server_.token()) + PostJson({{"poses", poses}}) + ShellQuote(runs_ + "/poses"),
+             dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(json::parse(r.body)["stored"], 5);
+    r = Curl(ShellQuote(runs_ + "/trajectory?format=tum"), dir_);
+    EXPECT_EQ(r.status, 200);
+    EXPECT_EQ(r.body.rfind("# utm_zone 50N\n1600000000.000000000 432100.", 0), 0u) << r.body;
+    r = Curl(ShellQuote(runs_ + "/trajectory"), dir_);
+    const json geo = json::parse(r.body);
+    const json& coords = geo["features"][0]["geometry"]["coordinates"];
+    ASSERT_EQ(coords.size(), 5u);
+    // UTM 50N (432100, 3585200) is near 32.4 N, 116.3 E (GeoConvert agrees).
+    EXPECT_NEAR(coords[0][0].get<double>(), 116.28, 0.05);
+    EXPECT_NEAR(coords[0][1].get<double>(), 32.40, 0.05);
+  }
+
+  /// The tiles: the index, then one tile's bytes with its ETag, read by Debian's draco_decoder.
+  void ReadATile() {
+    const int64_t expected_points = 400 * 110 * 3 / 2 * 1 + 0;  // 1.5 submaps' worth of voxels
+    const json index = TilesWhenWritten(server_, run_, expected_points, dir_);
+    ASSERT_FALSE(index["tiles"].empty());
+    const json tile = index["tiles"][0];
+    const CurlResult r = Curl(ShellQuote(server_.Url(tile["url"].get<std::string>())), dir_);
+    ASSERT_EQ(r.status, 200);
+    EXPECT_NE(r.headers.find("ETag: " + tile["etag"].get<std::string>()), std::string::npos)
+        << r.headers;
+    EXPECT_NE(r.headers.find("Cache-Control: no-cache"), std::string::npos);
+    const CurlResult again =
+        Curl("-H " + ShellQuote("If-None-Match: " + tile["etag"].get<std::string>()) + " " +
+                 ShellQuote(server_.Url(tile["url"].get<std::string>())),
+             dir_);
+    EXPECT_EQ(again.status, 304);
+    // draco_decoder reads the served tile; each point lies within the stated error of
+    // a submap point.
+    std::ofstream(dir_ / "tile.drc", std::ios::binary) << r.body;
+    const CommandResult decoded =
+        RunCommand("draco_decoder -i " + ShellQuote((dir_ / "tile.drc").string()) + " -o " +
+                       ShellQuote((dir_ / "tile.ply").string()),
+                   dir_);
+    ASSERT_EQ(decoded.exit_code, 0) << decoded.out << decoded.err;
+    std::ifstream ply(dir_ / "tile.ply", std::ios::binary);
+    std::string line;
+    size_t vertices = 0;
+    while (std::getline(ply, line) && line != "end_header")
+      if (line.rfind("element vertex ", 0) == 0) vertices = std::stoul(line.substr(15));
+    ASSERT_EQ(static_cast<int64_t>(vertices), tile["points"].get<int64_t>());
+    const Eigen::Vector3d origin(tile["origin"][0], tile["origin"][1], tile["origin"][2]);
+    double worst = 0.0;
+    for (size_t i = 0; i < vertices; ++i) {
+      float p[3];
+      ply.read(reinterpret_cast<char*>(p), sizeof(p));
+      if (!ply) break;
+      // The corridor's points lie on 0.1 m voxel centres (x.x5) relative to the start.
+      const Eigen::Vector3d q = origin + Eigen::Vector3d(p[0], p[1], p[2]) - CorridorStart();
+      for (int a = 0; a < 3; ++a)
+        worst = std::max(worst, std::abs(q[a] - (std::floor(q[a] * 10.0) / 10.0 + 0.05)));
+    }
+    EXPECT_LE(worst, tile["max_error_m"].get<double>());
+    EXPECT_LE(tile["max_error_m"].get<double>(), 0.005);
+  }
+
+  /// The sqlite3 tool reads the index.
+  void ReadTheIndexWithSqlite() {
+    const CommandResult sql = RunCommand(
+        "sqlite3 " + ShellQuote((scratch_.path() / "data" / "index.sqlite").string()) +
+            " 'PRAGMA integrity_check; SELECT count(*) FROM submaps; SELECT line FROM runs;'",
+        dir_);
+    EXPECT_EQ(sql.exit_code, 0) << sql.err;
+    EXPECT_EQ(sql.out, "ok\n2\nTest line\n");
+  }
+
+  /// Finishing the run defines its line: centreline, segments by km, and km posts.
+  void FinishAndQueryTheLine() {
+    CurlResult r = Curl(
+        Bearer(server_.token()) + PostJson(json::object()) + ShellQuote(runs_ + "/finish"), dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(json::parse(r.body)["status"], "finished");
+    // The finished run defined its line's centreline: 8 m of poses, km 0.000 to 0.008.
+    r = Curl(ShellQuote(server_.Url("/api/v1/lines/Test%20line")), dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(json::parse(r.body)["reference_run"], run_);
+    EXPECT_NEAR(json::parse(r.body)["length_m"].get<double>(), 8.0, 0.01);
+    r = Curl(ShellQuote(server_.Url("/api/v1/lines/Test%20line/segment?from_km=0.002&to_km=0.006")),
+             dir_);
+    ASSERT_EQ(r.status, 200) << r.body;
+    const json segment = json::parse(r.body)["features"][0];
+    EXPECT_EQ(segment["geometry"]["coordinates"].size(), 5u);
+    EXPECT_EQ(segment["properties"]["profile"]["chainage_m"][0], 2.0);
+    EXPECT_FALSE(segment["properties"]["tiles"].empty());
+    // A km post at the line's start makes it km 12.
+    r = Curl(Bearer(server_.token()) +
+                 PostJson({{"km", 12.0},
+                           {"easting", 432100.0},
+                           {"northing", 3585200.0},
+                           {"label", "km 12"}}) +
+                 ShellQuote(server_.Url("/api/v1/lines/Test%20line/kmposts")),
+             dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_NEAR(json::parse(r.body)["chainage_offset_m"].get<double>(), 12000.0, 0.01);
+    r = Curl(
+        ShellQuote(server_.Url("/api/v1/lines/Test%20line/segment?from_km=12.002&to_km=12.006")),
+        dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    r = Curl(ShellQuote(server_.Url("/api/v1/lines/Test%20line/segment?from_km=abc&to_km=1")),
+             dir_);
+    EXPECT_EQ(r.status, 400) << r.body;
+    r = Curl(ShellQuote(server_.Url("/api/v1/lines/Nowhere/segment?from_km=0&to_km=1")), dir_);
+    EXPECT_EQ(r.status, 404) << r.body;
+  }
+
+  /// Exports: the run's points in a box as LAS and PLY, and along the line's first 8 m.
+  void Export() {
+    CurlResult r =
+        Curl(ShellQuote(runs_ + "/export?format=las&bbox=432100,3585190,432110,3585210"), dir_);
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.body.compare(0, 4, "LASF"), 0);
+    EXPECT_NE(r.headers.find("filename=\"run-" + std::to_string(run_) + ".las\""),
+              std::string::npos);
+    // 10 m of corridor: 100 columns of 110 voxels (ground and wall), 20 bytes each, after the
+    // public header (227 bytes) and the zone's GeoTIFF key record (54 + 48), which names 50N.
+    EXPECT_EQ(r.body.size(), 227u + 102u + 20u * 100u * 110u);
+    api::las::Contents las;
+    std::string las_error;
+    ASSERT_TRUE(api::las::Decode(r.body, &las, &las_error)) << las_error;
+    EXPECT_EQ(las.points.size(), 100u * 110u);
+    EXPECT_EQ(las.epsg, 32650);
+    r = Curl(ShellQuote(runs_ + "/export?format=ply&line=Test%20line&from_km=12.000&to_km=12.008"),
+             dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.body.rfind("ply\n", 0), 0u);
+    EXPECT_EQ(Curl(ShellQuote(runs_ + "/export?format=xyz&bbox=0,0,1,1"), dir_).status, 400);
+    EXPECT_EQ(Curl(ShellQuote(runs_ + "/export"), dir_).status, 400);
+  }
+
+  /// Points of interest: create, read, list by line, update, delete.
+  void EditPointsOfInterest() {
+    const json mast = {{"kind", "mast"},
+                       {"name", "M 7"},
+                       {"line", "Test line"},
+                       {"utm_zone", "50N"},
+                       {"position", {432110.0, 3585203.2, 30.0}},
+                       {"properties", {{"height_m", 8.5}}}};
+    CurlResult r = Curl(
+        Bearer(server_.token()) + PostJson(mast) + ShellQuote(server_.Url("/api/v1/pois")), dir_);
+    ASSERT_EQ(r.status, 201) << r.body;
+    const std::string poi =
+        server_.Url("/api/v1/pois/" + std::to_string(json::parse(r.body)["id"].get<int>()));
+    r = Curl(ShellQuote(poi), dir_);
+    EXPECT_EQ(json::parse(r.body)["properties"]["height_m"], 8.5);
+    r = Curl(ShellQuote(server_.Url("/api/v1/pois?line=Test%20line")), dir_);
+    EXPECT_EQ(json::parse(r.body)["pois"].size(), 1u);
+    json renamed = mast;
+    renamed["name"] = "M 7a";
+    r = Curl(Bearer(server_.token()) + "-X PUT -H 'Content-Type: application/json' --data-binary " +
+                 ShellQuote(renamed.dump()) + " " + ShellQuote(poi),
+             dir_);
+    EXPECT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(json::parse(r.body)["name"], "M 7a");
+    EXPECT_EQ(Curl("-X DELETE " + ShellQuote(poi), dir_).status, 401);
+    EXPECT_EQ(Curl(Bearer(server_.token()) + "-X DELETE " + ShellQuote(poi), dir_).status, 204);
+    EXPECT_EQ(Curl(ShellQuote(poi), dir_).status, 404);
+  }
+
+  /// Metrics count what happened; the server stops on SIGTERM.
+  void CheckMetricsAndStop() {
+    const CurlResult r = Curl(ShellQuote(server_.Url("/metrics")), dir_);
+    EXPECT_NE(r.body.find("raillomer_submaps_stored_total 2"), std::string::npos) << r.body;
+    EXPECT_NE(
+        r.body.find("raillomer_http_requests_total{route=\"ingest.submap\",status=\"409\"} 1"),
+        std::string::npos);
+    EXPECT_TRUE(server_.Stop(SIGTERM)) << server_.log();
+  }
+
+ private:
+  CurlResult PostSubmap(const fs::path& file) const {
+    return Curl(Bearer(server_.token()) + PostFile(file) + ShellQuote(runs_ + "/submaps"), dir_);
+  }
+
+  ScratchDir scratch_;
+  ServerProcess server_;
+  const fs::path dir_;
+  int64_t run_ = 0;
+  std::string runs_;  ///< the run's URL
+};
+
+TEST_F(RestApi, WithCurl) {
+  ASSERT_NO_FATAL_FAILURE(CheckStartUp());
+  ASSERT_NO_FATAL_FAILURE(IngestSubmaps());
+  ASSERT_NO_FATAL_FAILURE(PostPosesAndReadTheTrajectory());
+  ASSERT_NO_FATAL_FAILURE(ReadATile());
+  ASSERT_NO_FATAL_FAILURE(ReadTheIndexWithSqlite());
+  ASSERT_NO_FATAL_FAILURE(FinishAndQueryTheLine());
+  ASSERT_NO_FATAL_FAILURE(Export());
+  ASSERT_NO_FATAL_FAILURE(EditPointsOfInterest());
+  CheckMetricsAndStop();
+}
+
+/// curl with `args` gets `status` and a JSON error with `code` and a message.
+void ExpectJsonError(const std::string& args,
+                     int status,
+                     const std::string& code,
+                     const fs::path& dir) {
+  const CurlResult r = Curl(args, dir);
+  EXPECT_EQ(r.status, status) << args << " -> " << r.body;
+  const json j = json::parse(r.body, nullptr, false);
+  ASSERT_TRUE(j.is_object() && j.contains("error")) << r.body;
+  EXPECT_EQ(j["error"]["code"], code) << r.body;
+  EXPECT_FALSE(j["error"]["message"].get<std::string>().empty());
+}
+
+/// A small submap that fits the body limit (written to ok.pcd), then broken versions of it, one
+/// too large, one for an unknown run and ones without the token: each refused.
+void ExpectBadSubmapsRefused(const ServerProcess& server,
+                             const std::string& submaps,
+                             const fs::path& dir) {
+  api::Submap small = CorridorSubmap(0);
+  small.points.resize(2000);
+  small.intensities.resize(2000);
+  const std::string good = api::EncodeSubmapPcd(small);
+  const std::string token = Bearer(server.token());
+  std::ofstream(dir / "truncated.pcd", std::ios::binary) << good.substr(0, good.size() - 7);
+  ExpectJsonError(
+      token + PostFile(dir / "truncated.pcd") + ShellQuote(submaps), 400, "invalid", dir);
+  api::Submap nan = small;
+  nan.points[5].x() = NAN;
+  ExpectJsonError(token + PostFile(WriteSubmap(dir, nan, "nan.pcd")) + ShellQuote(submaps),
+                  400,
+                  "invalid",
+                  dir);
+  std::ofstream(dir / "garbage.pcd", std::ios::binary) << std::string(5000, '\x7f');
+  ExpectJsonError(token + PostFile(dir / "garbage.pcd") + ShellQuote(submaps), 400, "invalid", dir);
+  ExpectJsonError(token + PostFile(WriteSubmap(dir, small, "ok.pcd")) +
+                      ShellQuote(server.Url("/api/v1/runs/999/submaps")),
+                  404,
+                  "not_found",
+                  dir);
+  ExpectJsonError(
+      token + PostFile(WriteSubmap(dir, CorridorSubmap(1), "big.pcd")) + ShellQuote(submaps),
+      413,
+      "too_large",
+      dir);
+  ExpectJsonError(
+      Bearer("wrong-token-wrong-token") + PostFile(dir / "ok.pcd") + ShellQuote(submaps),
+      401,
+      "unauthorized",
+      dir);
+  ExpectJsonError(PostFile(dir / "ok.pcd") + ShellQuote(submaps), 401, "unauthorized", dir);
+}
+
+/// Broken JSON, a NaN pose and an unknown tile: each refused.
+void ExpectBadRequestsRefused(const ServerProcess& server, int64_t run, const fs::path& dir) {
   const std::string runs = server.Url("/api/v1/runs/" + std::to_string(run));
-  const fs::path s0 = WriteSubmap(dir, CorridorSubmap(0), "s0.pcd");
-  const fs::path s1 = WriteSubmap(dir, CorridorSubmap(1), "s1.pcd");
-  CurlResult r = Curl(Bearer(server.token()) + PostFile(s0) + ShellQuote(runs + "/submaps"), dir);
-  EXPECT_EQ(r.status, 201) << r.body;
-  EXPECT_EQ(json::parse(r.body)["points"], CorridorSubmap(0).points.size());
-  r = Curl(Bearer(server.token()) + PostFile(s1) + ShellQuote(runs + "/submaps"), dir);
-  EXPECT_EQ(r.status, 201) << r.body;
-  // The same submap again changes nothing; a different one under its sequence is a conflict.
-  r = Curl(Bearer(server.token()) + PostFile(s0) + ShellQuote(runs + "/submaps"), dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(json::parse(r.body)["duplicate"], true);
-  api::Submap other = CorridorSubmap(0);
-  other.points[0].z() += 1.0f;
-  r = Curl(Bearer(server.token()) + PostFile(WriteSubmap(dir, other, "other.pcd")) +
-               ShellQuote(runs + "/submaps"),
-           dir);
-  EXPECT_EQ(r.status, 409) << r.body;
-  EXPECT_EQ(json::parse(r.body)["error"]["code"], "conflict");
+  ExpectJsonError(Bearer(server.token()) +
+                      "-X POST -H 'Content-Type: application/json' --data-binary '{\"line\": 3' " +
+                      ShellQuote(server.Url("/api/v1/runs")),
+                  400,
+                  "invalid",
+                  dir);
+  const json nan_pose = {{"sequence", 1}, {"stamp_ns", 5}, {"p", {NAN, 0, 0}}, {"q", {0, 0, 0, 1}}};
+  ExpectJsonError(Bearer(server.token()) + PostJson({{"poses", json::array({nan_pose})}}) +
+                      ShellQuote(runs + "/poses"),
+                  400,
+                  "invalid",
+                  dir);
+  ExpectJsonError(ShellQuote(runs + "/tiles/0/1/1"), 404, "not_found", dir);
+}
 
-  // Poses, and the trajectory back as TUM and GeoJSON.
-  json poses = json::array();
-  for (int i = 0; i < 5; ++i) {
-    const Eigen::Vector3d p = CorridorStart() + Eigen::Vector3d(2.0 * i, 0.0, 2.0);
-    poses.push_back({{"sequence", 20 + i},
-                     {"stamp_ns", 1'600'000'000'000'000'000 + int64_t(i) * 100'000'000},
-                     {"georeferenced", true},
-                     {"utm_zone", "50N"},
-                     {"p", {p.x(), p.y(), p.z()}},
-                     {"q", {0.0, 0.0, 0.0, 1.0}}});
+/// Static files: the viewer is served, nothing outside its folder is.
+void ExpectOnlyTheWebRootServed(const ServerProcess& server, const fs::path& dir) {
+  const CurlResult page = Curl(ShellQuote(server.Url("/index.html")), dir);
+  EXPECT_EQ(page.status, 200);
+  EXPECT_EQ(page.body, "<html>viewer</html>");
+  for (const char* path :
+       {"/../secret.txt", "/..%2fsecret.txt", "/%2e%2e/secret.txt", "/../data/index.sqlite"}) {
+    const CurlResult r = Curl("--path-as-is " + ShellQuote(server.Url(path)), dir);
+    EXPECT_GE(r.status, 400) << path;
+    EXPECT_LT(r.status, 500) << path;
+    EXPECT_EQ(r.body.find("not for the web"), std::string::npos) << path;
   }
-  r = Curl(Bearer(server.token()) + PostJson({{"poses", poses}}) + ShellQuote(runs + "/poses"),
-           dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(json::parse(r.body)["stored"], 5);
-  r = Curl(ShellQuote(runs + "/trajectory?format=tum"), dir);
-  EXPECT_EQ(r.status, 200);
-  EXPECT_EQ(r.body.rfind("# utm_zone 50N\n1600000000.000000000 432100.", 0), 0u) << r.body;
-  r = Curl(ShellQuote(runs + "/trajectory"), dir);
-  const json geo = json::parse(r.body);
-  const json& coords = geo["features"][0]["geometry"]["coordinates"];
-  ASSERT_EQ(coords.size(), 5u);
-  // UTM 50N (432100, 3585200) is near 32.4 N, 116.3 E (GeoConvert agrees).
-  EXPECT_NEAR(coords[0][0].get<double>(), 116.28, 0.05);
-  EXPECT_NEAR(coords[0][1].get<double>(), 32.40, 0.05);
-
-  // The tiles: the index, then one tile's bytes with its ETag.
-  const int64_t expected_points = 400 * 110 * 3 / 2 * 1 + 0;  // 1.5 submaps' worth of voxels
-  const json index = TilesWhenWritten(server, run, expected_points, dir);
-  ASSERT_FALSE(index["tiles"].empty());
-  const json tile = index["tiles"][0];
-  r = Curl(ShellQuote(server.Url(tile["url"].get<std::string>())), dir);
-  ASSERT_EQ(r.status, 200);
-  EXPECT_NE(r.headers.find("ETag: " + tile["etag"].get<std::string>()), std::string::npos)
-      << r.headers;
-  EXPECT_NE(r.headers.find("Cache-Control: no-cache"), std::string::npos);
-  const CurlResult again =
-      Curl("-H " + ShellQuote("If-None-Match: " + tile["etag"].get<std::string>()) + " " +
-               ShellQuote(server.Url(tile["url"].get<std::string>())),
-           dir);
-  EXPECT_EQ(again.status, 304);
-  // Debian's draco_decoder reads the served tile; each point lies within the stated error of
-  // a submap point.
-  std::ofstream(dir / "tile.drc", std::ios::binary) << r.body;
-  const CommandResult decoded =
-      RunCommand("draco_decoder -i " + ShellQuote((dir / "tile.drc").string()) + " -o " +
-                     ShellQuote((dir / "tile.ply").string()),
-                 dir);
-  ASSERT_EQ(decoded.exit_code, 0) << decoded.out << decoded.err;
-  std::ifstream ply(dir / "tile.ply", std::ios::binary);
-  std::string line;
-  size_t vertices = 0;
-  while (std::getline(ply, line) && line != "end_header")
-    if (line.rfind("element vertex ", 0) == 0) vertices = std::stoul(line.substr(15));
-  ASSERT_EQ(static_cast<int64_t>(vertices), tile["points"].get<int64_t>());
-  const Eigen::Vector3d origin(tile["origin"][0], tile["origin"][1], tile["origin"][2]);
-  double worst = 0.0;
-  for (size_t i = 0; i < vertices; ++i) {
-    float p[3];
-    ply.read(reinterpret_cast<char*>(p), sizeof(p));
-    if (!ply) break;
-    // The corridor's points lie on 0.1 m voxel centres (x.x5) relative to the start.
-    const Eigen::Vector3d q = origin + Eigen::Vector3d(p[0], p[1], p[2]) - CorridorStart();
-    for (int a = 0; a < 3; ++a)
-      worst = std::max(worst, std::abs(q[a] - (std::floor(q[a] * 10.0) / 10.0 + 0.05)));
-  }
-  EXPECT_LE(worst, tile["max_error_m"].get<double>());
-  EXPECT_LE(tile["max_error_m"].get<double>(), 0.005);
-
-  // The sqlite3 tool reads the index.
-  const CommandResult sql = RunCommand(
-      "sqlite3 " + ShellQuote((scratch.path() / "data" / "index.sqlite").string()) +
-          " 'PRAGMA integrity_check; SELECT count(*) FROM submaps; SELECT line FROM runs;'",
-      dir);
-  EXPECT_EQ(sql.exit_code, 0) << sql.err;
-  EXPECT_EQ(sql.out, "ok\n2\nTest line\n");
-
-  // Finishing the run; metrics count what happened.
-  r = Curl(Bearer(server.token()) + PostJson(json::object()) + ShellQuote(runs + "/finish"), dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(json::parse(r.body)["status"], "finished");
-  // The finished run defined its line's centreline: 8 m of poses, km 0.000 to 0.008.
-  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line")), dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(json::parse(r.body)["reference_run"], run);
-  EXPECT_NEAR(json::parse(r.body)["length_m"].get<double>(), 8.0, 0.01);
-  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=0.002&to_km=0.006")),
-           dir);
-  ASSERT_EQ(r.status, 200) << r.body;
-  const json segment = json::parse(r.body)["features"][0];
-  EXPECT_EQ(segment["geometry"]["coordinates"].size(), 5u);
-  EXPECT_EQ(segment["properties"]["profile"]["chainage_m"][0], 2.0);
-  EXPECT_FALSE(segment["properties"]["tiles"].empty());
-  // A km post at the line's start makes it km 12.
-  r = Curl(
-      Bearer(server.token()) +
-          PostJson(
-              {{"km", 12.0}, {"easting", 432100.0}, {"northing", 3585200.0}, {"label", "km 12"}}) +
-          ShellQuote(server.Url("/api/v1/lines/Test%20line/kmposts")),
-      dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_NEAR(json::parse(r.body)["chainage_offset_m"].get<double>(), 12000.0, 0.01);
-  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=12.002&to_km=12.006")),
-           dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  r = Curl(ShellQuote(server.Url("/api/v1/lines/Test%20line/segment?from_km=abc&to_km=1")), dir);
-  EXPECT_EQ(r.status, 400) << r.body;
-  r = Curl(ShellQuote(server.Url("/api/v1/lines/Nowhere/segment?from_km=0&to_km=1")), dir);
-  EXPECT_EQ(r.status, 404) << r.body;
-
-  // Exports: the run's points in a box as LAS and PLY, and along the line's first 8 m.
-  r = Curl(ShellQuote(runs + "/export?format=las&bbox=432100,3585190,432110,3585210"), dir);
-  ASSERT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(r.body.compare(0, 4, "LASF"), 0);
-  EXPECT_NE(r.headers.find("filename=\"run-" + std::to_string(run) + ".las\""), std::string::npos);
-  // 10 m of corridor: 100 columns of 110 voxels (ground and wall), 20 bytes each, after the
-  // public header (227 bytes) and the zone's GeoTIFF key record (54 + 48), which names 50N.
-  EXPECT_EQ(r.body.size(), 227u + 102u + 20u * 100u * 110u);
-  api::las::Contents las;
-  std::string las_error;
-  ASSERT_TRUE(api::las::Decode(r.body, &las, &las_error)) << las_error;
-  EXPECT_EQ(las.points.size(), 100u * 110u);
-  EXPECT_EQ(las.epsg, 32650);
-  r = Curl(ShellQuote(runs + "/export?format=ply&line=Test%20line&from_km=12.000&to_km=12.008"),
-           dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(r.body.rfind("ply\n", 0), 0u);
-  EXPECT_EQ(Curl(ShellQuote(runs + "/export?format=xyz&bbox=0,0,1,1"), dir).status, 400);
-  EXPECT_EQ(Curl(ShellQuote(runs + "/export"), dir).status, 400);
-
-  // Points of interest: create, read, list by line, update, delete.
-  const json mast = {{"kind", "mast"},
-                     {"name", "M 7"},
-                     {"line", "Test line"},
-                     {"utm_zone", "50N"},
-                     {"position", {432110.0, 3585203.2, 30.0}},
-                     {"properties", {{"height_m", 8.5}}}};
-  r = Curl(Bearer(server.token()) + PostJson(mast) + ShellQuote(server.Url("/api/v1/pois")), dir);
-  ASSERT_EQ(r.status, 201) << r.body;
-  const std::string poi =
-      server.Url("/api/v1/pois/" + std::to_string(json::parse(r.body)["id"].get<int>()));
-  r = Curl(ShellQuote(poi), dir);
-  EXPECT_EQ(json::parse(r.body)["properties"]["height_m"], 8.5);
-  r = Curl(ShellQuote(server.Url("/api/v1/pois?line=Test%20line")), dir);
-  EXPECT_EQ(json::parse(r.body)["pois"].size(), 1u);
-  json renamed = mast;
-  renamed["name"] = "M 7a";
-  r = Curl(Bearer(server.token()) + "-X PUT -H 'Content-Type: application/json' --data-binary " +
-               ShellQuote(renamed.dump()) + " " + ShellQuote(poi),
-           dir);
-  EXPECT_EQ(r.status, 200) << r.body;
-  EXPECT_EQ(json::parse(r.body)["name"], "M 7a");
-  EXPECT_EQ(Curl("-X DELETE " + ShellQuote(poi), dir).status, 401);
-  EXPECT_EQ(Curl(Bearer(server.token()) + "-X DELETE " + ShellQuote(poi), dir).status, 204);
-  EXPECT_EQ(Curl(ShellQuote(poi), dir).status, 404);
-
-  r = Curl(ShellQuote(server.Url("/metrics")), dir);
-  EXPECT_NE(r.body.find("raillomer_submaps_stored_total 2"), std::string::npos) << r.body;
-  EXPECT_NE(r.body.find("raillomer_http_requests_total{route=\"ingest.submap\",status=\"409\"} 1"),
-            std::string::npos);
-  EXPECT_TRUE(server.Stop(SIGTERM)) << server.log();
 }
 
 TEST(Server, BadInputGetsA4xxJsonErrorAndChangesNothing) {
@@ -291,71 +428,9 @@ TEST(Server, BadInputGetsA4xxJsonErrorAndChangesNothing) {
   ASSERT_TRUE(server.ok()) << server.log();
   const int64_t run = CreateRun(server, dir);
   const std::string submaps = server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps");
-
-  auto expect = [&](const std::string& args, int status, const std::string& code) {
-    const CurlResult r = Curl(args, dir);
-    EXPECT_EQ(r.status, status) << args << " -> " << r.body;
-    const json j = json::parse(r.body, nullptr, false);
-    ASSERT_TRUE(j.is_object() && j.contains("error")) << r.body;
-    EXPECT_EQ(j["error"]["code"], code) << r.body;
-    EXPECT_FALSE(j["error"]["message"].get<std::string>().empty());
-  };
-  // A small submap that fits the body limit, then broken versions of it.
-  api::Submap small = CorridorSubmap(0);
-  small.points.resize(2000);
-  small.intensities.resize(2000);
-  const std::string good = api::EncodeSubmapPcd(small);
-  std::ofstream(dir / "truncated.pcd", std::ios::binary) << good.substr(0, good.size() - 7);
-  expect(Bearer(server.token()) + PostFile(dir / "truncated.pcd") + ShellQuote(submaps),
-         400,
-         "invalid");
-  api::Submap nan = small;
-  nan.points[5].x() = NAN;
-  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, nan, "nan.pcd")) + ShellQuote(submaps),
-         400,
-         "invalid");
-  std::ofstream(dir / "garbage.pcd", std::ios::binary) << std::string(5000, '\x7f');
-  expect(
-      Bearer(server.token()) + PostFile(dir / "garbage.pcd") + ShellQuote(submaps), 400, "invalid");
-  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, small, "ok.pcd")) +
-             ShellQuote(server.Url("/api/v1/runs/999/submaps")),
-         404,
-         "not_found");
-  expect(Bearer(server.token()) + PostFile(WriteSubmap(dir, CorridorSubmap(1), "big.pcd")) +
-             ShellQuote(submaps),
-         413,
-         "too_large");
-  expect(Bearer("wrong-token-wrong-token") + PostFile(dir / "ok.pcd") + ShellQuote(submaps),
-         401,
-         "unauthorized");
-  expect(PostFile(dir / "ok.pcd") + ShellQuote(submaps), 401, "unauthorized");
-  expect(Bearer(server.token()) +
-             "-X POST -H 'Content-Type: application/json' --data-binary '{\"line\": 3' " +
-             ShellQuote(server.Url("/api/v1/runs")),
-         400,
-         "invalid");
-  expect(
-      Bearer(server.token()) +
-          PostJson(
-              {{"poses",
-                {{{"sequence", 1}, {"stamp_ns", 5}, {"p", {NAN, 0, 0}}, {"q", {0, 0, 0, 1}}}}}}) +
-          ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/poses")),
-      400,
-      "invalid");
-  expect(ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run) + "/tiles/0/1/1")),
-         404,
-         "not_found");
-  // Static files: the viewer is served, nothing outside its folder is.
-  CurlResult page = Curl(ShellQuote(server.Url("/index.html")), dir);
-  EXPECT_EQ(page.status, 200);
-  EXPECT_EQ(page.body, "<html>viewer</html>");
-  for (const char* path :
-       {"/../secret.txt", "/..%2fsecret.txt", "/%2e%2e/secret.txt", "/../data/index.sqlite"}) {
-    const CurlResult r = Curl("--path-as-is " + ShellQuote(server.Url(path)), dir);
-    EXPECT_GE(r.status, 400) << path;
-    EXPECT_LT(r.status, 500) << path;
-    EXPECT_EQ(r.body.find("not for the web"), std::string::npos) << path;
-  }
+  ExpectBadSubmapsRefused(server, submaps, dir);
+  ExpectBadRequestsRefused(server, run, dir);
+  ExpectOnlyTheWebRootServed(server, dir);
   // Nothing was stored.
   const CurlResult info = Curl(ShellQuote(server.Url("/api/v1/runs/" + std::to_string(run))), dir);
   EXPECT_EQ(json::parse(info.body)["submaps"], 0);

@@ -126,71 +126,82 @@ def check_rate(report, name, stamps_ns, rate_hz):
     return ok
 
 
+def parse_livox_frame(raw):
+    """A CustomMsg's header stamp, timebase, point_num, array length and point bytes."""
+    data = memoryview(raw[1])
+    stamp_ns, _frame_id, pos = parse_header(data)
+    timebase, point_num, _lidar_id = struct.unpack_from("<QIB", data, pos)
+    pos += 8 + 4 + 1 + 3
+    (array_len,) = struct.unpack_from("<I", data, pos)
+    pos += 4
+    return stamp_ns, timebase, point_num, array_len, data[pos:]
+
+
+def check_frame_points(index, points, array_len, problems):
+    """Offsets non-decreasing within a frame, lines 0..5, a strided subset of coordinates finite
+    and within 1 km; what is wrong goes into problems."""
+    offsets = array.array("I", bytes(column(points, array_len, 0, 4)))
+    if sys.byteorder != "little":
+        offsets.byteswap()
+    if offsets.tolist() != sorted(offsets) or max(offsets) > MAX_OFFSET_NS:
+        problems["offsets"].append("frame %d: offset_time range %d..%d ns%s" % (
+            index, min(offsets), max(offsets),
+            "" if offsets.tolist() == sorted(offsets) else ", not non-decreasing"))
+    lines = column(points, array_len, 18, 1)
+    if max(lines) > 5:
+        problems["lines"].append("frame %d: line up to %d" % (index, max(lines)))
+    stride = max(1, array_len // 500)
+    for i in range(0, array_len, stride):
+        x, y, z = struct.unpack_from("<fff", points, i * POINT_SIZE + 4)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)) or max(
+                abs(x), abs(y), abs(z)) > 1000.0:
+            problems["values"].append("frame %d point %d: (%g, %g, %g)" % (index, i, x, y, z))
+            break
+
+
+def report_lidar(report, topic, frames, problems, args):
+    """One check per property of the topic's frames."""
+    count, offsets, lines = problems["count"], problems["offsets"], problems["lines"]
+    timebase, values = problems["timebase"], problems["values"]
+    report.check("lidar %s points per frame" % topic, not count,
+                 "all %d frames have %d points" % (frames, args.points_per_frame) if not count
+                 else "; ".join(count[:5]) + (" ..." if len(count) > 5 else ""))
+    report.check("lidar %s offset_time" % topic, not offsets,
+                 "non-decreasing within [0, 100 ms]" if not offsets else "; ".join(offsets[:5]))
+    report.check("lidar %s line" % topic, not lines,
+                 "within 0..5" if not lines else "; ".join(lines[:5]))
+    report.check("lidar %s stamp == timebase" % topic, not timebase,
+                 "" if not timebase else "frames %s" % timebase[:10])
+    report.check("lidar %s coordinates" % topic, not values,
+                 "finite, within 1 km (sampled)" if not values else "; ".join(values[:5]))
+
+
 def check_lidar(report, bag, topic, args):
     stamps = []
-    bad_count = []
-    bad_offsets = []
-    bad_lines = []
-    bad_timebase = []
-    bad_values = []
+    problems = {"count": [], "offsets": [], "lines": [], "timebase": [], "values": []}
     frames = 0
     for _, raw, _t in bag.read_messages(topics=[topic], raw=True):
-        data = memoryview(raw[1])
-        stamp_ns, _frame_id, pos = parse_header(data)
-        timebase, point_num, _lidar_id = struct.unpack_from("<QIB", data, pos)
-        pos += 8 + 4 + 1 + 3
-        (array_len,) = struct.unpack_from("<I", data, pos)
-        pos += 4
-        points = data[pos:]
+        stamp_ns, timebase, point_num, array_len, points = parse_livox_frame(raw)
         frames += 1
         stamps.append(stamp_ns)
         if len(points) != array_len * POINT_SIZE:
-            bad_count.append("frame %d: %d bytes of points for %d points" % (frames - 1, len(points),
-                                                                           array_len))
+            problems["count"].append("frame %d: %d bytes of points for %d points" % (
+                frames - 1, len(points), array_len))
             continue
         if point_num != array_len or array_len != args.points_per_frame:
-            bad_count.append("frame %d: point_num %d, %d points" % (frames - 1, point_num,
-                                                                   array_len))
+            problems["count"].append("frame %d: point_num %d, %d points" % (
+                frames - 1, point_num, array_len))
         if timebase != stamp_ns:
-            bad_timebase.append(frames - 1)
-        if array_len == 0:
-            continue
-        offsets = array.array("I", bytes(column(points, array_len, 0, 4)))
-        if sys.byteorder != "little":
-            offsets.byteswap()
-        if offsets.tolist() != sorted(offsets) or max(offsets) > MAX_OFFSET_NS:
-            bad_offsets.append("frame %d: offset_time range %d..%d ns%s" % (
-                frames - 1, min(offsets), max(offsets),
-                "" if offsets.tolist() == sorted(offsets) else ", not non-decreasing"))
-        lines = column(points, array_len, 18, 1)
-        if max(lines) > 5:
-            bad_lines.append("frame %d: line up to %d" % (frames - 1, max(lines)))
-        # Coordinates of a strided subset must be finite and within 1 km.
-        stride = max(1, array_len // 500)
-        for i in range(0, array_len, stride):
-            x, y, z = struct.unpack_from("<fff", points, i * POINT_SIZE + 4)
-            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)) or max(
-                    abs(x), abs(y), abs(z)) > 1000.0:
-                bad_values.append("frame %d point %d: (%g, %g, %g)" % (frames - 1, i, x, y, z))
-                break
+            problems["timebase"].append(frames - 1)
+        if array_len:
+            check_frame_points(frames - 1, points, array_len, problems)
 
     report.stats[topic] = {"frames": frames}
     report.check("lidar %s frames" % topic, frames > 0, "%d frames" % frames)
     if frames == 0:
         return
     check_rate(report, "lidar %s" % topic, stamps, args.lidar_rate)
-    report.check("lidar %s points per frame" % topic, not bad_count,
-                 "all %d frames have %d points" % (frames, args.points_per_frame) if not bad_count
-                 else "; ".join(bad_count[:5]) + (" ..." if len(bad_count) > 5 else ""))
-    report.check("lidar %s offset_time" % topic, not bad_offsets,
-                 "non-decreasing within [0, 100 ms]" if not bad_offsets else
-                 "; ".join(bad_offsets[:5]))
-    report.check("lidar %s line" % topic, not bad_lines,
-                 "within 0..5" if not bad_lines else "; ".join(bad_lines[:5]))
-    report.check("lidar %s stamp == timebase" % topic, not bad_timebase,
-                 "" if not bad_timebase else "frames %s" % bad_timebase[:10])
-    report.check("lidar %s coordinates" % topic, not bad_values,
-                 "finite, within 1 km (sampled)" if not bad_values else "; ".join(bad_values[:5]))
+    report_lidar(report, topic, frames, problems, args)
 
 
 MAX_ACCEL_MPS2 = 100.0  # ~10 g: beyond this a sample is a glitch, not a rail vehicle

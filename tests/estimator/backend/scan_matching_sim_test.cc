@@ -33,6 +33,108 @@ struct RegistrationErrors {
 
 constexpr const char* kAxisNames[6] = {"x", "y", "z", "roll", "pitch", "yaw"};
 
+/// Frames in, registered against a map of the frames before them, all at their true poses.
+class TruthMapRegistration {
+ public:
+  TruthMapRegistration(const EstimatorConfig& config,
+                       const sim::TruthMotion& truth,
+                       double t0_abs,
+                       double edge_max_spread_m)
+      : config_(config),
+        o_(config.options),
+        truth_(truth),
+        t0_abs_(t0_abs),
+        period_(1.0 / config.rig.lidars[0].rate_hz),
+        edges_(o_.map_voxel_m, o_.map_points_per_voxel),
+        planes_(o_.map_voxel_m, o_.map_points_per_voxel) {
+    match_.max_distance_m = o_.max_correspondence_m;
+    match_.line_max_spread_m = edge_max_spread_m;
+  }
+
+  /// One sweep of every LiDAR: registered once the map holds 3 s, then added to the map.
+  void Process(uint64_t timebase_ns, const std::vector<std::pair<int, io::LidarFrame>>& in) {
+    const double t_start = static_cast<double>(timebase_ns) * 1e-9 - t0_abs_;
+    const Eigen::Isometry3d T_end = truth_.Pose(t_start + period_);
+    const FeatureSet all = FeaturesAtTruth(t_start, T_end, in);
+    if (t_start > 3.0) Register(all, T_end);
+    AddToMap(all, T_end);
+  }
+
+  /// Mean and RMS over the registered frames.
+  RegistrationErrors Errors() const {
+    RegistrationErrors out;
+    out.frames = frames_;
+    if (frames_ == 0) return out;
+    out.mean = sum_ / frames_;
+    out.rms = (sum_sq_ / frames_).cwiseSqrt();
+    return out;
+  }
+
+ private:
+  /// Preprocessed, deskewed with the true motion, LOAM features of every LiDAR in the body frame.
+  FeatureSet FeaturesAtTruth(double t_start,
+                             const Eigen::Isometry3d& T_end,
+                             const std::vector<std::pair<int, io::LidarFrame>>& in) const {
+    FeatureSet all;
+    for (const auto& [index, frame] : in) {
+      Scan scan = ScanFromLidarFrame(frame, index, period_);
+      Preprocess(o_.preprocess, &scan);
+      Deskew(config_.rig.lidars[static_cast<size_t>(index)].T_body_lidar,
+             T_end.inverse() * truth_.Pose(t_start),
+             &scan);
+      const FeatureSet f = ExtractLoamFeatures(o_.loam, scan);
+      all.edges.insert(all.edges.end(), f.edges.begin(), f.edges.end());
+      all.planes.insert(all.planes.end(), f.planes.begin(), f.planes.end());
+    }
+    return all;
+  }
+
+  /// Registers from the true pose and adds the pose error to the sums.
+  void Register(const FeatureSet& all, const Eigen::Isometry3d& T_end) {
+    const LidarMatches m = MatchFeatures(match_, all, T_end, edges_, planes_);
+    const LidarOnlySolution s = SolveLidarOnly(m, T_end, 8);
+    const Eigen::Isometry3d d = T_end.inverse() * s.T_world_body;
+    const Eigen::Vector3d angle = Eigen::AngleAxisd(d.linear()).angle() *
+                                  Eigen::AngleAxisd(d.linear()).axis();  // small: roll, pitch, yaw
+    Eigen::Matrix<double, 6, 1> e;
+    e << d.translation(), angle;
+    sum_ += e;
+    sum_sq_ += e.cwiseProduct(e);
+    ++frames_;
+  }
+
+  void AddToMap(const FeatureSet& all, const Eigen::Isometry3d& T_end) {
+    std::vector<Eigen::Vector3d> edges_world, planes_world;
+    for (const auto& p : all.edges) edges_world.push_back(T_end * p.cast<double>());
+    for (const auto& p : all.planes) planes_world.push_back(T_end * p.cast<double>());
+    edges_.Add(edges_world);
+    planes_.Add(planes_world);
+  }
+
+  const EstimatorConfig& config_;
+  const EstimatorOptions& o_;
+  const sim::TruthMotion& truth_;
+  const double t0_abs_;
+  const double period_;
+  LocalMap edges_, planes_;
+  MatchOptions match_;
+  Eigen::Matrix<double, 6, 1> sum_ = Eigen::Matrix<double, 6, 1>::Zero();
+  Eigen::Matrix<double, 6, 1> sum_sq_ = Eigen::Matrix<double, 6, 1>::Zero();
+  int frames_ = 0;
+};
+
+void PrintErrors(const RegistrationErrors& out) {
+  for (int k = 0; k < 6; ++k) {
+    const double scale = k < 3 ? 1.0 : 180.0 / M_PI;
+    std::printf("%-5s mean %+.4f rms %.4f %s over %d frames\n",
+                kAxisNames[k],
+                out.mean(k) * scale,
+                out.rms(k) * scale,
+                k < 3 ? "m" : "deg",
+                out.frames);
+  }
+}
+
 /// Runs `scenario_name` for duration_s (< 0: the whole run; noise as the scenario has it, or none
 /// in the LiDAR ranges with `noise_free_lidar`) and registers every frame after the first 3 s
 /// against the map of the frames before it, from the true pose.
@@ -40,7 +142,6 @@ RegistrationErrors RegisterAtTruth(const std::string& scenario_name,
                                    double duration_s,
                                    bool noise_free_lidar,
                                    double edge_max_spread_m = 0.0) {
-  RegistrationErrors out;
   sim::Scenario scenario;
   std::string error;
   EXPECT_TRUE(sim::LoadScenario(scenario_name, &scenario, &error)) << error;
@@ -52,57 +153,17 @@ RegistrationErrors RegisterAtTruth(const std::string& scenario_name,
   options.duration_s = duration_s;
   auto simulator = sim::Simulator::Create(scenario, options, &error);
   EXPECT_TRUE(simulator) << error;
-  if (!simulator) return out;
+  if (!simulator) return {};
   EstimatorConfig config;
   EXPECT_TRUE(ParseEstimatorConfig(simulator->RigYaml(), "rig.yaml", &config, &error)) << error;
-  const EstimatorOptions& o = config.options;
-  const sim::TruthMotion& truth = simulator->truth();
-  const double t0_abs = static_cast<double>(simulator->StampNs(0.0)) * 1e-9;
-  const double period = 1.0 / config.rig.lidars[0].rate_hz;
   std::map<std::string, int> lidar_index;
   for (size_t i = 0; i < config.rig.lidars.size(); ++i)
     lidar_index[config.rig.lidars[i].topic] = static_cast<int>(i);
-
-  LocalMap edges(o.map_voxel_m, o.map_points_per_voxel);
-  LocalMap planes(o.map_voxel_m, o.map_points_per_voxel);
-  MatchOptions match;
-  match.max_distance_m = o.max_correspondence_m;
-  match.line_max_spread_m = edge_max_spread_m;
-  Eigen::Matrix<double, 6, 1> sum = Eigen::Matrix<double, 6, 1>::Zero();
-  Eigen::Matrix<double, 6, 1> sum_sq = sum;
-  auto process = [&](uint64_t timebase_ns, const std::vector<std::pair<int, io::LidarFrame>>& in) {
-    const double t_start = static_cast<double>(timebase_ns) * 1e-9 - t0_abs;
-    const Eigen::Isometry3d T_end = truth.Pose(t_start + period);
-    FeatureSet all;
-    for (const auto& [index, frame] : in) {
-      Scan scan = ScanFromLidarFrame(frame, index, period);
-      Preprocess(o.preprocess, &scan);
-      Deskew(config.rig.lidars[static_cast<size_t>(index)].T_body_lidar,
-             T_end.inverse() * truth.Pose(t_start),
-             &scan);
-      const FeatureSet f = ExtractLoamFeatures(o.loam, scan);
-      all.edges.insert(all.edges.end(), f.edges.begin(), f.edges.end());
-      all.planes.insert(all.planes.end(), f.planes.begin(), f.planes.end());
-    }
-    if (t_start > 3.0) {  // a map of 3 s first
-      const LidarMatches m = MatchFeatures(match, all, T_end, edges, planes);
-      const LidarOnlySolution s = SolveLidarOnly(m, T_end, 8);
-      const Eigen::Isometry3d d = T_end.inverse() * s.T_world_body;
-      const Eigen::Vector3d angle =
-          Eigen::AngleAxisd(d.linear()).angle() *
-          Eigen::AngleAxisd(d.linear()).axis();  // small: roll, pitch, yaw
-      Eigen::Matrix<double, 6, 1> e;
-      e << d.translation(), angle;
-      sum += e;
-      sum_sq += e.cwiseProduct(e);
-      ++out.frames;
-    }
-    std::vector<Eigen::Vector3d> edges_world, planes_world;
-    for (const auto& p : all.edges) edges_world.push_back(T_end * p.cast<double>());
-    for (const auto& p : all.planes) planes_world.push_back(T_end * p.cast<double>());
-    edges.Add(edges_world);
-    planes.Add(planes_world);
-  };
+  TruthMapRegistration registration(config,
+                                    simulator->truth(),
+                                    static_cast<double>(simulator->StampNs(0.0)) * 1e-9,
+                                    edge_max_spread_m);
+  // Frames of one sweep share a timebase; a sweep is processed once every LiDAR's frame is in.
   std::map<uint64_t, std::vector<std::pair<int, io::LidarFrame>>> pending;
   io::SensorMessage m;
   while (simulator->Next(&m)) {
@@ -111,22 +172,12 @@ RegistrationErrors RegisterAtTruth(const std::string& scenario_name,
     auto& frames = pending[frame->timebase_ns];
     frames.push_back({lidar_index.at(m.topic), *frame});
     if (frames.size() == lidar_index.size()) {
-      process(pending.begin()->first, pending.begin()->second);
+      registration.Process(pending.begin()->first, pending.begin()->second);
       pending.erase(pending.begin());
     }
   }
-  if (out.frames == 0) return out;
-  out.mean = sum / out.frames;
-  out.rms = (sum_sq / out.frames).cwiseSqrt();
-  for (int k = 0; k < 6; ++k) {
-    const double scale = k < 3 ? 1.0 : 180.0 / M_PI;
-    std::printf("%-5s mean %+.4f rms %.4f %s over %d frames\n",
-                kAxisNames[k],
-                out.mean(k) * scale,
-                out.rms(k) * scale,
-                k < 3 ? "m" : "deg",
-                out.frames);
-  }
+  const RegistrationErrors out = registration.Errors();
+  if (out.frames > 0) PrintErrors(out);
   return out;
 }
 

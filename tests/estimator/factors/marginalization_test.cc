@@ -236,143 +236,156 @@ class WindowTest : public ::testing::Test {
  protected:
   static constexpr int kStates = 5;
 
+  static constexpr double kTrueScale = 1.02;
+  static constexpr double kGroundD = 1.5;
+  static constexpr double kLidarSigma = 0.02;
+
   void SetUp() override {
-    std::mt19937 rng(42);
-    std::normal_distribution<double> normal(0.0, 1.0);
-    auto noise = [&](double sigma) { return sigma * normal(rng); };
-    auto noise3 = [&](double sigma) {
-      return Eigen::Vector3d(noise(sigma), noise(sigma), noise(sigma));
-    };
-    std::array<Pose, kStates> true_poses;
-    std::array<SpeedBias, kStates> true_sb;
+    MakeTruth();
+    for (int k = 0; k < kStates; ++k) AddLidarFactors(k);
+    for (int k = 0; k + 1 < kStates; ++k) AddFactorsBetween(k);
+    AddPriorsOnTheFirstState();
+    StartNearTheTruthAndSolve();
+  }
+
+  static Eigen::Vector3d GroundNormal() { return Eigen::Vector3d(0.01, 0.02, 1.0).normalized(); }
+
+  double Noise(double sigma) { return sigma * normal_(rng_); }
+  Eigen::Vector3d Noise3(double sigma) {
+    return Eigen::Vector3d(Noise(sigma), Noise(sigma), Noise(sigma));
+  }
+
+  /// The true trajectory: a gentle curve with known speeds and biases.
+  void MakeTruth() {
     for (int k = 0; k < kStates; ++k) {
-      true_poses[k] = MakePose({12.0 * k, 0.8 * std::sin(0.5 * k), 0.05 * k},
-                               {0.01 * std::sin(1.0 * k), 0.02 * std::cos(1.0 * k), 0.1 * k});
-      Eigen::Map<Eigen::Matrix<double, 9, 1>> sb(true_sb[k].data());
+      true_poses_[k] = MakePose({12.0 * k, 0.8 * std::sin(0.5 * k), 0.05 * k},
+                                {0.01 * std::sin(1.0 * k), 0.02 * std::cos(1.0 * k), 0.1 * k});
+      Eigen::Map<Eigen::Matrix<double, 9, 1>> sb(true_sb_[k].data());
       sb << 12.0, 0.4 * std::cos(0.5 * k), 0.05, 0.02, -0.01 + 0.001 * k, 0.03, 0.001, 0.002,
           -0.001;
     }
-    const double true_scale = 1.02;
+  }
 
-    // Measurements.
+  /// Measurements of state k: points on planes (ground, a wall on the left, a face ahead) and on
+  /// lines (a pole, a wire), plus one outlier 0.3 m off the wall, all under a Huber loss.
+  void AddLidarFactors(int k) {
     const std::shared_ptr<ceres::LossFunction> huber = std::make_shared<ceres::HuberLoss>(1.0);
-    const Eigen::Vector3d ground_n = Eigen::Vector3d(0.01, 0.02, 1.0).normalized();
-    const double ground_d = 1.5;
-    const double lidar_sigma = 0.02;
-    for (int k = 0; k < kStates; ++k) {
-      const Pose& truth = true_poses[k];
-      const Eigen::Vector3d t = Position(truth.data());
-      const Eigen::Quaterniond q = Orientation(truth.data());
-      auto to_body = [&](const Eigen::Vector3d& w) {
-        return Eigen::Vector3d(q.conjugate() * (w - t) + noise3(lidar_sigma / std::sqrt(3.0)));
-      };
-      // Planes: ground, a wall on the left, a face ahead; lines: a pole, a wire.
-      const std::array<Eigen::Vector3d, 3> normals = {ground_n,
-                                                      Eigen::Vector3d(0.05, 1.0, 0.0).normalized(),
-                                                      Eigen::Vector3d(1.0, 0.2, 0.1).normalized()};
-      const std::array<Eigen::Vector3d, 3> anchors = {
-          Eigen::Vector3d(0.0, 0.0, -ground_d / ground_n.z()),
-          t + Eigen::Vector3d(0.0, 6.0, 0.0),
-          t + Eigen::Vector3d(15.0, 0.0, 0.0)};
-      for (int f = 0; f < 3; ++f) {
-        const double d = -normals[f].dot(anchors[f]);
-        const Eigen::Vector3d e1 = normals[f].unitOrthogonal();
-        const Eigen::Vector3d e2 = normals[f].cross(e1);
-        // Points around the state's own position on the plane.
-        const Eigen::Vector3d centre = t - (normals[f].dot(t) + d) * normals[f];
-        for (int n = 0; n < 8; ++n) {
-          const Eigen::Vector3d w = centre + (n - 3.5) * 1.3 * e1 + (n % 3 - 1) * 2.1 * e2;
-          factors_.push_back(
-              {std::make_shared<PointToPlaneFactor>(to_body(w), normals[f], d, 1.0 / lidar_sigma),
-               huber,
-               {poses_[k].data()}});
-        }
-        if (f == 1) {  // the outlier: 0.3 m off the wall
-          const Eigen::Vector3d w = centre + 0.3 * normals[f] + 2.0 * e1;
-          outlier_[k] = factors_.size();
-          factors_.push_back(
-              {std::make_shared<PointToPlaneFactor>(to_body(w), normals[f], d, 1.0 / lidar_sigma),
-               huber,
-               {poses_[k].data()}});
-        }
+    const Pose& truth = true_poses_[k];
+    const Eigen::Vector3d t = Position(truth.data());
+    const Eigen::Quaterniond q = Orientation(truth.data());
+    auto to_body = [&](const Eigen::Vector3d& w) {
+      return Eigen::Vector3d(q.conjugate() * (w - t) + Noise3(kLidarSigma / std::sqrt(3.0)));
+    };
+    const std::array<Eigen::Vector3d, 3> normals = {GroundNormal(),
+                                                    Eigen::Vector3d(0.05, 1.0, 0.0).normalized(),
+                                                    Eigen::Vector3d(1.0, 0.2, 0.1).normalized()};
+    const std::array<Eigen::Vector3d, 3> anchors = {
+        Eigen::Vector3d(0.0, 0.0, -kGroundD / GroundNormal().z()),
+        t + Eigen::Vector3d(0.0, 6.0, 0.0),
+        t + Eigen::Vector3d(15.0, 0.0, 0.0)};
+    for (int f = 0; f < 3; ++f) {
+      const double d = -normals[f].dot(anchors[f]);
+      const Eigen::Vector3d e1 = normals[f].unitOrthogonal();
+      const Eigen::Vector3d e2 = normals[f].cross(e1);
+      // Points around the state's own position on the plane.
+      const Eigen::Vector3d centre = t - (normals[f].dot(t) + d) * normals[f];
+      for (int n = 0; n < 8; ++n) {
+        const Eigen::Vector3d w = centre + (n - 3.5) * 1.3 * e1 + (n % 3 - 1) * 2.1 * e2;
+        factors_.push_back(
+            {std::make_shared<PointToPlaneFactor>(to_body(w), normals[f], d, 1.0 / kLidarSigma),
+             huber,
+             {poses_[k].data()}});
       }
-      const std::array<Eigen::Vector3d, 2> line_points = {t + Eigen::Vector3d(5.0, 4.0, 0.0),
-                                                          t + Eigen::Vector3d(0.0, -1.0, 6.0)};
-      const std::array<Eigen::Vector3d, 2> line_directions = {
-          Eigen::Vector3d(0.0, 0.05, 1.0).normalized(),
-          Eigen::Vector3d(1.0, 0.02, 0.0).normalized()};
-      for (int f = 0; f < 2; ++f) {
-        for (int n = 0; n < 5; ++n) {
-          const Eigen::Vector3d w = line_points[f] + (n - 2.0) * 1.7 * line_directions[f];
-          factors_.push_back(
-              {std::make_shared<PointToLineFactor>(
-                   to_body(w), line_points[f], line_directions[f], 1.0 / lidar_sigma),
-               huber,
-               {poses_[k].data()}});
-        }
+      if (f == 1) {  // the outlier: 0.3 m off the wall
+        const Eigen::Vector3d w = centre + 0.3 * normals[f] + 2.0 * e1;
+        outlier_[k] = factors_.size();
+        factors_.push_back(
+            {std::make_shared<PointToPlaneFactor>(to_body(w), normals[f], d, 1.0 / kLidarSigma),
+             huber,
+             {poses_[k].data()}});
       }
     }
-    for (int k = 0; k + 1 < kStates; ++k) {
-      const Pose& ti = true_poses[k];
-      const Pose& tj = true_poses[k + 1];
-      const Eigen::Quaterniond qi = Orientation(ti.data()), qj = Orientation(tj.data());
-      const Eigen::Vector3d pi = Position(ti.data()), pj = Position(tj.data());
-      // Rail plane (the ground) measured in both body frames.
-      const Eigen::Vector3d n_i = (qi.conjugate() * ground_n + noise3(0.002)).normalized();
-      const Eigen::Vector3d n_j = (qj.conjugate() * ground_n + noise3(0.002)).normalized();
-      const double d_i = ground_d + ground_n.dot(pi) + noise(0.01);
-      const double d_j = ground_d + ground_n.dot(pj) + noise(0.01);
-      factors_.push_back({std::make_shared<RailPlaneFactor>(n_i, d_i, n_j, d_j, 500.0, 100.0),
-                          nullptr,
-                          {poses_[k].data(), poses_[k + 1].data()}});
-      const double dx = (qi.conjugate() * (pj - pi)).x();
-      factors_.push_back({std::make_shared<LongitudinalShiftFactor>(dx + noise(0.05), 0.05),
-                          nullptr,
-                          {poses_[k].data(), poses_[k + 1].data()}});
-      const Eigen::Map<const Eigen::Vector3d> v_i(true_sb[k].data()), ba_i(true_sb[k].data() + 3),
-          bg_i(true_sb[k].data() + 6), v_j(true_sb[k + 1].data());
-      const double dt = 1.0;
-      auto* imu =
-          new ImuLike{qi.conjugate() * (pj - pi - v_i * dt) + 0.5 * dt * dt * ba_i + noise3(0.05),
-                      qi.conjugate() * (v_j - v_i) + dt * ba_i + noise3(0.05),
-                      qi.conjugate() * qj * ExpQuaternion(-dt * bg_i + noise3(0.002)),
-                      dx / true_scale + noise(0.05),
-                      dt};
-      factors_.push_back({std::make_shared<ImuLikeCost>(imu),
-                          nullptr,
-                          {poses_[k].data(),
-                           speed_biases_[k].data(),
-                           scales_[k].data(),
-                           poses_[k + 1].data(),
-                           speed_biases_[k + 1].data(),
-                           scales_[k + 1].data()}});
+    const std::array<Eigen::Vector3d, 2> line_points = {t + Eigen::Vector3d(5.0, 4.0, 0.0),
+                                                        t + Eigen::Vector3d(0.0, -1.0, 6.0)};
+    const std::array<Eigen::Vector3d, 2> line_directions = {
+        Eigen::Vector3d(0.0, 0.05, 1.0).normalized(), Eigen::Vector3d(1.0, 0.02, 0.0).normalized()};
+    for (int f = 0; f < 2; ++f) {
+      for (int n = 0; n < 5; ++n) {
+        const Eigen::Vector3d w = line_points[f] + (n - 2.0) * 1.7 * line_directions[f];
+        factors_.push_back({std::make_shared<PointToLineFactor>(
+                                to_body(w), line_points[f], line_directions[f], 1.0 / kLidarSigma),
+                            huber,
+                            {poses_[k].data()}});
+      }
     }
-    // Priors on the first state.
-    factors_.push_back(
-        {std::make_shared<PosePriorCost>(new PosePrior{Position(true_poses[0].data()) + noise3(0.1),
-                                                       Orientation(true_poses[0].data()),
-                                                       0.1,
-                                                       0.01}),
-         nullptr,
-         {poses_[0].data()}});
+  }
+
+  /// Rail plane, longitudinal shift and IMU-like factors between states k and k + 1.
+  void AddFactorsBetween(int k) {
+    const Pose& ti = true_poses_[k];
+    const Pose& tj = true_poses_[k + 1];
+    const Eigen::Quaterniond qi = Orientation(ti.data()), qj = Orientation(tj.data());
+    const Eigen::Vector3d pi = Position(ti.data()), pj = Position(tj.data());
+    // Rail plane (the ground) measured in both body frames.
+    const Eigen::Vector3d n_i = (qi.conjugate() * GroundNormal() + Noise3(0.002)).normalized();
+    const Eigen::Vector3d n_j = (qj.conjugate() * GroundNormal() + Noise3(0.002)).normalized();
+    const double d_i = kGroundD + GroundNormal().dot(pi) + Noise(0.01);
+    const double d_j = kGroundD + GroundNormal().dot(pj) + Noise(0.01);
+    factors_.push_back({std::make_shared<RailPlaneFactor>(n_i, d_i, n_j, d_j, 500.0, 100.0),
+                        nullptr,
+                        {poses_[k].data(), poses_[k + 1].data()}});
+    const double dx = (qi.conjugate() * (pj - pi)).x();
+    factors_.push_back({std::make_shared<LongitudinalShiftFactor>(dx + Noise(0.05), 0.05),
+                        nullptr,
+                        {poses_[k].data(), poses_[k + 1].data()}});
+    const Eigen::Map<const Eigen::Vector3d> v_i(true_sb_[k].data()), ba_i(true_sb_[k].data() + 3),
+        bg_i(true_sb_[k].data() + 6), v_j(true_sb_[k + 1].data());
+    const double dt = 1.0;
+    auto* imu =
+        new ImuLike{qi.conjugate() * (pj - pi - v_i * dt) + 0.5 * dt * dt * ba_i + Noise3(0.05),
+                    qi.conjugate() * (v_j - v_i) + dt * ba_i + Noise3(0.05),
+                    qi.conjugate() * qj * ExpQuaternion(-dt * bg_i + Noise3(0.002)),
+                    dx / kTrueScale + Noise(0.05),
+                    dt};
+    factors_.push_back({std::make_shared<ImuLikeCost>(imu),
+                        nullptr,
+                        {poses_[k].data(),
+                         speed_biases_[k].data(),
+                         scales_[k].data(),
+                         poses_[k + 1].data(),
+                         speed_biases_[k + 1].data(),
+                         scales_[k + 1].data()}});
+  }
+
+  /// Priors on the first state's pose, speed and biases, and scale.
+  void AddPriorsOnTheFirstState() {
+    factors_.push_back({std::make_shared<PosePriorCost>(
+                            new PosePrior{Position(true_poses_[0].data()) + Noise3(0.1),
+                                          Orientation(true_poses_[0].data()),
+                                          0.1,
+                                          0.01}),
+                        nullptr,
+                        {poses_[0].data()}});
     Eigen::Matrix<double, 9, 1> sb0 =
-        Eigen::Map<const Eigen::Matrix<double, 9, 1>>(true_sb[0].data());
-    sb0.head<3>() += noise3(0.1);
+        Eigen::Map<const Eigen::Matrix<double, 9, 1>>(true_sb_[0].data());
+    sb0.head<3>() += Noise3(0.1);
     factors_.push_back({std::make_shared<SpeedBiasPriorCost>(new EuclideanPrior<9>{sb0, 0.1}),
                         nullptr,
                         {speed_biases_[0].data()}});
     factors_.push_back({std::make_shared<ScalePriorCost>(new EuclideanPrior<1>{
-                            Eigen::Matrix<double, 1, 1>(true_scale + noise(0.05)), 0.05}),
+                            Eigen::Matrix<double, 1, 1>(kTrueScale + Noise(0.05)), 0.05}),
                         nullptr,
                         {scales_[0].data()}});
+  }
 
-    // Start near the truth and solve the whole window: x*.
+  /// Starts near the truth and solves the whole window: x*.
+  void StartNearTheTruthAndSolve() {
     for (int k = 0; k < kStates; ++k) {
-      poses_[k] = true_poses[k];
-      speed_biases_[k] = true_sb[k];
-      scales_[k] = {true_scale};
+      poses_[k] = true_poses_[k];
+      speed_biases_[k] = true_sb_[k];
+      scales_[k] = {kTrueScale};
       Eigen::Matrix<double, 6, 1> step;
-      step << noise3(0.2), noise3(0.02);
+      step << Noise3(0.2), Noise3(0.02);
       Move(poses_[k].data(), kPoseSize, step);
       Move(speed_biases_[k].data(), kSpeedBiasSize, Eigen::Matrix<double, 9, 1>::Constant(0.1));
       Move(scales_[k].data(), kScaleSize, Eigen::Matrix<double, 1, 1>(0.03));
@@ -467,6 +480,10 @@ class WindowTest : public ::testing::Test {
   std::vector<Factor> factors_;
   std::array<size_t, kStates> outlier_{};
   PoseManifold manifold_;
+  std::mt19937 rng_{42};
+  std::normal_distribution<double> normal_{0.0, 1.0};
+  std::array<Pose, kStates> true_poses_;
+  std::array<SpeedBias, kStates> true_sb_;
 };
 
 /// Dense reference: H and b over [dropped..., kept...] in tangent coordinates, with the
@@ -512,6 +529,45 @@ void DenseSystem(const std::vector<const Factor*>& factors,
   *gradient = jacobian.transpose() * residual;
 }
 
+/// H and b of the kept blocks once the first m tangent coordinates are eliminated.
+struct ReducedSystem {
+  Eigen::MatrixXd h;
+  Eigen::VectorXd b;
+};
+
+ReducedSystem SchurComplement(const Eigen::MatrixXd& h, const Eigen::VectorXd& b, int m) {
+  const int k = static_cast<int>(h.rows()) - m;
+  const Eigen::MatrixXd hmm_inverse = h.topLeftCorner(m, m).inverse();
+  return {
+      h.bottomRightCorner(k, k) - h.bottomLeftCorner(k, m) * hmm_inverse * h.topRightCorner(m, k),
+      b.tail(k) - h.bottomLeftCorner(k, m) * hmm_inverse * b.head(m)};
+}
+
+/// The factor reproduces the quadratic model exactly along a random tangent step:
+/// 0.5 |r|^2 - 0.5 |r0|^2 = b'^T dx + 0.5 dx^T H' dx.
+void ExpectQuadraticModel(const std::shared_ptr<MarginalizationInfo>& info,
+                          const ReducedSystem& schur) {
+  const MarginalizationFactor factor(info);
+  const int k = static_cast<int>(schur.b.size());
+  std::mt19937 rng(3);
+  std::normal_distribution<double> normal(0.0, 0.3);
+  std::vector<std::vector<double>> moved_values = info->kept_values();
+  Eigen::VectorXd dx(k);
+  for (int e = 0; e < k; ++e) dx(e) = normal(rng);
+  std::vector<const double*> moved;
+  for (size_t n = 0; n < moved_values.size(); ++n) {
+    Move(moved_values[n].data(),
+         info->kept_sizes()[n],
+         dx.segment(info->kept_offsets()[n], Tangent(info->kept_sizes()[n])));
+    moved.push_back(moved_values[n].data());
+  }
+  Eigen::VectorXd residual(k);
+  ASSERT_TRUE(factor.Evaluate(moved.data(), residual.data(), nullptr));
+  const double model = schur.b.dot(dx) + 0.5 * dx.dot(schur.h * dx);
+  const double r0_sq = info->linearized_residual().squaredNorm();
+  EXPECT_NEAR(0.5 * residual.squaredNorm() - 0.5 * r0_sq, model, 1e-8 * std::abs(model));
+}
+
 TEST_F(WindowTest, PriorMatchesDenseSchurComplement) {
   const std::unordered_set<double*> dropped = {
       poses_[0].data(), speed_biases_[0].data(), scales_[0].data()};
@@ -546,43 +602,21 @@ TEST_F(WindowTest, PriorMatchesDenseSchurComplement) {
   ASSERT_EQ(k, 16);
   // x* is a minimum: the gradient along the dropped blocks vanishes.
   EXPECT_LT(b.head(m).cwiseAbs().maxCoeff(), 1e-6 * b.tail(k).cwiseAbs().maxCoeff());
-  const Eigen::MatrixXd hmm_inverse = h.topLeftCorner(m, m).inverse();
-  const Eigen::MatrixXd schur =
-      h.bottomRightCorner(k, k) - h.bottomLeftCorner(k, m) * hmm_inverse * h.topRightCorner(m, k);
-  const Eigen::VectorXd schur_b = b.tail(k) - h.bottomLeftCorner(k, m) * hmm_inverse * b.head(m);
+  const ReducedSystem schur = SchurComplement(h, b, m);
   const Eigen::MatrixXd& jp = info->linearized_jacobian();
   const Eigen::VectorXd& r0 = info->linearized_residual();
-  EXPECT_LT((jp.transpose() * jp - schur).cwiseAbs().maxCoeff(),
-            1e-9 * schur.cwiseAbs().maxCoeff());
-  EXPECT_LT((jp.transpose() * r0 - schur_b).cwiseAbs().maxCoeff(),
-            1e-9 * schur_b.cwiseAbs().maxCoeff());
-  EXPECT_GT(schur_b.norm(), 1.0);  // the remaining factors pull on the kept blocks
+  EXPECT_LT((jp.transpose() * jp - schur.h).cwiseAbs().maxCoeff(),
+            1e-9 * schur.h.cwiseAbs().maxCoeff());
+  EXPECT_LT((jp.transpose() * r0 - schur.b).cwiseAbs().maxCoeff(),
+            1e-9 * schur.b.cwiseAbs().maxCoeff());
+  EXPECT_GT(schur.b.norm(), 1.0);  // the remaining factors pull on the kept blocks
 
   // The kept values are the linearisation point.
   for (size_t n = 0; n < kept.size(); ++n) {
     EXPECT_EQ(info->kept_values()[n],
               std::vector<double>(kept[n], kept[n] + info->kept_sizes()[n]));
   }
-
-  // The factor reproduces the quadratic model exactly along any tangent step:
-  // 0.5 |r|^2 - 0.5 |r0|^2 = b'^T dx + 0.5 dx^T H' dx.
-  const MarginalizationFactor factor(info);
-  std::mt19937 rng(3);
-  std::normal_distribution<double> normal(0.0, 0.3);
-  std::vector<std::vector<double>> moved_values = info->kept_values();
-  Eigen::VectorXd dx(k);
-  for (int e = 0; e < k; ++e) dx(e) = normal(rng);
-  std::vector<const double*> moved;
-  for (size_t n = 0; n < moved_values.size(); ++n) {
-    Move(moved_values[n].data(),
-         info->kept_sizes()[n],
-         dx.segment(info->kept_offsets()[n], Tangent(info->kept_sizes()[n])));
-    moved.push_back(moved_values[n].data());
-  }
-  Eigen::VectorXd residual(k);
-  ASSERT_TRUE(factor.Evaluate(moved.data(), residual.data(), nullptr));
-  const double model = schur_b.dot(dx) + 0.5 * dx.dot(schur * dx);
-  EXPECT_NEAR(0.5 * residual.squaredNorm() - 0.5 * r0.squaredNorm(), model, 1e-8 * std::abs(model));
+  ExpectQuadraticModel(info, schur);
 }
 
 TEST_F(WindowTest, ReducedProblemReturnsToBatchOptimum) {

@@ -531,6 +531,76 @@ TEST(PreintegrationTest, MisalignmentJacobianIsFirstOrderExact) {
   }
 }
 
+/// The true IMU and odometer readings of `traj` over n + 1 samples from t0.
+struct ImuSamples {
+  std::vector<Vector3d> gyro, accel;
+  std::vector<double> speed;  ///< the true odometer speed
+};
+
+ImuSamples SampleTrajectory(const TrainTrajectory& traj, double t0, int n) {
+  ImuSamples out;
+  for (int k = 0; k <= n; ++k) {
+    const double t = t0 + k * kImuDt;
+    out.gyro.push_back(traj.Gyro(t));
+    out.accel.push_back(traj.Accel(t));
+    out.speed.push_back(traj.Speed(t) * traj.c());
+  }
+  return out;
+}
+
+/// Draws of the standard normal distribution, in the order the Monte Carlo runs take them.
+struct NormalDraws {
+  std::mt19937 rng{42};
+  std::normal_distribution<double> normal{0.0, 1.0};
+  double operator()() { return normal(rng); }
+  Vector3d Three() { return Vector3d(normal(rng), normal(rng), normal(rng)); }
+};
+
+/// One noisy run over `samples` (white noise and random walks of `noise`): its error against
+/// the clean preintegration, ordered as the covariance of Eq. (17).
+Eigen::Matrix<double, 19, 1> NoisyRunError(const TrainTrajectory& traj,
+                                           const PreintegrationNoise& noise,
+                                           const ImuSamples& samples,
+                                           const Preintegration& clean,
+                                           NormalDraws* randn) {
+  const double sqrt_dt = std::sqrt(kImuDt);
+  Preintegration noisy = MakePreintegration(traj, noise);
+  Vector3d dba = Vector3d::Zero(), dbg = Vector3d::Zero();
+  double c = traj.c();
+  for (size_t k = 0; k < samples.gyro.size(); ++k) {
+    if (k > 0) {
+      dba += noise.accel_bias_walk * sqrt_dt * randn->Three();
+      dbg += noise.gyro_bias_walk * sqrt_dt * randn->Three();
+      c += noise.odometer_scale_walk * sqrt_dt * (*randn)();
+    }
+    const Vector3d g = samples.gyro[k] + dbg + noise.gyro_noise_density / sqrt_dt * randn->Three();
+    const Vector3d a =
+        samples.accel[k] + dba + noise.accel_noise_density / sqrt_dt * randn->Three();
+    // Eq. (9): c * s_hat = v + eta.
+    const double s = (samples.speed[k] + noise.odometer_speed_density / sqrt_dt * (*randn)()) / c;
+    noisy.Add(k == 0 ? 0.0 : kImuDt, g, a, s, true);
+  }
+  Eigen::Matrix<double, 19, 1> e;
+  e.segment<3>(0) = noisy.alpha() - clean.alpha();
+  e.segment<3>(3) = noisy.beta() - clean.beta();
+  e.segment<3>(6) = LogQuaternion(clean.gamma().conjugate() * noisy.gamma());
+  e.segment<3>(9) = dba;
+  e.segment<3>(12) = dbg;
+  e.segment<3>(15) = noisy.phi() - clean.phi();
+  e(18) = c - traj.c();
+  return e;
+}
+
+Eigen::Matrix<double, 19, 19> SampleCovariance(
+    const std::vector<Eigen::Matrix<double, 19, 1>>& errors) {
+  const double runs = static_cast<double>(errors.size());
+  Eigen::Matrix<double, 19, 1> mean = Eigen::Matrix<double, 19, 1>::Zero();
+  for (const auto& e : errors) mean += e / runs;
+  Eigen::Matrix<double, 19, 19> sample = Eigen::Matrix<double, 19, 19>::Zero();
+  for (const auto& e : errors) sample += (e - mean) * (e - mean).transpose() / (runs - 1);
+  return sample;
+}
+
 // Eq. (17): the propagated covariance against the sample covariance of noisy runs. The noise
 // densities are raised so that every term (white noise and random walks) is visible. With 400
 // runs a sample variance has a relative standard error of 7 %, so 25 % is a 3.5 sigma bound.
@@ -543,57 +613,20 @@ TEST(PreintegrationTest, CovarianceMatchesMonteCarlo) {
   noise.accel_bias_walk = 2e-2;
   noise.odometer_speed_density = 0.05;
   noise.odometer_scale_walk = 5e-3;
-  const double t0 = 2.1;
-  const int n = 200;
-  std::vector<Vector3d> gyro(n + 1), accel(n + 1);
-  std::vector<double> speed(n + 1);
-  for (int k = 0; k <= n; ++k) {
-    const double t = t0 + k * kImuDt;
-    gyro[k] = traj.Gyro(t);
-    accel[k] = traj.Accel(t);
-    speed[k] = traj.Speed(t) * traj.c();  // true odometer speed
-  }
+  const ImuSamples samples = SampleTrajectory(traj, 2.1, 200);
   Preintegration clean = MakePreintegration(traj, noise);
-  for (int k = 0; k <= n; ++k) {
-    clean.Add(k == 0 ? 0.0 : kImuDt, gyro[k], accel[k], speed[k] / traj.c(), true);
+  for (size_t k = 0; k < samples.gyro.size(); ++k) {
+    clean.Add(k == 0 ? 0.0 : kImuDt,
+              samples.gyro[k],
+              samples.accel[k],
+              samples.speed[k] / traj.c(),
+              true);
   }
-
-  std::mt19937 rng(42);
-  std::normal_distribution<double> normal(0.0, 1.0);
-  auto randn3 = [&]() { return Vector3d(normal(rng), normal(rng), normal(rng)); };
-  const int runs = 400;
-  const double sqrt_dt = std::sqrt(kImuDt);
+  NormalDraws randn;
   std::vector<Eigen::Matrix<double, 19, 1>> errors;
-  for (int run = 0; run < runs; ++run) {
-    Preintegration noisy = MakePreintegration(traj, noise);
-    Vector3d dba = Vector3d::Zero(), dbg = Vector3d::Zero();
-    double c = traj.c();
-    for (int k = 0; k <= n; ++k) {
-      if (k > 0) {
-        dba += noise.accel_bias_walk * sqrt_dt * randn3();
-        dbg += noise.gyro_bias_walk * sqrt_dt * randn3();
-        c += noise.odometer_scale_walk * sqrt_dt * normal(rng);
-      }
-      const Vector3d g = gyro[k] + dbg + noise.gyro_noise_density / sqrt_dt * randn3();
-      const Vector3d a = accel[k] + dba + noise.accel_noise_density / sqrt_dt * randn3();
-      // Eq. (9): c * s_hat = v + eta.
-      const double s = (speed[k] + noise.odometer_speed_density / sqrt_dt * normal(rng)) / c;
-      noisy.Add(k == 0 ? 0.0 : kImuDt, g, a, s, true);
-    }
-    Eigen::Matrix<double, 19, 1> e;
-    e.segment<3>(0) = noisy.alpha() - clean.alpha();
-    e.segment<3>(3) = noisy.beta() - clean.beta();
-    e.segment<3>(6) = LogQuaternion(clean.gamma().conjugate() * noisy.gamma());
-    e.segment<3>(9) = dba;
-    e.segment<3>(12) = dbg;
-    e.segment<3>(15) = noisy.phi() - clean.phi();
-    e(18) = c - traj.c();
-    errors.push_back(e);
-  }
-  Eigen::Matrix<double, 19, 1> mean = Eigen::Matrix<double, 19, 1>::Zero();
-  for (const auto& e : errors) mean += e / runs;
-  Eigen::Matrix<double, 19, 19> sample = Eigen::Matrix<double, 19, 19>::Zero();
-  for (const auto& e : errors) sample += (e - mean) * (e - mean).transpose() / (runs - 1);
+  for (int run = 0; run < 400; ++run)
+    errors.push_back(NoisyRunError(traj, noise, samples, clean, &randn));
+  const Eigen::Matrix<double, 19, 19> sample = SampleCovariance(errors);
 
   const Eigen::Matrix<double, 19, 19>& cov = clean.covariance();
   for (int k = 0; k < 19; ++k) {

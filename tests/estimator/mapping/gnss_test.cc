@@ -169,86 +169,126 @@ struct FusionRun {
   GnssFusionStats stats;
 };
 
-FusionRun RunFusion(int outlier_every) {
-  GnssFusionOptions options;
-  options.zone.zone = 50;
-  options.zone.north = true;
-  options.p_body_antenna = Eigen::Vector3d(0.0, 0.0, 0.3);
-  FusionRun run;
-  GnssFusion fusion(options, nullptr, nullptr);
-  const Eigen::Vector3d origin(432000.0, 3585000.0, 30.0);
-  const double speed = 30.0, heading0 = 0.6;
-  // Separate generators: the runs with and without outliers see the same receiver noise.
-  std::mt19937 rng(11), multipath_rng(12);
-  std::normal_distribution<double> noise(0.0, 0.3);
-  std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  auto true_pose = [&](double t) {
-    // Straight, then a 2 km curve of radius 3 km, then straight.
-    const double s = speed * t;
-    double heading = heading0, x = 0.0, y = 0.0;
-    const double ds = 1.0;
-    for (double u = 0.0; u < s; u += ds) {
-      const double step = std::min(ds, s - u);
-      if (u > 1500.0 && u < 3500.0) heading += step / 3000.0;
-      x += step * std::cos(heading);
-      y += step * std::sin(heading);
-    }
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    T.translation() = Eigen::Vector3d(x, y, 0.002 * s);
-    return T;
-  };
-  int fix_count = 0;
-  std::vector<std::pair<double, Eigen::Isometry3d>> odometry;
-  std::vector<Eigen::Vector3d> truth;
-  Eigen::Isometry3d odom = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d prev_truth = true_pose(0.0);
-  size_t next_release = 0;
-  for (int k = 0; k <= 2000; ++k) {  // 200 s at 10 Hz
+/// The true body pose at t: 30 m/s straight, then a 2 km curve of radius 3 km, then straight.
+Eigen::Isometry3d TrueFusionPose(double t) {
+  constexpr double kSpeed = 30.0, kHeading0 = 0.6;
+  const double s = kSpeed * t;
+  double heading = kHeading0, x = 0.0, y = 0.0;
+  const double ds = 1.0;
+  for (double u = 0.0; u < s; u += ds) {
+    const double step = std::min(ds, s - u);
+    if (u > 1500.0 && u < 3500.0) heading += step / 3000.0;
+    x += step * std::cos(heading);
+    y += step * std::sin(heading);
+  }
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(x, y, 0.002 * s);
+  return T;
+}
+
+/// Odometry's increment: the true one, 0.1 % long and turning 1e-6 rad per metre too much.
+Eigen::Isometry3d DriftingIncrement(const Eigen::Isometry3d& prev_truth,
+                                    const Eigen::Isometry3d& T) {
+  Eigen::Isometry3d inc = prev_truth.inverse() * T;
+  inc.translation() *= 1.001;
+  inc.linear() =
+      Eigen::AngleAxisd(1e-6 * inc.translation().norm(), Eigen::Vector3d::UnitZ()) * inc.linear();
+  return inc;
+}
+
+/// Feeds GnssFusion and records what it gives back, as FusionRun describes.
+class FusionDriver {
+ public:
+  explicit FusionDriver(int outlier_every)
+      : options_(MakeOptions()),
+        fusion_(options_, nullptr, nullptr),
+        outlier_every_(outlier_every) {}
+
+  /// One odometry pose at t (and a fix every second).
+  void Step(int k) {
     const double t = 0.1 * k;
     const int64_t stamp = static_cast<int64_t>(std::llround(t * 1e9));
-    const Eigen::Isometry3d T = true_pose(t);
-    // Odometry: the true increment, 0.1 % long and turning 1e-6 rad per metre too much.
-    Eigen::Isometry3d inc = prev_truth.inverse() * T;
-    inc.translation() *= 1.001;
-    inc.linear() =
-        Eigen::AngleAxisd(1e-6 * inc.translation().norm(), Eigen::Vector3d::UnitZ()) * inc.linear();
-    odom = odom * inc;
-    prev_truth = T;
-    if (k % 10 == 0) {
-      Eigen::Vector3d z =
-          origin + T * options.p_body_antenna + Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
-      if (outlier_every > 0 && ++fix_count % outlier_every == 0) {
-        const double a = 2.0 * M_PI * uniform(multipath_rng);
-        const double m = 5.0 + 25.0 * uniform(multipath_rng);
-        z += Eigen::Vector3d(m * std::cos(a), m * std::sin(a), 0.0);
-      }
-      fusion.AddFix(FixAt(options.zone, z, stamp));
+    const Eigen::Isometry3d T = TrueFusionPose(t);
+    odom_ = odom_ * DriftingIncrement(prev_truth_, T);
+    prev_truth_ = T;
+    if (k % 10 == 0) fusion_.AddFix(FixAt(options_.zone, NoisyFix(T), stamp));
+    fusion_.AddOdometry(stamp, odom_);
+    odometry_.emplace_back(t, odom_);
+    truth_.push_back(kOrigin + T.translation());
+    if (fusion_.aligned()) {
+      run_.estimate.push_back(fusion_.ToEnu(odom_).translation() + fusion_.origin_utm());
+      run_.truth.push_back(kOrigin + T.translation());
     }
-    fusion.AddOdometry(stamp, odom);
-    odometry.emplace_back(t, odom);
-    truth.push_back(origin + T.translation());
-    if (fusion.aligned()) {
-      run.estimate.push_back(fusion.ToEnu(odom).translation() + fusion.origin_utm());
-      run.truth.push_back(origin + T.translation());
+    ReleaseSettled();
+  }
+
+  /// The run's figures, with the smoothed poses up to the newest settled time.
+  FusionRun Finish() {
+    run_.stats = fusion_.stats();
+    for (size_t i = 0; i < odometry_.size(); ++i) {
+      if (!fusion_.aligned() || odometry_[i].first > fusion_.settled_until_s()) continue;
+      run_.smoothed.push_back(fusion_.ToEnu(odometry_[i].second, odometry_[i].first).translation() +
+                              fusion_.origin_utm());
+      run_.smoothed_truth.push_back(truth_[i]);
     }
-    for (;
-         next_release < odometry.size() && odometry[next_release].first <= fusion.settled_until_s();
-         ++next_release) {
-      const auto& [t_s, T_odom] = odometry[next_release];
-      run.released.push_back(fusion.ToEnu(T_odom, t_s).translation() + fusion.origin_utm());
-      run.published.push_back(fusion.Publish(T_odom, t_s).translation() + fusion.origin_utm());
-      run.released_truth.push_back(truth[next_release]);
+    return run_;
+  }
+
+ private:
+  static GnssFusionOptions MakeOptions() {
+    GnssFusionOptions options;
+    options.zone.zone = 50;
+    options.zone.north = true;
+    options.p_body_antenna = Eigen::Vector3d(0.0, 0.0, 0.3);
+    return options;
+  }
+
+  /// The antenna's true position with 0.3 m noise; every outlier_every-th fix 5-30 m off.
+  Eigen::Vector3d NoisyFix(const Eigen::Isometry3d& T) {
+    Eigen::Vector3d z = kOrigin + T * options_.p_body_antenna +
+                        Eigen::Vector3d(noise_(rng_), noise_(rng_), noise_(rng_));
+    if (outlier_every_ > 0 && ++fix_count_ % outlier_every_ == 0) {
+      const double a = 2.0 * M_PI * uniform_(multipath_rng_);
+      const double m = 5.0 + 25.0 * uniform_(multipath_rng_);
+      z += Eigen::Vector3d(m * std::cos(a), m * std::sin(a), 0.0);
+    }
+    return z;
+  }
+
+  /// Poses the fusion has settled, released through Publish and straight from the graph.
+  void ReleaseSettled() {
+    for (; next_release_ < odometry_.size() &&
+           odometry_[next_release_].first <= fusion_.settled_until_s();
+         ++next_release_) {
+      const auto& [t_s, T_odom] = odometry_[next_release_];
+      run_.released.push_back(fusion_.ToEnu(T_odom, t_s).translation() + fusion_.origin_utm());
+      run_.published.push_back(fusion_.Publish(T_odom, t_s).translation() + fusion_.origin_utm());
+      run_.released_truth.push_back(truth_[next_release_]);
     }
   }
-  run.stats = fusion.stats();
-  for (size_t i = 0; i < odometry.size(); ++i) {
-    if (!fusion.aligned() || odometry[i].first > fusion.settled_until_s()) continue;
-    run.smoothed.push_back(fusion.ToEnu(odometry[i].second, odometry[i].first).translation() +
-                           fusion.origin_utm());
-    run.smoothed_truth.push_back(truth[i]);
-  }
-  return run;
+
+  inline static const Eigen::Vector3d kOrigin{432000.0, 3585000.0, 30.0};
+  const GnssFusionOptions options_;
+  GnssFusion fusion_;
+  const int outlier_every_;
+  // Separate generators: the runs with and without outliers see the same receiver noise.
+  std::mt19937 rng_{11}, multipath_rng_{12};
+  std::normal_distribution<double> noise_{0.0, 0.3};
+  std::uniform_real_distribution<double> uniform_{0.0, 1.0};
+  int fix_count_ = 0;
+  std::vector<std::pair<double, Eigen::Isometry3d>> odometry_;
+  std::vector<Eigen::Vector3d> truth_;
+  Eigen::Isometry3d odom_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d prev_truth_ = TrueFusionPose(0.0);
+  size_t next_release_ = 0;
+  FusionRun run_;
+};
+
+FusionRun RunFusion(int outlier_every) {
+  FusionDriver driver(outlier_every);
+  for (int k = 0; k <= 2000; ++k) driver.Step(k);  // 200 s at 10 Hz
+  return driver.Finish();
 }
 
 double MaxError(const std::vector<Eigen::Vector3d>& estimate,

@@ -123,9 +123,9 @@ TEST(Registration, IcpAndNdtRecoverAKnownOffset) {
 }
 
 // A submap's guess from the chain can be off by a milliradian of pitch or roll about its
-// origin, which lies behind its points: NDT takes it out. (On real submaps PCL's NDT, which
-// stops on the translation of a step alone, used to stop after one step with the rotation left
-// in place, until its epsilon was made small: see NdtOptions::transformation_epsilon.)
+// origin, which lies behind its points: NDT takes it out. (PCL's NDT stops on the translation
+// of a step alone: with a large epsilon it stops after one step with the rotation left in
+// place; see NdtOptions::transformation_epsilon.)
 TEST(Registration, NdtTakesOutASmallRotationAboutTheOrigin) {
   const std::vector<Vec3> world = Corridor(60.0);
   const Eigen::Isometry3d truth = Pose(Vec3(10.0, 0.0, 0.0), 0.0);

@@ -494,6 +494,49 @@ struct KindCounts {
   }
 };
 
+/// Scans `frame` of LiDAR `unit` and counts its points by kind before and after Preprocess()
+/// into `all`, and before and after the bleeding filter on its own into `bleeding_stage`.
+void CountFrame(const sim::Simulator& simulator,
+                uint64_t frame,
+                size_t unit,
+                const PreprocessOptions& options,
+                KindCounts* all,
+                KindCounts* bleeding_stage) {
+  const sim::TruthMotion& truth = simulator.truth();
+  io::LidarFrame message;
+  std::vector<sim::PointKind> kinds;
+  simulator.lidars()[unit].Scan(
+      frame,
+      frame * 0.1,
+      [&truth](double t) { return truth.Pose(t); },
+      simulator.caster(),
+      &message.points,
+      &kinds);
+  std::map<std::tuple<float, float, float>, sim::PointKind> kind_of;
+  for (size_t i = 0; i < kinds.size(); ++i) {
+    const io::LivoxPoint& p = message.points[i];
+    if (kinds[i] == sim::PointKind::kNoReturn) continue;
+    kind_of[{p.x, p.y, p.z}] = kinds[i];
+    const bool beyond_min = Eigen::Vector3f(p.x, p.y, p.z).norm() >= options.min_range_m;
+    if (kinds[i] != sim::PointKind::kSurface || beyond_min) ++all->in[kinds[i]];
+  }
+  auto count_out = [&kind_of](const Scan& scan, KindCounts* counts) {
+    for (const ScanPoint& p : scan.points) ++counts->out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
+  };
+  Scan scan = ScanFromLidarFrame(message, static_cast<int>(unit), 0.1);
+  // The bleeding filter on its own (the occupancy grid also takes many mixed returns).
+  Scan alone = scan;
+  RemoveNearAndFarPoints(options, &alone, nullptr);
+  for (const ScanPoint& p : alone.points)
+    ++bleeding_stage->in[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
+  RemoveBoundaryBleeding(options, &alone, nullptr);
+  count_out(alone, bleeding_stage);
+
+  const PreprocessStats stats = Preprocess(options, &scan);
+  EXPECT_EQ(stats.input - stats.near_or_far - stats.flicker - stats.bleeding, stats.output);
+  count_out(scan, all);
+}
+
 TEST(Preprocess, SimulatedFramesLoseTheirArtefactsAndKeepTheirSurfaces) {
   sim::Scenario scenario;
   std::string error;
@@ -507,43 +550,9 @@ TEST(Preprocess, SimulatedFramesLoseTheirArtefactsAndKeepTheirSurfaces) {
   ASSERT_TRUE(simulator) << error;
   const PreprocessOptions options;
   KindCounts all, bleeding_stage;
-  const sim::TruthMotion& truth = simulator->truth();
   for (uint64_t frame : {60, 120, 180, 240}) {  // moving off and through the station
-    for (size_t unit = 0; unit < simulator->lidars().size(); ++unit) {
-      io::LidarFrame message;
-      std::vector<sim::PointKind> kinds;
-      simulator->lidars()[unit].Scan(
-          frame,
-          frame * 0.1,
-          [&truth](double t) { return truth.Pose(t); },
-          simulator->caster(),
-          &message.points,
-          &kinds);
-      std::map<std::tuple<float, float, float>, sim::PointKind> kind_of;
-      for (size_t i = 0; i < kinds.size(); ++i) {
-        const io::LivoxPoint& p = message.points[i];
-        if (kinds[i] == sim::PointKind::kNoReturn) continue;
-        kind_of[{p.x, p.y, p.z}] = kinds[i];
-        const bool beyond_min = Eigen::Vector3f(p.x, p.y, p.z).norm() >= options.min_range_m;
-        if (kinds[i] != sim::PointKind::kSurface || beyond_min) ++all.in[kinds[i]];
-      }
-      auto count_out = [&kind_of](const Scan& scan, KindCounts* counts) {
-        for (const ScanPoint& p : scan.points)
-          ++counts->out[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
-      };
-      Scan scan = ScanFromLidarFrame(message, static_cast<int>(unit), 0.1);
-      // The bleeding filter on its own (the occupancy grid also takes many mixed returns).
-      Scan alone = scan;
-      RemoveNearAndFarPoints(options, &alone, nullptr);
-      for (const ScanPoint& p : alone.points)
-        ++bleeding_stage.in[kind_of.at({p.p.x(), p.p.y(), p.p.z()})];
-      RemoveBoundaryBleeding(options, &alone, nullptr);
-      count_out(alone, &bleeding_stage);
-
-      const PreprocessStats stats = Preprocess(options, &scan);
-      EXPECT_EQ(stats.input - stats.near_or_far - stats.flicker - stats.bleeding, stats.output);
-      count_out(scan, &all);
-    }
+    for (size_t unit = 0; unit < simulator->lidars().size(); ++unit)
+      CountFrame(*simulator, frame, unit, options, &all, &bleeding_stage);
   }
   using sim::PointKind;
   ASSERT_GT(all.in[PointKind::kSunFlicker], 200u);

@@ -212,8 +212,8 @@ TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesOnACurve) {
 
 TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesThroughCantAndGrade) {
   // The same run with 100 mm of cant ramped over the transition and an 8 per mille grade eased
-  // in over a 60 m vertical curve. Regression: with linear ramps and a point-sampled IMU the
-  // roll and pitch rates stepped at the ramp ends and the IMU missed the body's velocity step.
+  // in over a 60 m vertical curve. Linear ramps would step the roll and pitch rates at the ramp
+  // ends, and a point-sampled IMU would miss the body's velocity step.
   const Scenario s = CurvedRun();
   const Alignment alignment(s);
   const TruthMotion truth(s, alignment, 5);
@@ -225,8 +225,8 @@ TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesThroughCantAndGrade) {
 TEST(TruthMotion, BodyVelocityIsContinuous) {
   // A body on a suspension cannot change velocity in no time. Velocity from central differences
   // 1 ms apart, every millisecond: smooth motion changes by |a| * 1 ms (a few mm/s), a step by
-  // its full size. Regression: linear cant and grade ramps stepped the roll and pitch rates, and
-  // the body 3.8 m above the rail got a velocity step.
+  // its full size. Linear cant and grade ramps would step the roll and pitch rates and give the
+  // body, 3.8 m above the rail, a velocity step.
   const Scenario s = CurvedRun();
   const Alignment alignment(s);
   const TruthMotion truth(s, alignment, 5);
@@ -249,8 +249,8 @@ TEST(TruthMotion, BodyVelocityIsContinuous) {
 
 TEST(TruthMotion, InertialAtTheStartOfARunningStart) {
   // A run that starts at speed: the first IMU sample (t = 0) must not see a step from standing.
-  // (Regression: SpeedProfile::At once clamped t < 0 to the start, so the second difference at
-  // t = 0 read v0 / h, 40,000 m/s^2 at 20 m/s.)
+  // (Were SpeedProfile::At to clamp t < 0 to the start, the second difference at t = 0 would
+  // read v0 / h, 40,000 m/s^2 at 20 m/s.)
   Scenario s;
   s.alignment = {Straight(1000.0)};
   s.start_m = 12.0;
@@ -386,8 +386,8 @@ TEST(TruthMotion, RailJointsAddVerticalImpulses) {
 }
 
 TEST(TruthMotion, StrapdownOfTheTruthImuReproducesThePosesOverRailJoints) {
-  // Regression: the joint response once started with a vertical velocity step (7 cm/s at
-  // 15 m/s), which a point-sampled IMU missed or read as a spike of up to 145 m/s^2.
+  // The joint response starts without a vertical velocity step: a step (7 cm/s at 15 m/s) is
+  // what a point-sampled IMU misses or reads as a spike of up to 145 m/s^2.
   Scenario s;
   s.alignment = {Straight(1000.0)};
   s.start_m = 12.0;

@@ -162,6 +162,41 @@ TEST(World, SameSeedSameWorld) {
   EXPECT_NE(CountByKind(*different->world), CountByKind(*demo.world));
 }
 
+/// The base world's objects that the edits of a changed run took away or moved, and the changed
+/// world's objects left once each unchanged one is matched to its base (same key, same mesh).
+struct EditedObjects {
+  const WorldObject* removed_mast = nullptr;
+  const WorldObject* moved_building = nullptr;
+  std::multimap<ObjectKey, const WorldObject*> remaining;
+};
+
+EditedObjects MatchUnchangedObjects(const World& base,
+                                    const World& changed,
+                                    const ChangeRecord& removed,
+                                    const ChangeRecord& moved) {
+  EditedObjects out;
+  for (const WorldObject& o : changed.objects()) out.remaining.emplace(Key(o), &o);
+  for (const WorldObject& o : base.objects()) {
+    if (o.kind == "mast" && o.chainage_m == removed.chainage_m) {
+      out.removed_mast = &o;
+      continue;
+    }
+    if (o.kind == "building" && std::fabs(o.chainage_m + 4.0 - moved.chainage_m) < 1e-9 &&
+        std::fabs(o.lateral_m + 2.0 - moved.lateral_m) < 1e-9) {
+      out.moved_building = &o;
+      continue;
+    }
+    auto it = out.remaining.find(Key(o));
+    if (it == out.remaining.end()) {
+      ADD_FAILURE() << o.kind << " at " << o.chainage_m << " is missing";
+      continue;
+    }
+    EXPECT_TRUE(it->second->mesh.vertices == o.mesh.vertices) << o.kind << " at " << o.chainage_m;
+    out.remaining.erase(it);
+  }
+  return out;
+}
+
 TEST(World, ChangedRunDiffersFromItsBaseByTheEditsOnly) {
   const Built& base = Builtin("rich_low_station_a");
   const Built& changed = Builtin("rich_low_station_a_changed");
@@ -184,27 +219,11 @@ TEST(World, ChangedRunDiffersFromItsBaseByTheEditsOnly) {
   const ChangeRecord* moved = FindChange(*changed.world, "object_moved");
   ASSERT_NE(removed, nullptr);
   ASSERT_NE(moved, nullptr);
-  std::multimap<ObjectKey, const WorldObject*> remaining;
-  for (const WorldObject& o : changed.world->objects()) remaining.emplace(Key(o), &o);
-  const WorldObject* removed_mast = nullptr;
-  const WorldObject* moved_building = nullptr;
-  for (const WorldObject& o : base.world->objects()) {
-    if (o.kind == "mast" && o.chainage_m == removed->chainage_m) {
-      removed_mast = &o;
-      continue;
-    }
-    if (o.kind == "building" && std::fabs(o.chainage_m + 4.0 - moved->chainage_m) < 1e-9 &&
-        std::fabs(o.lateral_m + 2.0 - moved->lateral_m) < 1e-9) {
-      moved_building = &o;
-      continue;
-    }
-    auto it = remaining.find(Key(o));
-    ASSERT_NE(it, remaining.end()) << o.kind << " at " << o.chainage_m << " is missing";
-    EXPECT_TRUE(it->second->mesh.vertices == o.mesh.vertices) << o.kind << " at " << o.chainage_m;
-    remaining.erase(it);
-  }
+  const EditedObjects edited = MatchUnchangedObjects(*base.world, *changed.world, *removed, *moved);
+  const WorldObject* removed_mast = edited.removed_mast;
+  const auto& remaining = edited.remaining;
   ASSERT_NE(removed_mast, nullptr);
-  ASSERT_NE(moved_building, nullptr);
+  ASSERT_NE(edited.moved_building, nullptr);
   // Left over: the moved building and the three added objects.
   std::map<std::string, int> left;
   for (const auto& entry : remaining) ++left[std::get<0>(entry.first)];
@@ -230,6 +249,28 @@ TEST(World, ChangedRunDiffersFromItsBaseByTheEditsOnly) {
   }
   EXPECT_EQ(changed.world->mesh().triangles.size(),
             base.world->mesh().triangles.size() - removed_mast->mesh.triangles.size() + added);
+}
+
+/// The moved building's record: the building nearest 600 m, moved by 4 m along and 2 m left of
+/// the line at its original chainage, from where the base world has it.
+void ExpectMovedBuildingRecord(const Built& base, const Built& changed, const ChangeRecord& moved) {
+  EXPECT_EQ(moved.object, "building");
+  const TrackPoint p = changed.alignment->At(moved.chainage_m - 4.0);
+  const Eigen::Vector3d along(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
+  const Eigen::Vector3d expected_shift = 4.0 * along + 2.0 * p.Left();
+  EXPECT_LT((moved.centre_world - moved.from_world - expected_shift).norm(), 1e-3);
+  bool found = false;
+  for (const WorldObject& o : base.world->objects()) {
+    if (o.kind != "building" || std::fabs(o.chainage_m + 4.0 - moved.chainage_m) > 1e-9) continue;
+    EXPECT_LT((o.mesh.Bounds().center() - moved.from_world).norm(), 1e-6);
+    found = true;
+  }
+  EXPECT_TRUE(found);
+  for (const WorldObject& o : base.world->objects()) {
+    if (o.kind == "building") {
+      EXPECT_GE(std::fabs(o.chainage_m - 600.0) + 1e-9, std::fabs(moved.chainage_m - 4.0 - 600.0));
+    }
+  }
 }
 
 TEST(World, ChangeRecordsDescribeTheEdits) {
@@ -258,27 +299,7 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
   EXPECT_EQ(removed.object, "mast");
   EXPECT_FALSE(removed.intrudes_clearance);
 
-  const ChangeRecord& moved = changes[3];
-  EXPECT_EQ(moved.object, "building");
-  // Moved by 4 m along and 2 m left of the line at the building's original chainage.
-  const TrackPoint p = changed.alignment->At(moved.chainage_m - 4.0);
-  const Eigen::Vector3d along(std::cos(p.heading_rad), std::sin(p.heading_rad), 0.0);
-  const Eigen::Vector3d expected_shift = 4.0 * along + 2.0 * p.Left();
-  EXPECT_LT((moved.centre_world - moved.from_world - expected_shift).norm(), 1e-3);
-  // from_world is where the base world has that building.
-  bool found = false;
-  for (const WorldObject& o : base.world->objects()) {
-    if (o.kind != "building" || std::fabs(o.chainage_m + 4.0 - moved.chainage_m) > 1e-9) continue;
-    EXPECT_LT((o.mesh.Bounds().center() - moved.from_world).norm(), 1e-6);
-    found = true;
-  }
-  EXPECT_TRUE(found);
-  // The building nearest 600 m was the one moved.
-  for (const WorldObject& o : base.world->objects()) {
-    if (o.kind == "building") {
-      EXPECT_GE(std::fabs(o.chainage_m - 600.0) + 1e-9, std::fabs(moved.chainage_m - 4.0 - 600.0));
-    }
-  }
+  ExpectMovedBuildingRecord(base, changed, changes[3]);
 
   const ChangeRecord& added = changes[4];
   EXPECT_EQ(added.object, "box");
@@ -299,8 +320,8 @@ TEST(World, ChangeRecordsDescribeTheEdits) {
 }
 
 TEST(World, FallenTreeAcrossTheTrackIntrudesTheGauge) {
-  // Regression: the record once tested only mesh vertices against the gauge, and the trunk, a
-  // 12 m prism with vertices at its ends 5.6 m either side of the track, did not count.
+  // The trunk, a 12 m prism with vertices only at its ends 5.6 m either side of the track,
+  // crosses the gauge between its vertices: the record tests the faces, not just the vertices.
   const Built& changed = Builtin("rich_low_station_a_changed");
   const ChangeRecord* fallen = FindChange(*changed.world, "fallen_tree");
   ASSERT_NE(fallen, nullptr);
@@ -326,8 +347,8 @@ TEST(World, FallenTreeAcrossTheTrackIntrudesTheGauge) {
 
 TEST(World, BaseCorridorKeepsTheGaugeClear) {
   // Trees, bushes and buildings of a generated corridor stay outside the structure gauge, so a
-  // change detector's intrusions come from the edits alone. Regression: bushes at the minimum
-  // offset of 4 m once reached to ~1.5 m of the track centre.
+  // change detector's intrusions come from the edits alone. Bushes stand closest, at the
+  // minimum offset of 4 m: their crowns must stay clear too.
   for (const char* name : {"rich_low_station_a", "demo"}) {
     const Built& built = Builtin(name);
     int intruding = 0, checked = 0;
