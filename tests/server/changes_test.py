@@ -21,8 +21,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import change_truth  # noqa: E402
 import harness  # noqa: E402
 
-CHANGED = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools",
-                       "change_scenarios", "demo_changed_a.yaml")
+CHANGED = "demo_changed"  # the simulator's built-in changed run of the demo line
 
 
 def curl(*args):

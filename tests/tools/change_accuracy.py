@@ -3,11 +3,12 @@
 
 For each line: a reference run (the scenario's own seed) streamed by raillomer-estimator into a
 fresh raillomer-server, then later runs of the same line streamed one after another: changed
-runs (the suite's rich_low_station_a_changed and the scenarios in change_scenarios/, written for
-other objects, sizes, sides and speeds) and repeat runs of the unchanged line with another seed
-(false alarms). The server's own detection compares each with the reference while it streams.
-Each run is fed at the rate its sensors recorded it (raillomer-estimator --realtime), as a train
-delivers it, the estimator sharing the machine with the server.
+runs (the simulator's rich_low_station_a_changed and demo_changed, and the scenarios in
+change_scenarios/, written for other objects, sizes, sides and speeds) and repeat runs of the
+unchanged line with another seed (false alarms). The server's own detection compares each with
+the reference while it streams. Each run is fed at the rate its sensors recorded it
+(raillomer-estimator --realtime), as a train delivers it, the estimator sharing the machine with
+the server.
 
 Measured: recall and precision for changes of 0.3 m or more within 15 m of the track, each
 reported centre against where the change lies in the reference run's map, intrudes_envelope
@@ -45,8 +46,8 @@ SCENARIOS = os.path.join(HERE, "change_scenarios")
 PACE = ("--realtime",)
 # Each line: its changed runs (scenario, seed) and the seed of its unchanged repeat.
 CHANGED = {
-    "demo": [(os.path.join(SCENARIOS, "demo_changed_a.yaml"), 5),
-             (os.path.join(SCENARIOS, "demo_changed_a.yaml"), 6),
+    "demo": [("demo_changed", 5),
+             ("demo_changed", 6),
              (os.path.join(SCENARIOS, "demo_changed_b.yaml"), 7)],
     "rich_low_station_a": [("rich_low_station_a_changed", 2)],
     "rich_high_town_a": [(os.path.join(SCENARIOS, "town_changed.yaml"), 11)],

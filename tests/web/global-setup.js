@@ -2,9 +2,9 @@
 // detection done), the state the specs read in results/fixture.json.
 import fs from 'node:fs';
 import path from 'node:path';
-import { getJson, repo, startServer, stateFile, streamRun, waitFor, webRoot } from './fixture.js';
+import { getJson, startServer, stateFile, streamRun, waitFor, webRoot } from './fixture.js';
 
-const CHANGED = path.join(repo, 'tests/tools/change_scenarios/demo_changed_a.yaml');
+const CHANGED = 'demo_changed'; // the simulator's built-in changed run of the demo line
 
 export default async function globalSetup() {
   if (!fs.existsSync(path.join(webRoot, 'index.html'))) {

@@ -84,6 +84,7 @@ TEST(Scenario, EveryBuiltinScenarioParsesAndValidates) {
   for (const char* expected : {"demo",
                                "rich_low_station_a",
                                "rich_low_station_a_changed",
+                               "demo_changed",
                                "tunnel_gnss_outage",
                                "winter_wheel_slip",
                                "reverse_running"}) {
