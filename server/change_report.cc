@@ -113,17 +113,24 @@ std::string Overview(const std::vector<mapstore::StoredChange>& c) {
   return html + "</table>\n";
 }
 
+/// The change against the structure gauge, in words: an object that is gone stood inside it but
+/// no longer intrudes.
+std::string GaugeText(const mapstore::RunChange& x) {
+  if (x.intrudes_envelope)
+    return "<span class=\"intrudes\">Intrudes the structure gauge by " + Fixed(-x.margin_m, 2) +
+           " m.</span> ";
+  if (x.margin_m < 0.0)
+    return "No longer in the structure gauge: it stood " + Fixed(-x.margin_m, 2) + " m inside. ";
+  return Fixed(x.margin_m, 2) + " m clear of the structure gauge. ";
+}
+
 std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s) {
   const mapstore::RunChange& x = s.change;
   std::string html = "<div class=\"change\" id=\"change-" + std::to_string(s.id) + "\">\n";
   html += "<h2>#" + std::to_string(s.id) + " " + mapstore::ToString(x.kind) + ", " +
           Km(x.chainage_m) + ", " + Fixed(std::abs(x.offset_m), 2) + " m " +
           (x.offset_m >= 0.0 ? "left" : "right") + "</h2>\n<p>";
-  if (x.intrudes_envelope)
-    html += "<span class=\"intrudes\">Intrudes the structure gauge by " + Fixed(-x.margin_m, 2) +
-            " m.</span> ";
-  else
-    html += "Clear of the structure gauge by " + Fixed(x.margin_m, 2) + " m. ";
+  html += GaugeText(x);
   html += "Size " + Fixed(x.size_m.x(), 1) + " &times; " + Fixed(x.size_m.y(), 1) + " &times; " +
           Fixed(x.size_m.z(), 1) + " m (along &times; across &times; height), " +
           Fixed(x.height_above_rail_min_m, 1) + " to " + Fixed(x.height_above_rail_max_m, 1) +

@@ -224,6 +224,7 @@ class ChangeDetection(unittest.TestCase):
         self.assertIn("Changes of run 2 on line Demo", html)
         for f in self.found["features"]:
             self.assertIn('id="change-%d"' % f["properties"]["id"], html)
+            self.assertIn(gauge_sentence(f["properties"]), html)
         self.assertEqual(html.count("data:image/png;base64,"), len(self.found["features"]))
 
     def test_status_and_note_are_kept(self):
@@ -255,6 +256,15 @@ class ChangeDetection(unittest.TestCase):
         after = self.server.json("GET", "/api/v1/runs/2/changes")[1]
         self.assertEqual([f["id"] for f in before["features"]],
                          [f["id"] for f in after["features"]])
+
+
+def gauge_sentence(p):
+    """What the report says of one change against the structure gauge."""
+    if p["intrudes_envelope"]:
+        return "Intrudes the structure gauge by %.2f m." % -p["margin_m"]
+    if p["margin_m"] < 0:
+        return "No longer in the structure gauge: it stood %.2f m inside." % -p["margin_m"]
+    return "%.2f m clear of the structure gauge." % p["margin_m"]
 
 
 def signature(collection):
