@@ -49,6 +49,44 @@ class ChangeStoreTest : public StoreTest {
     ASSERT_TRUE(changes_) << error;
   }
 
+  /// Run 2's stretch 0 is stored on provisional output.
+  void ExpectStretchZeroProvisional() {
+    std::set<int> done, provisional;
+    ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
+    EXPECT_EQ(done, std::set<int>({0}));
+    EXPECT_EQ(provisional, std::set<int>({0}));
+    DetectionState state;
+    ASSERT_TRUE(changes_->Detection(2, &state));
+    EXPECT_EQ(state.stretches_provisional, 1);
+  }
+
+  /// Run 2's stretch 0 is stored on final output with its registration residual.
+  void ExpectStretchZeroFinal(double registration_rms_m) {
+    std::set<int> done, provisional;
+    ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
+    EXPECT_TRUE(provisional.empty());
+    DetectionState state;
+    ASSERT_TRUE(changes_->Detection(2, &state));
+    EXPECT_EQ(state.stretches_done, 1);
+    EXPECT_EQ(state.stretches_provisional, 0);
+    EXPECT_NEAR(state.registration_rms_m, registration_rms_m, 1e-9);
+  }
+
+  /// The final output keeps the confirmed change (its note and status) where it now lies, at
+  /// km 0.0124, and drops the change it no longer finds.
+  void ExpectTheKeptChangeMovedAndTheOtherGone(int64_t kept_id, int64_t gone_id) {
+    std::vector<StoredChange> listed;
+    ASSERT_TRUE(changes_->List(2, ChangeFilter(), &listed));
+    ASSERT_EQ(listed.size(), 2u);
+    StoredChange now;
+    ASSERT_TRUE(changes_->Get(kept_id, &now));
+    EXPECT_EQ(now.note, "seen from the cab");
+    EXPECT_EQ(now.status, "confirmed");
+    EXPECT_FALSE(now.provisional);
+    EXPECT_NEAR(now.change.chainage_m, 12.4, 1e-9);
+    EXPECT_EQ(changes_->Get(gone_id, &now).outcome, Outcome::kNotFound);
+  }
+
   std::unique_ptr<ChangeStore> changes_;
   const Eigen::Vector3d at_{500010.0, 4000002.0, 11.0};
 };
@@ -183,13 +221,7 @@ TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalO
   const int64_t kept_id = stored[0].id, gone_id = stored[1].id;
   StoredChange confirmed;
   ASSERT_TRUE(changes_->Update(kept_id, "confirmed", std::string("seen from the cab"), &confirmed));
-  std::set<int> done, provisional;
-  ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
-  EXPECT_EQ(done, std::set<int>({0}));
-  EXPECT_EQ(provisional, std::set<int>({0}));
-  DetectionState state;
-  ASSERT_TRUE(changes_->Detection(2, &state));
-  EXPECT_EQ(state.stretches_provisional, 1);
+  ExpectStretchZeroProvisional();
   // Provisional again: nothing changes.
   EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
             Outcome::kDuplicate);
@@ -209,23 +241,8 @@ TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalO
   EXPECT_NE(stored[1].id, gone_id);
   ASSERT_EQ(withdrawn.size(), 1u);
   EXPECT_EQ(withdrawn[0].id, gone_id);
-
-  std::vector<StoredChange> listed;
-  ASSERT_TRUE(changes_->List(2, ChangeFilter(), &listed));
-  ASSERT_EQ(listed.size(), 2u);
-  StoredChange now;
-  ASSERT_TRUE(changes_->Get(kept_id, &now));
-  EXPECT_EQ(now.note, "seen from the cab");
-  EXPECT_EQ(now.status, "confirmed");
-  EXPECT_FALSE(now.provisional);
-  EXPECT_NEAR(now.change.chainage_m, 12.4, 1e-9);
-  EXPECT_EQ(changes_->Get(gone_id, &now).outcome, Outcome::kNotFound);
-  ASSERT_TRUE(changes_->StoredStretches(2, &done, &provisional));
-  EXPECT_TRUE(provisional.empty());
-  ASSERT_TRUE(changes_->Detection(2, &state));
-  EXPECT_EQ(state.stretches_done, 1);
-  EXPECT_EQ(state.stretches_provisional, 0);
-  EXPECT_NEAR(state.registration_rms_m, 0.015, 1e-9);
+  ExpectTheKeptChangeMovedAndTheOtherGone(kept_id, gone_id);
+  ExpectStretchZeroFinal(0.015);
   // Final once: a provisional or final outcome after it changes nothing.
   EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
             Outcome::kDuplicate);

@@ -518,6 +518,38 @@ TEST(MapStore, ExportsABoxOrAKmRangeAsPlyPcdAndLas) {
   EXPECT_EQ(store->Export(nothing, &points, &zone).outcome, Outcome::kInvalid);
 }
 
+/// The two points of interest of the test below, listed by line and by area: the mast on line A
+/// and the level crossing 500 m on, on no line.
+void ExpectPoisListedByLineAndArea(MapStore& store) {
+  std::vector<Poi> list;
+  ASSERT_TRUE(store.ListPois("", nullptr, &list));
+  EXPECT_EQ(list.size(), 2u);
+  ASSERT_TRUE(store.ListPois("Line A", nullptr, &list));
+  ASSERT_EQ(list.size(), 1u);
+  const Eigen::AlignedBox2d near((kStart + Eigen::Vector3d(400.0, -10.0, 0.0)).head<2>(),
+                                 (kStart + Eigen::Vector3d(600.0, 10.0, 0.0)).head<2>());
+  ASSERT_TRUE(store.ListPois("", &near, &list));
+  ASSERT_EQ(list.size(), 1u);
+  EXPECT_EQ(list[0].kind, "level crossing");
+}
+
+/// A point of interest with no position or kind, on an unknown line or with an unknown id is
+/// refused.
+void ExpectBadPoisRefused(MapStore& store, const Poi& good) {
+  Poi bad = good;
+  bad.p.x() = NAN;
+  EXPECT_EQ(store.UpdatePoi(&bad).outcome, Outcome::kInvalid);
+  bad = good;
+  bad.kind.clear();
+  EXPECT_EQ(store.CreatePoi(&bad).outcome, Outcome::kInvalid);
+  bad = good;
+  bad.line = "No such line";
+  EXPECT_EQ(store.CreatePoi(&bad).outcome, Outcome::kNotFound);
+  bad = good;
+  bad.id = 999;
+  EXPECT_EQ(store.UpdatePoi(&bad).outcome, Outcome::kNotFound);
+}
+
 TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
@@ -543,16 +575,7 @@ TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {
   ASSERT_TRUE(store->GetPoi(mast.id, &back));
   EXPECT_EQ(back.name, "M 12");
   EXPECT_EQ(back.properties_json, R"({"height_m": 8.5})");
-  std::vector<Poi> list;
-  ASSERT_TRUE(store->ListPois("", nullptr, &list));
-  EXPECT_EQ(list.size(), 2u);
-  ASSERT_TRUE(store->ListPois("Line A", nullptr, &list));
-  ASSERT_EQ(list.size(), 1u);
-  const Eigen::AlignedBox2d near((kStart + Eigen::Vector3d(400.0, -10.0, 0.0)).head<2>(),
-                                 (kStart + Eigen::Vector3d(600.0, 10.0, 0.0)).head<2>());
-  ASSERT_TRUE(store->ListPois("", &near, &list));
-  ASSERT_EQ(list.size(), 1u);
-  EXPECT_EQ(list[0].kind, "level crossing");
+  ExpectPoisListedByLineAndArea(*store);
 
   mast.name = "M 12a";
   ASSERT_TRUE(store->UpdatePoi(&mast));
@@ -560,18 +583,7 @@ TEST(MapStore, PointsOfInterestAreCreatedReadListedUpdatedAndDeleted) {
   EXPECT_EQ(back.name, "M 12a");
   EXPECT_GE(back.updated_ns, back.created_ns);
   // Bad input changes nothing.
-  Poi bad = mast;
-  bad.p.x() = NAN;
-  EXPECT_EQ(store->UpdatePoi(&bad).outcome, Outcome::kInvalid);
-  bad = mast;
-  bad.kind.clear();
-  EXPECT_EQ(store->CreatePoi(&bad).outcome, Outcome::kInvalid);
-  bad = mast;
-  bad.line = "No such line";
-  EXPECT_EQ(store->CreatePoi(&bad).outcome, Outcome::kNotFound);
-  bad = mast;
-  bad.id = 999;
-  EXPECT_EQ(store->UpdatePoi(&bad).outcome, Outcome::kNotFound);
+  ExpectBadPoisRefused(*store, mast);
   ASSERT_TRUE(store->GetPoi(mast.id, &back));
   EXPECT_EQ(back.name, "M 12a");
 

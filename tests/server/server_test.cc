@@ -441,6 +441,38 @@ TEST(Server, BadInputGetsA4xxJsonErrorAndChangesNothing) {
       201);
 }
 
+/// Sends submaps s0.pcd .. s<n-1>.pcd to the run one after another with curl, noting each answer
+/// in answers.txt, and kills the server with SIGKILL once half of them are answered.
+void SendSubmapsAndKillPartWay(ServerProcess& server, int64_t run, int n, const fs::path& dir) {
+  const std::string url = server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps");
+  const std::string loop = "for i in $(seq 0 " + std::to_string(n - 1) +
+                           "); do curl -s -o /dev/null -w \"$i %{http_code}\\n\" " +
+                           Bearer(server.token()) +
+                           "-X POST -H 'Content-Type: application/octet-stream' --data-binary @" +
+                           ShellQuote(dir.string()) + "/s$i.pcd " + ShellQuote(url) + " >> " +
+                           ShellQuote((dir / "answers.txt").string()) + "; done";
+  std::thread sender([&] { std::system(("bash -c " + ShellQuote(loop)).c_str()); });
+  for (int i = 0; i < 600; ++i) {
+    std::ifstream answers(dir / "answers.txt");
+    const auto answered =
+        std::count(std::istreambuf_iterator<char>(answers), std::istreambuf_iterator<char>(), '\n');
+    if (answered >= n / 2) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  server.Stop(SIGKILL);
+  sender.join();
+}
+
+/// The submaps answered 201 Created in answers.txt.
+std::set<int> AcknowledgedSubmaps(const fs::path& dir) {
+  std::set<int> acknowledged;
+  std::ifstream answers(dir / "answers.txt");
+  int i = 0, code = 0;
+  while (answers >> i >> code)
+    if (code == 201) acknowledged.insert(i);
+  return acknowledged;
+}
+
 TEST(Server, KillDashNineDuringIngestLosesNothingAcknowledged) {
   ScratchDir scratch("raillomer_server_");
   const fs::path dir = scratch.path();
@@ -454,31 +486,9 @@ TEST(Server, KillDashNineDuringIngestLosesNothingAcknowledged) {
     ASSERT_TRUE(server.ok()) << server.log();
     run = CreateRun(server, dir);
     token = server.token();
-    // curl sends the submaps one after another and notes each answer, while the server is
-    // killed part way through.
-    const std::string url = server.Url("/api/v1/runs/" + std::to_string(run) + "/submaps");
-    const std::string loop = "for i in $(seq 0 " + std::to_string(kSubmaps - 1) +
-                             "); do curl -s -o /dev/null -w \"$i %{http_code}\\n\" " +
-                             Bearer(token) +
-                             "-X POST -H 'Content-Type: application/octet-stream' --data-binary @" +
-                             ShellQuote(dir.string()) + "/s$i.pcd " + ShellQuote(url) + " >> " +
-                             ShellQuote((dir / "answers.txt").string()) + "; done";
-    std::thread sender([&] { std::system(("bash -c " + ShellQuote(loop)).c_str()); });
-    for (int i = 0; i < 600; ++i) {
-      std::ifstream answers(dir / "answers.txt");
-      const auto n = std::count(
-          std::istreambuf_iterator<char>(answers), std::istreambuf_iterator<char>(), '\n');
-      if (n >= kSubmaps / 2) break;
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    server.Stop(SIGKILL);
-    sender.join();
+    SendSubmapsAndKillPartWay(server, run, kSubmaps, dir);
   }
-  std::set<int> acknowledged;
-  std::ifstream answers(dir / "answers.txt");
-  int i = 0, code = 0;
-  while (answers >> i >> code)
-    if (code == 201) acknowledged.insert(i);
+  const std::set<int> acknowledged = AcknowledgedSubmaps(dir);
   ASSERT_GE(acknowledged.size(), static_cast<size_t>(kSubmaps / 2));
   ASSERT_LT(acknowledged.size(), static_cast<size_t>(kSubmaps)) << "the kill came too late";
 
@@ -739,6 +749,44 @@ json RunOne(const ServerProcess& server, const fs::path& scratch) {
   return json::parse(Curl(ShellQuote(server.Url("/api/v1/runs/1")), scratch).body, nullptr, false);
 }
 
+/// Starts the demo estimator streaming to the server and kills it (kill -9) once run 1 holds 20
+/// poses and at least `submaps` submaps.
+void KillEstimatorOnceItSent(const ServerProcess& server,
+                             int submaps,
+                             const fs::path& out,
+                             const fs::path& dir) {
+  ChildProcess first(DemoEstimator(server, out, dir / "first.log"));
+  for (int i = 0; i < 1200 && first.Running(); ++i) {
+    const json run = RunOne(server, dir);
+    if (run.is_object() && run.contains("poses") && run["poses"].get<int>() >= 20 &&
+        run["submaps"].get<int>() >= submaps)
+      break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_TRUE(first.Running()) << "the first run ended before the kill";
+  first.Signal(SIGKILL);
+}
+
+/// Run 1 is the one the first start began, finished, with every pose and submap the rerun wrote
+/// and nothing the server had sent again, but for what the kill may have caught between the
+/// server's answer and the outbox letting the message go: one batch or one submap.
+void ExpectTheRunWholeAndOnce(const ServerProcess& server,
+                              const fs::path& out,
+                              const fs::path& dir) {
+  const json summary = json::parse(ReadText(out / "summary.json"));
+  const json run = RunOne(server, dir);
+  EXPECT_EQ(run["status"], "finished");
+  EXPECT_EQ(run["poses"], TumPoses(out / "trajectory.tum"));
+  EXPECT_EQ(run["submaps"], summary["submaps"]["count"].get<int>());
+  EXPECT_EQ(run["submaps_lost"], 0);
+  EXPECT_EQ(Curl(ShellQuote(server.Url("/api/v1/runs")), dir).body.find("\"id\":2"),
+            std::string::npos)
+      << "a second run was created";
+  EXPECT_TRUE(fs::is_empty(out / "outbox" / "rejected"));
+  EXPECT_LE(Metric(server, "raillomer_submaps_duplicate_total", dir), 1);
+  EXPECT_LE(Metric(server, "raillomer_poses_duplicate_total", dir), 10);
+}
+
 TEST(Server, AnEstimatorRestartedOnItsOutboxResumesTheRunWithoutADuplicate) {
   // Killed (kill -9) once poses flow, after 2 submaps, and after 4 submaps with the server
   // killed too; each time the estimator is started again on the same --out and finishes. The
@@ -758,18 +806,7 @@ TEST(Server, AnEstimatorRestartedOnItsOutboxResumesTheRunWithoutADuplicate) {
     auto server = std::make_unique<ServerProcess>(dir / "data");
     ASSERT_TRUE(server->ok()) << server->log();
     const int port = server->port(), ws_port = server->ws_port();
-    {
-      ChildProcess first(DemoEstimator(*server, out, dir / "first.log"));
-      for (int i = 0; i < 1200 && first.Running(); ++i) {
-        const json run = RunOne(*server, dir);
-        if (run.is_object() && run.contains("poses") && run["poses"].get<int>() >= 20 &&
-            run["submaps"].get<int>() >= kill.submaps)
-          break;
-        std::this_thread::sleep_for(std::chrono::milliseconds(25));
-      }
-      ASSERT_TRUE(first.Running()) << "the first run ended before the kill";
-      first.Signal(SIGKILL);
-    }
+    ASSERT_NO_FATAL_FAILURE(KillEstimatorOnceItSent(*server, kill.submaps, out, dir));
     if (kill.server_too) {
       server->Stop(SIGKILL);
       server = std::make_unique<ServerProcess>(dir / "data", "", port, ws_port);
@@ -781,28 +818,11 @@ TEST(Server, AnEstimatorRestartedOnItsOutboxResumesTheRunWithoutADuplicate) {
     const std::string log = ReadText(dir / "again.log");
     ASSERT_EQ(exit_code, 0) << log;
     EXPECT_NE(log.find("resuming run 1 from the outbox"), std::string::npos) << log;
-
-    // The run is the one the first start began, with every pose and submap once: as many as
-    // the rerun wrote itself, numbered 0, 1, 2, ... without a gap.
-    const json summary = json::parse(ReadText(out / "summary.json"));
-    const int poses = TumPoses(out / "trajectory.tum");
-    const int submaps = summary["submaps"]["count"].get<int>();
-    const json run = RunOne(*server, dir);
     EXPECT_GE(before["submaps"].get<int>(), kill.submaps);
-    EXPECT_EQ(run["status"], "finished");
-    EXPECT_EQ(run["poses"], poses);
-    EXPECT_EQ(run["submaps"], submaps);
-    EXPECT_EQ(run["submaps_lost"], 0);
-    EXPECT_EQ(Curl(ShellQuote(server->Url("/api/v1/runs")), dir).body.find("\"id\":2"),
-              std::string::npos)
-        << "a second run was created";
-    EXPECT_TRUE(fs::is_empty(out / "outbox" / "rejected"));
-    // Nothing the server had was sent again, but for what the kill may have caught between
-    // the server's answer and the outbox letting the message go: one batch or one submap.
-    EXPECT_LE(Metric(*server, "raillomer_submaps_duplicate_total", dir), 1);
-    EXPECT_LE(Metric(*server, "raillomer_poses_duplicate_total", dir), 10);
+    ExpectTheRunWholeAndOnce(*server, out, dir);
     server->Stop(SIGTERM);
-    ExpectNumberedOnce(dir, poses, submaps);
+    const int submaps = json::parse(ReadText(out / "summary.json"))["submaps"]["count"].get<int>();
+    ExpectNumberedOnce(dir, TumPoses(out / "trajectory.tum"), submaps);
   }
 }
 

@@ -82,6 +82,52 @@ class GnssReplayMain : public ::testing::Test {
     Write("straight_fixes.tum", gnss);
   }
 
+  /// Every pose of `a` at the stamp of `b`'s, within `tolerance_m` and a microradian.
+  static void ExpectSamePoses(const api::Trajectory& a,
+                              const api::Trajectory& b,
+                              double tolerance_m) {
+    ASSERT_EQ(a.poses.size(), b.poses.size());
+    double worst = 0.0;
+    for (size_t i = 0; i < b.poses.size(); ++i) {
+      ASSERT_EQ(a.poses[i].stamp_ns, b.poses[i].stamp_ns) << i;
+      worst = std::max(worst, (a.poses[i].p_world - b.poses[i].p_world).norm());
+      EXPECT_LT(a.poses[i].q_world_body.angularDistance(b.poses[i].q_world_body), 1e-6) << i;
+    }
+    EXPECT_LT(worst, tolerance_m);
+  }
+
+  /// The same fixes read from the simulator's bag of the demo, the rig from its rig.yaml, give
+  /// the published trajectory.
+  void ExpectTheBagsFixesGiveTheSame(const api::Trajectory& published) const {
+    const CommandResult sim =
+        test::RunCommand(ShellQuote((test::BinDir() / "raillomer-sim").string()) +
+                             " --scenario demo --out " + ShellQuote(Path("sim")),
+                         dir_);
+    ASSERT_EQ(sim.exit_code, 0) << sim.err;
+    const CommandResult run = ReplayFiles("off/trajectory.tum",
+                                          "",
+                                          "--bag " + ShellQuote(Path("sim/run.bag")) +
+                                              " --config " + ShellQuote(Path("sim/rig.yaml")),
+                                          "from_bag.tum");
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    ExpectSamePoses(Read("from_bag.tum"), published, 1e-5);
+  }
+
+  /// --options reach the fusion: trusting the fixes to 5 cm moves the trajectory.
+  void ExpectOptionsReachTheFusion(const std::string& inputs,
+                                   const api::Trajectory& published) const {
+    std::ofstream(Path("tight.yaml")) << "estimator:\n  gnss:\n    sigma_horizontal_m: 0.05\n";
+    const CommandResult run = Replay(inputs + " --options " + ShellQuote(Path("tight.yaml")) +
+                                     " --out " + ShellQuote(Path("tight.tum")));
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    const api::Trajectory tight = Read("tight.tum");
+    ASSERT_EQ(tight.poses.size(), published.poses.size());
+    double moved = 0.0;
+    for (size_t i = 0; i < tight.poses.size(); ++i)
+      moved = std::max(moved, (tight.poses[i].p_world - published.poses[i].p_world).norm());
+    EXPECT_GT(moved, 0.01);
+  }
+
   test::ScratchDir scratch_{"raillomer-gnss-replay-test-"};
   const fs::path& dir_ = scratch_.path();
 };
@@ -105,47 +151,10 @@ TEST_F(GnssReplayMain, ReplayingTheOdometryGivesTheEstimatorsTrajectory) {
   EXPECT_EQ(replayed.utm_zone, published.utm_zone);
   ASSERT_GT(published.poses.size(), 200u);
   ASSERT_EQ(replayed.poses.size(), published.poses.size());
-  double worst = 0.0;
-  for (size_t i = 0; i < published.poses.size(); ++i) {
-    ASSERT_EQ(replayed.poses[i].stamp_ns, published.poses[i].stamp_ns) << i;
-    worst = std::max(worst, (replayed.poses[i].p_world - published.poses[i].p_world).norm());
-    EXPECT_LT(replayed.poses[i].q_world_body.angularDistance(published.poses[i].q_world_body), 1e-6)
-        << i;
-  }
   // Both went through a TUM file: micrometres.
-  EXPECT_LT(worst, 1e-5);
-
-  // The same fixes from the simulator's bag of the demo, the rig from its rig.yaml.
-  const CommandResult sim =
-      test::RunCommand(ShellQuote((test::BinDir() / "raillomer-sim").string()) +
-                           " --scenario demo --out " + ShellQuote(Path("sim")),
-                       dir_);
-  ASSERT_EQ(sim.exit_code, 0) << sim.err;
-  run = ReplayFiles(
-      "off/trajectory.tum",
-      "",
-      "--bag " + ShellQuote(Path("sim/run.bag")) + " --config " + ShellQuote(Path("sim/rig.yaml")),
-      "from_bag.tum");
-  ASSERT_EQ(run.exit_code, 0) << run.err;
-  const api::Trajectory from_bag = Read("from_bag.tum");
-  ASSERT_EQ(from_bag.poses.size(), published.poses.size());
-  for (size_t i = 0; i < published.poses.size(); ++i)
-    EXPECT_LT((from_bag.poses[i].p_world - published.poses[i].p_world).norm(), 1e-5) << i;
-
-  // --options reach the fusion: trusting the fixes to 5 cm moves the trajectory.
-  {
-    std::ofstream options(Path("tight.yaml"));
-    options << "estimator:\n  gnss:\n    sigma_horizontal_m: 0.05\n";
-  }
-  run = Replay(inputs + " --options " + ShellQuote(Path("tight.yaml")) + " --out " +
-               ShellQuote(Path("tight.tum")));
-  ASSERT_EQ(run.exit_code, 0) << run.err;
-  const api::Trajectory tight = Read("tight.tum");
-  ASSERT_EQ(tight.poses.size(), published.poses.size());
-  double moved = 0.0;
-  for (size_t i = 0; i < tight.poses.size(); ++i)
-    moved = std::max(moved, (tight.poses[i].p_world - published.poses[i].p_world).norm());
-  EXPECT_GT(moved, 0.01);
+  ExpectSamePoses(replayed, published, 1e-5);
+  ExpectTheBagsFixesGiveTheSame(published);
+  ExpectOptionsReachTheFusion(inputs, published);
 }
 
 TEST_F(GnssReplayMain, AStraightRunIsPlacedOnItsFixes) {

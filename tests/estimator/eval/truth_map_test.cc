@@ -15,6 +15,37 @@
 namespace raillomer::eval {
 namespace {
 
+/// Frame `frame` of both LiDARs as a keyframe at its true pose: preprocessed, each point moved to
+/// the frame's end by the true motion.
+SubmapKeyframe KeyframeAtTruth(sim::Simulator& simulator, uint64_t frame) {
+  const sim::TruthMotion& truth = simulator.truth();
+  const double t0 = 0.1 * static_cast<double>(frame);
+  const Eigen::Isometry3d T_end = truth.Pose(t0 + 0.1);
+  SubmapKeyframe keyframe;
+  keyframe.stamp_ns = static_cast<int64_t>(frame) * 100'000'000;
+  keyframe.T_world_body = keyframe.T_odom_body = T_end;
+  for (size_t unit = 0; unit < simulator.lidars().size(); ++unit) {
+    const sim::LivoxHorizonModel& lidar = simulator.lidars()[unit];
+    io::LidarFrame message;
+    lidar.Scan(
+        frame,
+        t0,
+        [&truth](double t) { return truth.Pose(t); },
+        simulator.caster(),
+        &message.points,
+        nullptr);
+    Scan scan = ScanFromLidarFrame(message, static_cast<int>(unit), 0.1);
+    Preprocess(PreprocessOptions(), &scan);
+    for (const ScanPoint& p : scan.points) {
+      const Eigen::Isometry3d T_end_t = T_end.inverse() * truth.Pose(t0 + p.time_s);
+      keyframe.points_body.push_back(
+          (T_end_t * lidar.T_body_lidar() * p.p.cast<double>()).cast<float>());
+      keyframe.intensities.push_back(p.intensity);
+    }
+  }
+  return keyframe;
+}
+
 TEST(MapSharpness, SubmapsBuiltAtTruePosesAgreeOnTheRailHeadsWellWithinTheTarget) {
   // 25 s of the canted curve at 140 km/h: each frame is a keyframe 3.9 m on (as the estimator
   // takes one every 2 m), both LiDARs' points moved to the frame's end by the true motion. The
@@ -27,7 +58,6 @@ TEST(MapSharpness, SubmapsBuiltAtTruePosesAgreeOnTheRailHeadsWellWithinTheTarget
   sim_options.duration_s = 51.0;
   auto simulator = sim::Simulator::Create(scenario, sim_options, &error);
   ASSERT_TRUE(simulator) << error;
-  const sim::TruthMotion& truth = simulator->truth();
   SubmapOptions options;
   options.icp = false;
   options.ndt = false;
@@ -39,34 +69,8 @@ TEST(MapSharpness, SubmapsBuiltAtTruePosesAgreeOnTheRailHeadsWellWithinTheTarget
   auto score = [&sharpness](const std::vector<api::Submap>& submaps) {
     for (const api::Submap& s : submaps) sharpness.AddSubmap(s, Eigen::Isometry3d::Identity());
   };
-  const PreprocessOptions preprocess;
-  for (uint64_t frame = 250; frame < 500; ++frame) {
-    const double t0 = 0.1 * static_cast<double>(frame), t_end = t0 + 0.1;
-    const Eigen::Isometry3d T_end = truth.Pose(t_end);
-    SubmapKeyframe keyframe;
-    keyframe.stamp_ns = static_cast<int64_t>(frame) * 100'000'000;
-    keyframe.T_world_body = keyframe.T_odom_body = T_end;
-    for (size_t unit = 0; unit < simulator->lidars().size(); ++unit) {
-      const sim::LivoxHorizonModel& lidar = simulator->lidars()[unit];
-      io::LidarFrame message;
-      lidar.Scan(
-          frame,
-          t0,
-          [&truth](double t) { return truth.Pose(t); },
-          simulator->caster(),
-          &message.points,
-          nullptr);
-      Scan scan = ScanFromLidarFrame(message, static_cast<int>(unit), 0.1);
-      Preprocess(preprocess, &scan);
-      for (const ScanPoint& p : scan.points) {
-        const Eigen::Isometry3d T_end_t = T_end.inverse() * truth.Pose(t0 + p.time_s);
-        keyframe.points_body.push_back(
-            (T_end_t * lidar.T_body_lidar() * p.p.cast<double>()).cast<float>());
-        keyframe.intensities.push_back(p.intensity);
-      }
-    }
-    score(builder.Add(std::move(keyframe)));
-  }
+  for (uint64_t frame = 250; frame < 500; ++frame)
+    score(builder.Add(KeyframeAtTruth(*simulator, frame)));
   score(builder.Flush());
   const SharpnessResult r = sharpness.Result();
   std::printf("%zu submaps, %zu rail segments: spread median %.4f p95 %.4f max %.4f m\n",

@@ -49,9 +49,12 @@ std::shared_ptr<Preintegration> MakePreintegration(bool odometer_valid = true,
   return pre;
 }
 
+/// The six parameter blocks of one factor, three for each of its two states.
+using Blocks = std::array<std::vector<double>, 6>;
+
 /// The six parameter blocks at a non-trivial state: rotated poses, biases, scales and
 /// misalignments away from the linearisation point, state j away from the prediction.
-std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
+Blocks MakeParameters(const Preintegration& pre) {
   NavState i;
   i.p = Vector3d(10.0, -4.0, 2.0);
   i.q = Quaterniond(Eigen::AngleAxisd(0.7, Vector3d(0.2, -0.3, 1.0).normalized()));
@@ -68,7 +71,7 @@ std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
   j.bg += Vector3d(-1e-4, 2e-4, 1e-4);
   j.c = 1.05;
   j.m = Eigen::Vector2d(2.3e-3, -0.6e-3);
-  std::array<std::vector<double>, 6> blocks;
+  Blocks blocks;
   for (int k = 0; k < 2; ++k) {
     const NavState& s = k == 0 ? i : j;
     blocks[3 * k] = {s.p.x(), s.p.y(), s.p.z(), s.q.x(), s.q.y(), s.q.z(), s.q.w()};
@@ -79,7 +82,7 @@ std::array<std::vector<double>, 6> MakeParameters(const Preintegration& pre) {
   return blocks;
 }
 
-NavState ToState(const std::array<std::vector<double>, 6>& blocks, int k) {
+NavState ToState(const Blocks& blocks, int k) {
   NavState s;
   const std::vector<double>& pose = blocks[3 * k];
   const std::vector<double>& sb = blocks[3 * k + 1];
@@ -94,11 +97,8 @@ NavState ToState(const std::array<std::vector<double>, 6>& blocks, int k) {
 }
 
 /// Tangent perturbation of one block: PoseManifold::Plus for poses, addition otherwise.
-std::array<std::vector<double>, 6> Perturb(const std::array<std::vector<double>, 6>& blocks,
-                                           int block,
-                                           int dim,
-                                           double h) {
-  std::array<std::vector<double>, 6> out = blocks;
+Blocks Perturb(const Blocks& blocks, int block, int dim, double h) {
+  Blocks out = blocks;
   if (kBlockSizes[block] == 7) {
     double delta[6] = {0, 0, 0, 0, 0, 0};
     delta[dim] = h;
@@ -122,7 +122,7 @@ Eigen::Matrix<double, kRows, kRows> Whitening(const ImuOdometerFactor& factor,
 }
 
 std::array<Jacobian, 6> AnalyticJacobians(const ImuOdometerFactor& factor,
-                                          const std::array<std::vector<double>, 6>& blocks,
+                                          const Blocks& blocks,
                                           Residual* residual) {
   std::array<Eigen::Matrix<double, kRows, Eigen::Dynamic, Eigen::RowMajor>, 6> storage;
   double* jacobians[6];
@@ -214,6 +214,60 @@ struct JacobianCase {
 
 class ImuOdometerFactorJacobianTest : public ::testing::TestWithParam<JacobianCase> {};
 
+/// The residual rows that carry information: the phi rows are zero without odometer data.
+std::vector<int> InformedRows(bool odometer_valid) {
+  std::vector<int> rows;
+  for (int k = 0; k < kRows; ++k) {
+    if (odometer_valid || k < 15 || k > 17) rows.push_back(k);
+  }
+  return rows;
+}
+
+struct NumericJacobian {
+  Jacobian whitened;  // of the residual Evaluate returns
+  Jacobian raw;       // of Preintegration's residual, before whitening
+};
+
+/// Central differences of the factor's residuals along block b's tangent directions.
+NumericJacobian CentralDifferences(const ImuOdometerFactor& factor, const Blocks& blocks, int b) {
+  auto whitened = [&](const Blocks& x) {
+    const double* parameters[6];
+    for (int i = 0; i < 6; ++i) parameters[i] = x[i].data();
+    Residual r;
+    factor.Evaluate(parameters, r.data(), nullptr);
+    return r;
+  };
+  auto raw = [&](const Blocks& x) { return factor.Residual(ToState(x, 0), ToState(x, 1)); };
+  const double h = 1e-6;
+  const int m = kTangentSizes[b];
+  NumericJacobian numeric{Jacobian(kRows, m), Jacobian(kRows, m)};
+  for (int d = 0; d < m; ++d) {
+    const Blocks plus = Perturb(blocks, b, d, h), minus = Perturb(blocks, b, d, -h);
+    numeric.whitened.col(d) = (whitened(plus) - whitened(minus)) / (2 * h);
+    numeric.raw.col(d) = (raw(plus) - raw(minus)) / (2 * h);
+  }
+  return numeric;
+}
+
+/// The analytic Jacobian unwhitened (L^-1 J on the informed rows) against the numeric one, row by
+/// row, so that rows with small information are not hidden behind the large ones.
+void ExpectUnwhitenedRowsMatch(const Jacobian& analytic,
+                               const Jacobian& numeric_raw,
+                               const Eigen::MatrixXd& L,
+                               const std::vector<int>& rows,
+                               int b) {
+  const Eigen::MatrixXd L_sub = L(rows, rows);
+  const Eigen::MatrixXd numeric = numeric_raw(rows, Eigen::all);
+  const Eigen::MatrixXd unwhitened =
+      L_sub.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd(analytic(rows, Eigen::all)));
+  for (size_t k = 0; k < rows.size(); ++k) {
+    const double row_scale = std::max(numeric.row(k).cwiseAbs().maxCoeff(), 1e-2);
+    EXPECT_LT((unwhitened.row(k) - numeric.row(k)).cwiseAbs().maxCoeff(), 1e-5 * row_scale)
+        << "block " << b << " row " << rows[k] << "\nanalytic " << unwhitened.row(k)
+        << "\nnumeric  " << numeric.row(k);
+  }
+}
+
 // Every Jacobian against central differences through the manifold. Checked twice: whitened as
 // returned (relative to each block's largest entry), and unwhitened (L^-1 J against numeric
 // derivatives of Preintegration::Evaluate, row by row) so that rows with small information are
@@ -222,66 +276,23 @@ TEST_P(ImuOdometerFactorJacobianTest, MatchesNumericDifferentiation) {
   const auto pre = MakePreintegration(GetParam().odometer_valid, GetParam().sway_roll);
   EXPECT_EQ(pre->odometer_used(), GetParam().odometer_valid);
   const ImuOdometerFactor factor(pre);
-  const auto blocks = MakeParameters(*pre);
+  const Blocks blocks = MakeParameters(*pre);
   Residual residual;
   const std::array<Jacobian, 6> analytic = AnalyticJacobians(factor, blocks, &residual);
   EXPECT_GT(residual.norm(), 1.0);  // a non-trivial state
+  const Eigen::MatrixXd L = Whitening(factor, *pre);
+  const std::vector<int> rows = InformedRows(GetParam().odometer_valid);
 
-  const Eigen::Matrix<double, kRows, kRows> L = Whitening(factor, *pre);
-  // L^-1 on the rows with information (phi rows are zero without odometer data).
-  std::vector<int> rows;
-  for (int k = 0; k < kRows; ++k) {
-    if (GetParam().odometer_valid || k < 15 || k > 17) rows.push_back(k);
-  }
-  const int n = static_cast<int>(rows.size());
-  Eigen::MatrixXd L_sub(n, n);
-  for (int a = 0; a < n; ++a) {
-    for (int b = 0; b < n; ++b) L_sub(a, b) = L(rows[a], rows[b]);
-  }
-
-  auto whitened = [&](const std::array<std::vector<double>, 6>& x) {
-    const double* parameters[6];
-    for (int b = 0; b < 6; ++b) parameters[b] = x[b].data();
-    Residual r;
-    factor.Evaluate(parameters, r.data(), nullptr);
-    return r;
-  };
-  auto raw = [&](const std::array<std::vector<double>, 6>& x) {
-    return factor.Residual(ToState(x, 0), ToState(x, 1));
-  };
-
-  const double h = 1e-6;
   for (int b = 0; b < 6; ++b) {
-    const int m = kTangentSizes[b];
-    Jacobian numeric_whitened(kRows, m), numeric_raw(kRows, m);
-    for (int d = 0; d < m; ++d) {
-      const auto plus = Perturb(blocks, b, d, h);
-      const auto minus = Perturb(blocks, b, d, -h);
-      numeric_whitened.col(d) = (whitened(plus) - whitened(minus)) / (2 * h);
-      numeric_raw.col(d) = (raw(plus) - raw(minus)) / (2 * h);
-    }
-    const Jacobian a = analytic[b].leftCols(m);
+    const NumericJacobian numeric = CentralDifferences(factor, blocks, b);
+    const Jacobian a = analytic[b].leftCols(kTangentSizes[b]);
     ASSERT_TRUE(a.allFinite()) << "block " << b;
     if (kBlockSizes[b] == 7) {
       EXPECT_EQ(analytic[b].col(6).cwiseAbs().maxCoeff(), 0.0);
     }
-
-    const double scale = std::max(numeric_whitened.cwiseAbs().maxCoeff(), 1e-9);
-    EXPECT_LT((a - numeric_whitened).cwiseAbs().maxCoeff(), 1e-5 * scale) << "block " << b;
-
-    Eigen::MatrixXd a_sub(n, m), numeric_sub(n, m);
-    for (int k = 0; k < n; ++k) {
-      a_sub.row(k) = a.row(rows[k]);
-      numeric_sub.row(k) = numeric_raw.row(rows[k]);
-    }
-    const Eigen::MatrixXd a_raw =
-        L_sub.triangularView<Eigen::Upper>().solve(a_sub);  // unwhitened analytic
-    for (int k = 0; k < n; ++k) {
-      const double row_scale = std::max(numeric_sub.row(k).cwiseAbs().maxCoeff(), 1e-2);
-      EXPECT_LT((a_raw.row(k) - numeric_sub.row(k)).cwiseAbs().maxCoeff(), 1e-5 * row_scale)
-          << "block " << b << " row " << rows[k] << "\nanalytic " << a_raw.row(k) << "\nnumeric  "
-          << numeric_sub.row(k);
-    }
+    const double scale = std::max(numeric.whitened.cwiseAbs().maxCoeff(), 1e-9);
+    EXPECT_LT((a - numeric.whitened).cwiseAbs().maxCoeff(), 1e-5 * scale) << "block " << b;
+    ExpectUnwhitenedRowsMatch(a, numeric.raw, L, rows, b);
   }
 }
 
