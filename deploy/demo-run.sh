@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The demo's runs, on programs already built (deploy/demo.sh builds them first):
-#  1. simulate the scenario (default `demo`: 30 s, two LiDARs, IMU, odometer, GNSS) into out_dir;
-#  2. start raillomer-server (or reuse the one this script started before);
+#  1. start raillomer-server (or reuse the one this script started before);
+#  2. simulate the scenario (default `demo`: 30 s, two LiDARs, IMU, odometer, GNSS) into out_dir;
 #  3. run the estimator on the recorded bag, streaming poses and submaps to the server;
 #  4. score the estimate (in UTM, with its map's sharpness) and the GNSS fixes against the truth;
 #  5. when the simulator has the scenario a week later (`<scenario>_changed`), simulate and stream
@@ -12,6 +12,7 @@
 # Environment: RAILLOMER_PORT (default 8470; 0 lets the OS pick), RAILLOMER_SERVER_DATA (default
 # runs/server), RAILLOMER_BIN (default build/bin).
 set -euo pipefail
+shopt -s inherit_errexit  # a failure inside $(...) stops the script too
 cd "$(dirname "$0")/.."
 scenario="${1:-demo}"
 out="${2:-runs/$scenario}"
@@ -21,21 +22,33 @@ bin="${RAILLOMER_BIN:-build/bin}"
 line="$scenario"
 
 # Starts raillomer-server on $data in the background unless the one started before still serves;
-# sets $port to the port it serves on.
+# sets $port to the port it serves on. A server of this data folder that does not answer is an
+# error: two servers must not share one store.
 start_server() {
   mkdir -p "$data"
-  local known
+  local known pid
   known="$(cat "$data/server.port" 2>/dev/null || echo "$port")"
-  if [ -f "$data/server.pid" ] && kill -0 "$(cat "$data/server.pid")" 2>/dev/null &&
-      curl -sf "http://127.0.0.1:$known/health" >/dev/null; then
-    port="$known"
-    echo "demo: raillomer-server already up on port $port (pid $(cat "$data/server.pid"))"
-    return
+  pid="$(cat "$data/server.pid" 2>/dev/null || true)"
+  if [ -n "$pid" ] && [[ "$(ps -p "$pid" -o comm= 2>/dev/null)" == raillomer-serv* ]]; then
+    if curl -sf "http://127.0.0.1:$known/health" >/dev/null; then
+      port="$known"
+      echo "demo: raillomer-server already up on port $port (pid $pid)"
+      return
+    fi
+    echo "demo: a raillomer-server (pid $pid) holds $data but does not answer on port $known;" \
+      "stop it (kill $pid) or set RAILLOMER_SERVER_DATA to another folder" >&2
+    exit 1
   fi
   local ws_flag=()
   [ "$port" = 0 ] && ws_flag=(--ws-port 0)
+  : >"$data/server.log"
   nohup "$bin/raillomer-server" --data "$data" --port "$port" "${ws_flag[@]}" >"$data/server.log" 2>&1 &
   echo $! >"$data/server.pid"
+  wait_for_server
+}
+
+# Waits (20 s at most) for the server just started to log the port it serves on and answer there.
+wait_for_server() {
   for _ in $(seq 200); do
     local served
     served="$(sed -n 's|.*serving http://127\.0\.0\.1:\([0-9]*\)/.*|\1|p' "$data/server.log" | head -n 1)"
@@ -46,7 +59,9 @@ start_server() {
     fi
     if ! kill -0 "$(cat "$data/server.pid")" 2>/dev/null; then
       cat "$data/server.log" >&2
-      echo "demo: raillomer-server did not start (port $port in use? set RAILLOMER_PORT)" >&2
+      local hint=""
+      [ "$port" != 0 ] && hint=" (port $port in use? set RAILLOMER_PORT)"
+      echo "demo: raillomer-server did not start$hint" >&2
       exit 1
     fi
     sleep 0.1
@@ -55,13 +70,19 @@ start_server() {
   exit 1
 }
 
-# Runs the estimator on $1/run.bag, streaming it to the server as a run of $line; prints the id.
+# Runs the estimator on $1/run.bag, streaming it to the server as a run of $line (its output also
+# in $1/estimator.log); prints the run's id, as the estimator reports it.
 stream_run() {
   "$bin/raillomer-estimator" --bag "$1/run.bag" --config "$1/rig.yaml" --out "$1/estimate" \
     --server "http://127.0.0.1:$port" --token-file "$data/ingest.token" \
-    --line "$line" --vehicle "RLM-1" >&2
-  curl -sf "http://127.0.0.1:$port/api/v1/runs" | /usr/bin/python3 -c \
-    'import json,sys; print(json.load(sys.stdin)["runs"][-1]["id"])'
+    --line "$line" --vehicle "RLM-1" 2>&1 | tee "$1/estimator.log" >&2
+  local id
+  id="$(sed -n 's/^  server: run \([0-9]*\),.*/\1/p' "$1/estimator.log" | tail -n 1)"
+  if [ -z "$id" ]; then
+    echo "demo: the estimator names no server run (log: $1/estimator.log)" >&2
+    exit 1
+  fi
+  echo "$id"
 }
 
 # Scores the estimate of $1 and the receiver's fixes against the simulator's truth.
@@ -78,23 +99,34 @@ evaluate() {
     --json "$1/gnss_eval.json" --plot "$1/gnss_eval.svg"
 }
 
+# The changes of a run (the URL $1) as the server has them; a clear error if it does not answer.
+changes_json() {
+  curl -sf "$1" || {
+    echo "demo: no answer from $1 (log: $data/server.log)" >&2
+    exit 1
+  }
+}
+
 # Waits until the server's detection of run $1 is done (3 min at most), showing its progress,
 # then lists the changes it found.
 report_changes() {
   local url="http://127.0.0.1:$port/api/v1/runs/$1/changes" status=""
   for _ in $(seq 180); do
-    status="$(curl -sf "$url" | /usr/bin/python3 -c 'import json,sys
+    status="$(changes_json "$url" | /usr/bin/python3 -c 'import json,sys
 d = json.load(sys.stdin)["detection"]
-print(d["status"], "%.2f km compared" % (d.get("km_compared") or 0))')"
+reason = " (%s)" % d["reason"] if d.get("reason") else ""
+print("%s %.2f km compared%s" % (d["status"], d.get("km_compared") or 0, reason))')"
     echo "demo: change detection of run $1: $status"
-    case "$status" in done* | failed*) break ;; esac
+    # Done, failed, or a reason why it will not run.
+    case "$status" in done* | failed* | *"("*) break ;; esac
     sleep 1
   done
-  curl -sf "$url" | /usr/bin/python3 -c 'import json,sys
+  changes_json "$url" | /usr/bin/python3 -c 'import json,sys
 c = json.load(sys.stdin)
 d = c["detection"]
 if d["status"] != "done":
-    sys.exit("demo: change detection did not finish: %s %s" % (d["status"], d.get("error", "")))
+    sys.exit("demo: change detection did not finish: %s %s" % (
+        d["status"], d.get("error") or d.get("reason") or "(no reason given)"))
 print("demo: %d change(s) in run %s against run %s (%.2f km compared, registration RMS %.3f m):" % (
     len(c["features"]), sys.argv[1], d["reference_run"], d["km_compared"], d["registration_rms_m"] or 0))
 for f in c["features"]:
@@ -109,15 +141,16 @@ for f in c["features"]:
         p["chainage_m"] / 1000, p["kind"], p["side"], abs(p["offset_m"]), *p["size_m"], envelope))' "$1"
 }
 
-"$bin/raillomer-sim" --scenario "$scenario" --out "$out"
 start_server
+"$bin/raillomer-sim" --scenario "$scenario" --out "$out"
 run="$(stream_run "$out")"
 evaluate "$out"
 echo "demo: outputs in $out (run.bag, truth.tum, gnss.tum, rig.yaml, estimate/, estimate_eval.json,"
 echo "      estimate_eval.svg, gnss_eval.json, gnss_eval.svg)"
 
 view="?run=$run"
-if "$bin/raillomer-sim" --list | grep -q "^${scenario}_changed "; then
+scenarios="$("$bin/raillomer-sim" --list)"
+if grep -q "^${scenario}_changed " <<<"$scenarios"; then
   echo "demo: the same line a week later (${scenario}_changed), streamed as a second run"
   "$bin/raillomer-sim" --scenario "${scenario}_changed" --out "${out}_changed"
   changed="$(stream_run "${out}_changed")"

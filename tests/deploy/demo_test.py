@@ -20,16 +20,38 @@ import harness  # noqa: E402
 SCRIPT = os.path.join(harness.ROOT, "deploy", "demo-run.sh")
 
 
-def run_demo(work):
-    """deploy/demo-run.sh demo <work>/demo with the server's data in <work>/server; its output."""
+def run_demo(work, check=True):
+    """deploy/demo-run.sh demo <work>/demo with the server's data in <work>/server; its exit code
+    and output (with check, a failure raises)."""
     env = dict(os.environ, RAILLOMER_PORT="0", RAILLOMER_SERVER_DATA=os.path.join(work, "server"),
                RAILLOMER_BIN=harness.bin_dir())
     done = subprocess.run(["bash", SCRIPT, "demo", os.path.join(work, "demo")], env=env,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          timeout=900)
-    if done.returncode != 0:
+                          timeout=300)
+    if check and done.returncode != 0:
         raise AssertionError("demo-run.sh failed (%d):\n%s" % (done.returncode, done.stdout[-4000:]))
-    return done.stdout
+    return done.returncode, done.stdout
+
+
+def read(path):
+    with open(path) as f:
+        return f.read()
+
+
+def stop_server(work):
+    """Stops the server the demo left running on <work>/server (SIGTERM, then SIGKILL)."""
+    pid_file = os.path.join(work, "server", "server.pid")
+    if not os.path.exists(pid_file):
+        return
+    pid = int(read(pid_file))
+    try:
+        os.kill(pid, signal.SIGTERM)
+        for _ in range(100):
+            os.kill(pid, 0)
+            time.sleep(0.1)
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
 
 
 def get(url):
@@ -42,23 +64,11 @@ class DemoRun(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.scratch = tempfile.TemporaryDirectory(prefix="raillomer_demo_")
+        cls.addClassCleanup(cls.scratch.cleanup)
         cls.work = cls.scratch.name
-        cls.first = run_demo(cls.work)
-        cls.second = run_demo(cls.work)
-
-    @classmethod
-    def tearDownClass(cls):
-        pid_file = os.path.join(cls.work, "server", "server.pid")
-        if os.path.exists(pid_file):
-            pid = int(open(pid_file).read())
-            try:
-                os.kill(pid, signal.SIGTERM)
-                for _ in range(100):
-                    os.kill(pid, 0)
-                    time.sleep(0.1)
-            except ProcessLookupError:
-                pass
-        cls.scratch.cleanup()
+        cls.addClassCleanup(stop_server, cls.work)
+        cls.first = run_demo(cls.work)[1]
+        cls.second = run_demo(cls.work)[1]
 
     def truth(self):
         with open(os.path.join(self.work, "demo_changed", "changes.json")) as f:
@@ -87,6 +97,22 @@ class DemoRun(unittest.TestCase):
         self.assertIn("raillomer-server already up", self.second)
         references = [re.search(r"against run (\d+)", o).group(1) for o in (self.first, self.second)]
         self.assertEqual(references[0], references[1])
+
+    def test_a_server_of_the_folder_that_does_not_answer_is_not_doubled(self):
+        port_file = os.path.join(self.work, "server", "server.port")
+        pid = read(os.path.join(self.work, "server", "server.pid"))
+        port = read(port_file)
+        try:
+            with open(port_file, "w") as f:
+                f.write("1\n")
+            code, output = run_demo(self.work, check=False)
+        finally:
+            with open(port_file, "w") as f:
+                f.write(port)
+        self.assertNotEqual(code, 0, output[-3000:])
+        self.assertIn("holds %s but does not answer on port 1" %
+                      os.path.join(self.work, "server"), output)
+        self.assertEqual(read(os.path.join(self.work, "server", "server.pid")), pid)
 
     def test_the_printed_urls_answer(self):
         report = re.search(r"the change report: (\S+)", self.second).group(1)

@@ -72,8 +72,8 @@ class ChangeStoreTest : public StoreTest {
     EXPECT_NEAR(state.registration_rms_m, registration_rms_m, 1e-9);
   }
 
-  /// The final output keeps the confirmed change (its note and status) where it now lies, at
-  /// km 0.0124, and drops the change it no longer finds.
+  /// The final output keeps the confirmed change (its note and status) where the final output
+  /// places it, at km 0.0124, and drops the change the final output lacks.
   void ExpectTheKeptChangeMovedAndTheOtherGone(int64_t kept_id, int64_t gone_id) {
     std::vector<StoredChange> listed;
     ASSERT_TRUE(changes_->List(2, ChangeFilter(), &listed));
@@ -221,7 +221,7 @@ TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalO
   const int64_t kept_id = stored[0].id, gone_id = stored[1].id;
   StoredChange confirmed;
   ASSERT_TRUE(changes_->Update(kept_id, "confirmed", std::string("seen from the cab"), &confirmed));
-  ExpectStretchZeroProvisional();
+  ASSERT_NO_FATAL_FAILURE(ExpectStretchZeroProvisional());
   // Provisional again: nothing changes.
   EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
             Outcome::kDuplicate);
@@ -241,8 +241,8 @@ TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalO
   EXPECT_NE(stored[1].id, gone_id);
   ASSERT_EQ(withdrawn.size(), 1u);
   EXPECT_EQ(withdrawn[0].id, gone_id);
-  ExpectTheKeptChangeMovedAndTheOtherGone(kept_id, gone_id);
-  ExpectStretchZeroFinal(0.015);
+  ASSERT_NO_FATAL_FAILURE(ExpectTheKeptChangeMovedAndTheOtherGone(kept_id, gone_id));
+  ASSERT_NO_FATAL_FAILURE(ExpectStretchZeroFinal(0.015));
   // Final once: a provisional or final outcome after it changes nothing.
   EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
             Outcome::kDuplicate);

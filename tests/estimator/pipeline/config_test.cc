@@ -161,8 +161,7 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
 }
 
 /// The demo rig with every tunable the tests below check set away from its default.
-EstimatorConfig OverriddenConfig() {
-  EstimatorConfig config;
+void OverriddenConfig(EstimatorConfig* config) {
   std::string error;
   const std::string yaml =
       DemoRigYaml() +
@@ -186,12 +185,12 @@ EstimatorConfig OverriddenConfig() {
       "    detect_s: 8\n"
       "    tolerance_rad: 0.0015\n"
       "    max_rate_rps: 0.0002\n";
-  EXPECT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", &config, &error)) << error;
-  return config;
+  ASSERT_TRUE(ParseEstimatorConfig(yaml, "rig.yaml", config, &error)) << error;
 }
 
 TEST(EstimatorConfig, OverridesTunables) {
-  const EstimatorConfig config = OverriddenConfig();
+  EstimatorConfig config;
+  ASSERT_NO_FATAL_FAILURE(OverriddenConfig(&config));
   EXPECT_EQ(config.options.window_size, 8);
   EXPECT_DOUBLE_EQ(config.options.plane_sigma_m, 0.05);
   EXPECT_EQ(config.options.map_insert_lag, 0);
@@ -222,7 +221,8 @@ TEST(EstimatorConfig, OverridesTunables) {
 }
 
 TEST(EstimatorConfig, DescribesTheOverriddenSettings) {
-  const EstimatorConfig config = OverriddenConfig();
+  EstimatorConfig config;
+  ASSERT_NO_FATAL_FAILURE(OverriddenConfig(&config));
   EXPECT_NE(config.Describe().find("chain reset beyond 5 m across / 10 m along"), std::string::npos)
       << config.Describe();
   EXPECT_NE(config.Describe().find("with the sleepers measured, below 0.02"), std::string::npos)
