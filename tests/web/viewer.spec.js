@@ -105,6 +105,49 @@ test('the changed run lists its changes; one is opened and its status set', asyn
   expect((await fetch(f.base + href)).status).toBe(200);
 });
 
+test('the changes are reviewed one after another: n, p, the arrows and Save, next', async ({ page }) => {
+  const f = fixture();
+  const api = await getJson(f, `/api/v1/runs/${f.changed}/changes`);
+  // The list's order: intrusions first, then by kilometre.
+  const order = api.features
+    .map((x) => x.properties)
+    .sort((a, b) => b.intrudes_envelope - a.intrudes_envelope || a.chainage_m - b.chainage_m);
+  expect(order.length).toBeGreaterThan(2);
+  await page.goto(`${f.base}/?run=${f.changed}`);
+  await expect(page.locator('#changes-list li')).toHaveCount(order.length);
+  const title = page.locator('#change-title');
+  const position = page.locator('#change-position');
+  await page.keyboard.press('n');
+  await expect(title).toContainText(`Change ${order[0].id}:`);
+  await expect(position).toHaveText(`1 of ${order.length}`);
+  await expect(page.locator('#change-prev')).toBeDisabled();
+  await page.keyboard.press('n');
+  await expect(title).toContainText(`Change ${order[1].id}:`);
+  await page.keyboard.press('p');
+  await expect(title).toContainText(`Change ${order[0].id}:`);
+  for (let i = 1; i < order.length; ++i) await page.click('#change-next');
+  await expect(title).toContainText(`Change ${order[order.length - 1].id}:`);
+  await expect(position).toHaveText(`${order.length} of ${order.length}`);
+  await expect(page.locator('#change-next')).toBeDisabled();
+  // A key typed into the note is text, not a step.
+  await page.fill('#change-note', '');
+  await page.type('#change-note', 'np');
+  await expect(title).toContainText(`Change ${order[order.length - 1].id}:`);
+  // Save, next: the status is stored and the next change opens.
+  await page.click('#change-prev');
+  const reviewed = order[order.length - 2];
+  await expect(title).toContainText(`Change ${reviewed.id}:`);
+  await page.fill('#token-input', f.token);
+  await page.selectOption('#change-status', 'dismissed');
+  await page.fill('#change-note', 'a shadow');
+  await page.click('#change-save-next');
+  await expect(title).toContainText(`Change ${order[order.length - 1].id}:`);
+  const stored = await getJson(f, `/api/v1/changes/${reviewed.id}`);
+  expect(stored.properties.status).toBe('dismissed');
+  expect(stored.properties.note).toBe('a shadow');
+  await expect(page.locator(`#changes-list li[data-change-id="${reviewed.id}"]`)).toContainText('dismissed');
+});
+
 test('a point of interest is added, renamed and deleted through the page', async ({ page }) => {
   const f = fixture();
   await page.goto(`${f.base}/?run=${f.reference}`);

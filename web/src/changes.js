@@ -28,6 +28,29 @@ export class ChangesPanel {
       $(id).addEventListener('change', () => this.render());
     }
     $('change-save').onclick = () => this.save();
+    $('change-save-next').onclick = async () => {
+      if (await this.save()) this.step(1);
+    };
+    $('change-prev').onclick = () => this.step(-1);
+    $('change-next').onclick = () => this.step(1);
+    document.addEventListener('keydown', (e) => this.onKey(e));
+  }
+
+  /** n and p step through the list, unless the key is typed into a field. */
+  onKey(e) {
+    if (e.ctrlKey || e.metaKey || e.altKey || e.target.closest?.('input, textarea, select')) return;
+    if (e.key === 'n') this.step(1);
+    else if (e.key === 'p') this.step(-1);
+  }
+
+  /** Opens the change `delta` places on from the selected one in the filtered list (the first or
+   * last when none is selected), stopping at its ends. */
+  step(delta) {
+    const list = this.filtered();
+    if (list.length === 0) return;
+    const i = list.findIndex((c) => c.id === this.selected?.id);
+    const next = i < 0 ? (delta > 0 ? 0 : list.length - 1) : Math.min(Math.max(i + delta, 0), list.length - 1);
+    if (next !== i) this.select(list[next].id, true);
   }
 
   async load(run) {
@@ -87,9 +110,11 @@ export class ChangesPanel {
         (d.reason ? ` (${d.reason})` : '') +
         ` · ${this.items.length} changes`
       : '';
+    const shown = this.filtered();
+    this.showPosition(shown);
     const list = $('changes-list');
     list.innerHTML = '';
-    for (const c of this.filtered()) {
+    for (const c of shown) {
       const li = document.createElement('li');
       li.dataset.changeId = c.id;
       li.classList.toggle('intrudes', !!c.intrudes_envelope);
@@ -105,6 +130,14 @@ export class ChangesPanel {
       list.appendChild(li);
     }
     this.drawBoxes();
+  }
+
+  /** Where the selected change stands in the filtered list; ◀ and ▶ stop at its ends. */
+  showPosition(shown) {
+    const i = shown.findIndex((c) => c.id === this.selected?.id);
+    $('change-position').textContent = i >= 0 ? `${i + 1} of ${shown.length}` : `not among the ${shown.length} listed`;
+    $('change-prev').disabled = i === 0 || shown.length === 0;
+    $('change-next').disabled = i === shown.length - 1 || shown.length === 0;
   }
 
   drawBoxes() {
@@ -165,11 +198,15 @@ export class ChangesPanel {
     if (fly && this.app.view.origin) this.app.view.lookAt(this.app.view.toScene(c.utm), 25, null, 0.5);
   }
 
+  /** Sets the selected change's status and note on the server; whether it did. */
   async save() {
     const c = this.selected;
-    if (!c) return;
+    if (!c) return false;
     const token = this.app.token;
-    if (!token) return this.app.fail('setting a status needs the token (the field under the panels)');
+    if (!token) {
+      this.app.fail('setting a status needs the token (the field under the panels)');
+      return false;
+    }
     try {
       const answer = await send('PATCH', `/api/v1/changes/${c.id}`, {
         status: $('change-status').value,
@@ -180,8 +217,10 @@ export class ChangesPanel {
       $('status').classList.remove('error');
       $('status').textContent = `change ${c.id} is ${this.selected.status}`;
       this.render();
+      return true;
     } catch (e) {
       this.app.fail(e);
+      return false;
     }
   }
 }
