@@ -137,6 +137,8 @@ for f in c["features"]:
         envelope = "stood %.2f m inside the structure gauge" % -p["margin_m"]
     else:
         envelope = "%.2f m clear of the structure gauge" % p["margin_m"]
+    if p.get("earlier_change"):
+        envelope += "; found before, first in run %d (%s)" % (p["first_seen_run"], p["status"])
     print("  km %.3f  %-10s %-6s %5.1f m off the track  %.1f x %.1f x %.1f m  %s" % (
         p["chainage_m"] / 1000, p["kind"], p["side"], abs(p["offset_m"]), *p["size_m"], envelope))' "$1"
 }

@@ -76,7 +76,7 @@ void ReadProperties(const std::string& text, RunChange* c) {
 constexpr const char* kChangeColumns =
     "id, run_id, reference_run, stretch, line, kind, chainage_m, offset_m, utm_zone, x, y, z, "
     "properties, intrudes, status, note, IFNULL(closed_by_run, 0), created_ns, updated_ns, "
-    "provisional";
+    "provisional, IFNULL(earlier_change, 0), IFNULL(first_seen_run, run_id)";
 
 StoredChange ChangeOf(const Statement& q) {
   StoredChange s;
@@ -98,6 +98,8 @@ StoredChange ChangeOf(const Statement& q) {
   s.created_ns = q.Int(17);
   s.updated_ns = q.Int(18);
   s.provisional = q.Int(19) != 0;
+  s.earlier_change = q.Int(20);
+  s.first_seen_run = q.Int(21);
   return s;
 }
 
@@ -327,10 +329,13 @@ Result ChangeStore::StoreChangesLocked(const StoredChange& base,
       c.status = same->status;
       c.note = same->note;
       c.created_ns = same->created_ns;
+      c.earlier_change = same->earlier_change;
+      c.first_seen_run = same->first_seen_run;
       provisional->erase(same);
       r = UpdateChangeLocked(c);
     } else {
-      r = InsertChangeLocked(&c);
+      r = ContinueEarlierLocked(&c);
+      if (r) r = InsertChangeLocked(&c);
     }
     if (!r) return r;
     stored->push_back(std::move(c));
@@ -376,24 +381,69 @@ Result ChangeStore::InsertStretchLocked(int64_t run,
   return {};
 }
 
+Result ChangeStore::EarlierChangeLocked(const StoredChange& c, StoredChange* out) const {
+  *out = StoredChange();
+  const Eigen::Vector3d& at = c.change.centre_utm;
+  Statement q(*db_,
+              std::string("SELECT ") + kChangeColumns +
+                  " FROM changes WHERE line = ? AND kind = ? AND utm_zone = ? AND run_id < ? AND "
+                  "status != 'closed' AND provisional = 0 AND x BETWEEN ? AND ? AND "
+                  "y BETWEEN ? AND ? ORDER BY run_id DESC, id");
+  q.Bind(1, c.line)
+      .Bind(2, ToString(c.change.kind))
+      .Bind(3, c.change.utm_zone)
+      .Bind(4, c.run_id)
+      .Bind(5, at.x() - kSameChangeM)
+      .Bind(6, at.x() + kSameChangeM)
+      .Bind(7, at.y() - kSameChangeM)
+      .Bind(8, at.y() + kSameChangeM);
+  double nearest = kSameChangeM;
+  while (q.Step()) {
+    StoredChange e = ChangeOf(q);
+    if (out->id != 0 && e.run_id != out->run_id) break;  // the latest run's only
+    const double d = (e.change.centre_utm - at).head<2>().norm();
+    if (d < nearest) nearest = d, *out = std::move(e);
+  }
+  if (!q.error().empty()) return DbError("cannot read earlier changes", q.error());
+  return {};
+}
+
+Result ChangeStore::ContinueEarlierLocked(StoredChange* c) const {
+  c->first_seen_run = c->run_id;
+  StoredChange earlier;
+  const Result r = EarlierChangeLocked(*c, &earlier);
+  if (!r || earlier.id == 0) return r;
+  c->earlier_change = earlier.id;
+  c->first_seen_run = earlier.first_seen_run;
+  c->status = earlier.status == "fixed" ? "new" : earlier.status;
+  c->note = earlier.note;
+  return {};
+}
+
 Result ChangeStore::InsertChangeLocked(StoredChange* s) {
   Statement add(*db_,
                 "INSERT INTO changes (run_id, reference_run, stretch, line, kind, utm_zone, "
                 "chainage_m, offset_m, x, y, z, properties, intrudes, size_max_m, provisional, "
-                "created_ns, updated_ns) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-  if (!BindMeasured(add.Bind(1, s->run_id)
-                        .Bind(2, s->reference_run)
-                        .Bind(3, s->change.stretch)
-                        .Bind(4, s->line)
-                        .Bind(5, ToString(s->change.kind))
-                        .Bind(6, s->change.utm_zone),
-                    7,
-                    *s)
-           .Bind(16, s->created_ns)
-           .Bind(17, s->updated_ns)
-           .Run())
-    return DbError("cannot store a change", add.error());
+                "created_ns, updated_ns, status, note, earlier_change, first_seen_run) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  BindMeasured(add.Bind(1, s->run_id)
+                   .Bind(2, s->reference_run)
+                   .Bind(3, s->change.stretch)
+                   .Bind(4, s->line)
+                   .Bind(5, ToString(s->change.kind))
+                   .Bind(6, s->change.utm_zone),
+               7,
+               *s)
+      .Bind(16, s->created_ns)
+      .Bind(17, s->updated_ns)
+      .Bind(18, s->status)
+      .Bind(19, s->note)
+      .Bind(21, s->first_seen_run);
+  if (s->earlier_change != 0)
+    add.Bind(20, s->earlier_change);
+  else
+    add.BindNull(20);
+  if (!add.Run()) return DbError("cannot store a change", add.error());
   s->id = db_->LastInsertId();
   return {};
 }

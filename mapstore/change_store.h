@@ -32,6 +32,9 @@ struct StoredChange {
   int64_t created_ns = 0, updated_ns = 0;
   /// Found on the run's provisional output: its stretch is compared again on the final one.
   bool provisional = false;
+  /// The same change found by an earlier run of the line (0: none), and the run that found it
+  /// first (this run when none did before).
+  int64_t earlier_change = 0, first_seen_run = 0;
 };
 
 /// A run's comparison with its reference: requested, running (stretches stored as they are
@@ -96,7 +99,9 @@ class ChangeStore {
   /// kind within 2 m keeps its id, status and note; the provisional changes not found again
   /// are deleted (`withdrawn` gets them). A detection requested meanwhile against another
   /// reference is a kConflict. A final outcome closes changes of earlier runs of the line
-  /// marked `fixed` in the stretch and not seen again within 2 m (`closed` gets them).
+  /// marked `fixed` in the stretch and not seen again within 2 m (`closed` gets them). A new
+  /// change of the kind of an earlier run's (not closed) within 2 m continues it: it takes its
+  /// note and status (`new` again if it was `fixed`) and its first run.
   Result SaveStretch(int64_t run,
                      int64_t reference,
                      const StretchOutcome& outcome,
@@ -132,11 +137,16 @@ class ChangeStore {
   /// Deletes a provisional stretch; `provisional` gets its changes.
   Result TakeProvisionalLocked(int64_t run, int stretch, std::vector<StoredChange>* provisional);
   /// Stores each change of the outcome: as an update of a provisional one of its kind within
-  /// 2 m (which leaves `provisional`), else as a new one.
+  /// 2 m (which leaves `provisional`), else as a new one, continuing an earlier run's.
   Result StoreChangesLocked(const StoredChange& base,
                             const StretchOutcome& outcome,
                             std::vector<StoredChange>* provisional,
                             std::vector<StoredChange>* stored);
+  /// The latest change of an earlier run of the line (final, not closed) of `c`'s kind within
+  /// 2 m of it; its id is 0 if there is none.
+  Result EarlierChangeLocked(const StoredChange& c, StoredChange* out) const;
+  /// Makes `c` continue an earlier run's change of the same place, if there is one.
+  Result ContinueEarlierLocked(StoredChange* c) const;
   Result CloseFixedLocked(int64_t run,
                           const StretchRange& range,
                           const std::vector<StoredChange>& seen,

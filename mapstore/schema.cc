@@ -173,6 +173,12 @@ CREATE INDEX changes_by_line ON changes (line, status);
 ALTER TABLE change_stretches ADD COLUMN provisional INTEGER NOT NULL DEFAULT 0;
 ALTER TABLE changes ADD COLUMN provisional INTEGER NOT NULL DEFAULT 0;
 )sql",
+      // 7: a change found again by a later run of the line: the earlier change it continues
+      // and the run that first found it.
+      R"sql(
+ALTER TABLE changes ADD COLUMN earlier_change INTEGER;
+ALTER TABLE changes ADD COLUMN first_seen_run INTEGER;
+)sql",
   };
   return migrations;
 }

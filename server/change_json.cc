@@ -12,7 +12,8 @@ using nlohmann::json;
 
 json Finite(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 json Vec(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
-json Run(int64_t id) { return id == 0 ? json(nullptr) : json(id); }
+/// A run's or a change's id; null for none (0).
+json Id(int64_t id) { return id == 0 ? json(nullptr) : json(id); }
 
 /// The footprint as a closed WGS84 ring; the centre alone when it has none.
 json Geometry(const mapstore::RunChange& c) {
@@ -63,7 +64,9 @@ json ChangeFeature(const mapstore::StoredChange& s) {
       {"status", s.status},
       {"provisional", s.provisional},
       {"note", s.note},
-      {"closed_by_run", Run(s.closed_by_run)},
+      {"closed_by_run", Id(s.closed_by_run)},
+      {"earlier_change", Id(s.earlier_change)},
+      {"first_seen_run", s.first_seen_run},
       {"created_ns", s.created_ns},
       {"updated_ns", s.updated_ns},
       {"snapshot", "/api/v1/changes/" + std::to_string(s.id) + "/snapshot.png"}};
@@ -76,7 +79,7 @@ json ChangeFeature(const mapstore::StoredChange& s) {
 
 json DetectionJson(const mapstore::DetectionState& d, const std::string& reason) {
   json j = {{"status", d.status},
-            {"reference_run", Run(d.reference_run)},
+            {"reference_run", Id(d.reference_run)},
             {"registration_rms_m", d.stretches_compared > 0 ? json(d.registration_rms_m) : json()},
             {"rail_residual_m", Finite(d.rail_rms_m)},
             {"stretches_done", d.stretches_done},
@@ -100,7 +103,9 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
   std::string out =
       "id,run,reference_run,kind,chainage_m,offset_m,side,easting,northing,height,utm_zone,"
       "lon,lat,along_m,across_m,height_m,height_above_rail_min_m,height_above_rail_max_m,"
-      "intrudes_envelope,margin_m,lod_m,confidence,provisional,status,note\n";
+      "intrudes_envelope,margin_m,lod_m,confidence,provisional,first_seen_run,earlier_change,"
+      "status,"
+      "note\n";
   for (const mapstore::StoredChange& s : changes) {
     const mapstore::RunChange& c = s.change;
     json lon_lat = {nullptr, nullptr};
@@ -112,7 +117,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
     std::snprintf(row,
                   sizeof(row),
                   "%lld,%lld,%lld,%s,%.2f,%.2f,%s,%.3f,%.3f,%.3f,%s,%s,%s,%.2f,%.2f,%.2f,%.2f,%.2f,"
-                  "%s,%.2f,%.3f,%.2f,%s,%s,",
+                  "%s,%.2f,%.3f,%.2f,%s,%lld,%s,%s,",
                   static_cast<long long>(s.id),
                   static_cast<long long>(s.run_id),
                   static_cast<long long>(s.reference_run),
@@ -136,6 +141,8 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
                   c.lod_m,
                   c.confidence,
                   s.provisional ? "true" : "false",
+                  static_cast<long long>(s.first_seen_run),
+                  s.earlier_change != 0 ? std::to_string(s.earlier_change).c_str() : "",
                   s.status.c_str());
     out += row + note + "\n";
   }

@@ -124,6 +124,13 @@ std::string GaugeText(const mapstore::RunChange& x) {
   return Fixed(x.margin_m, 2) + " m clear of the structure gauge. ";
 }
 
+/// Whether an earlier run of the line found the change too, in words.
+std::string SeenBeforeText(const mapstore::StoredChange& s) {
+  if (s.earlier_change == 0) return "";
+  return "Found before as change #" + std::to_string(s.earlier_change) + ", first seen in run " +
+         std::to_string(s.first_seen_run) + ". ";
+}
+
 std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s) {
   const mapstore::RunChange& x = s.change;
   std::string html = "<div class=\"change\" id=\"change-" + std::to_string(s.id) + "\">\n";
@@ -137,8 +144,8 @@ std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s
           " m above the rails. UTM " + Escape(x.utm_zone) + " " + Fixed(x.centre_utm.x(), 1) +
           " E, " + Fixed(x.centre_utm.y(), 1) + " N. Confidence " + Fixed(x.confidence, 2) +
           ", level of detection " + Fixed(x.lod_m, 2) + " m. Status: " + StatusText(s) +
-          (s.note.empty() ? "" : " (" + Escape(s.note) + ")") + ". <a href=\"" +
-          Escape(in.viewer_url) + "?run=" + std::to_string(s.run_id) +
+          (s.note.empty() ? "" : " (" + Escape(s.note) + ")") + ". " + SeenBeforeText(s) +
+          "<a href=\"" + Escape(in.viewer_url) + "?run=" + std::to_string(s.run_id) +
           "&amp;change=" + std::to_string(s.id) + "\">Open in the viewer</a></p>\n";
   const std::string png = in.snapshot ? in.snapshot(s) : "";
   if (!png.empty())

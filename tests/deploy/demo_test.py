@@ -98,6 +98,12 @@ class DemoRun(unittest.TestCase):
         references = [re.search(r"against run (\d+)", o).group(1) for o in (self.first, self.second)]
         self.assertEqual(references[0], references[1])
 
+    def test_the_second_demo_finds_the_first_ones_changes_again(self):
+        first_changed = re.search(r"change\(s\) in run (\d+)", self.first).group(1)
+        self.assertNotIn("found before", self.first)
+        self.assertEqual(self.second.count("found before, first in run %s (new)" % first_changed),
+                         len(self.truth()), self.second[-3000:])
+
     def test_a_server_of_the_folder_that_does_not_answer_is_not_doubled(self):
         port_file = os.path.join(self.work, "server", "server.port")
         pid = read(os.path.join(self.work, "server", "server.pid"))
@@ -120,6 +126,7 @@ class DemoRun(unittest.TestCase):
         self.assertEqual(status, 200)
         self.assertIn("text/html", kind)
         self.assertIn("km", body)
+        self.assertEqual(body.count("Found before as change #"), len(self.truth()))
         viewer = re.search(r"the viewer: (\S+)", self.second).group(1)
         self.assertIn("compare=", viewer)
         status, kind, _ = get(viewer)

@@ -1,7 +1,7 @@
 // Change detection's records: a stretch and its changes stored once (a repeat is a duplicate,
 // a detection re-requested against another reference refuses the old one's stretches), filters,
-// an engineer's status and note, and a later run closing a change marked fixed that it no
-// longer sees.
+// an engineer's status and note, a later run closing a change marked fixed that it no longer
+// sees and continuing the changes it finds again.
 #include <gtest/gtest.h>
 
 #include "mapstore/change_store.h"
@@ -205,6 +205,62 @@ TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {
   EXPECT_EQ(now.closed_by_run, 3);
   EXPECT_EQ(now.note, "tree cut");
   EXPECT_EQ(changes_->Update(123456, "new", std::nullopt, &now).outcome, Outcome::kNotFound);
+}
+
+TEST_F(ChangeStoreTest, AChangeFoundAgainByALaterRunContinuesTheEarlierOne) {
+  // Run 2 finds three changes; engineers confirm one, dismiss one and mark one fixed.
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed;
+  const Eigen::Vector3d east(20.0, 0.0, 0.0);
+  ASSERT_TRUE(
+      changes_->SaveStretch(2,
+                            1,
+                            Stretch(0,
+                                    {Change(ChangeKind::kAdded, 12.0, at_, true),
+                                     Change(ChangeKind::kAdded, 32.0, at_ + east, false),
+                                     Change(ChangeKind::kAdded, 52.0, at_ + 2 * east, false)}),
+                            &stored,
+                            &closed));
+  ASSERT_EQ(stored.size(), 3u);
+  EXPECT_EQ(stored[0].earlier_change, 0);
+  EXPECT_EQ(stored[0].first_seen_run, 2);
+  StoredChange set;
+  ASSERT_TRUE(changes_->Update(stored[0].id, "confirmed", std::string("tree to cut"), &set));
+  ASSERT_TRUE(changes_->Update(stored[1].id, "dismissed", std::string("a shadow"), &set));
+  ASSERT_TRUE(changes_->Update(stored[2].id, "fixed", std::string("removed"), &set));
+  const std::vector<StoredChange> week2 = stored;
+
+  // Run 3 finds each again within 2 m, a removed object where the first was, and something
+  // 3 m from the second.
+  ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
+  const Eigen::Vector3d nudge(0.6, -0.4, 0.0);
+  ASSERT_TRUE(changes_->SaveStretch(
+      3,
+      1,
+      Stretch(0,
+              {Change(ChangeKind::kAdded, 12.6, at_ + nudge, true),
+               Change(ChangeKind::kRemoved, 12.0, at_, false),
+               Change(ChangeKind::kAdded, 32.6, at_ + east + nudge, false),
+               Change(ChangeKind::kAdded, 35.0, at_ + east + Eigen::Vector3d(3.0, 0.0, 0.0), false),
+               Change(ChangeKind::kAdded, 52.6, at_ + 2 * east + nudge, false)}),
+      &stored,
+      &closed));
+  ASSERT_EQ(stored.size(), 5u);
+  const std::vector<int64_t> continues = {week2[0].id, 0, week2[1].id, 0, week2[2].id};
+  const std::vector<std::string> status = {"confirmed", "new", "dismissed", "new", "new"};
+  const std::vector<std::string> note = {"tree to cut", "", "a shadow", "", "removed"};
+  for (size_t i = 0; i < stored.size(); ++i) {
+    SCOPED_TRACE("change " + std::to_string(i));
+    StoredChange now;
+    ASSERT_TRUE(changes_->Get(stored[i].id, &now));
+    EXPECT_EQ(now.earlier_change, continues[i]);
+    EXPECT_EQ(now.first_seen_run, continues[i] != 0 ? 2 : 3);
+    EXPECT_EQ(now.status, status[i]);  // a change marked fixed and found again is new again
+    EXPECT_EQ(now.note, note[i]);
+    EXPECT_EQ(stored[i].earlier_change, now.earlier_change);
+  }
+  // Seen again, the fixed one is not closed.
+  EXPECT_TRUE(closed.empty());
 }
 
 TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalOne) {

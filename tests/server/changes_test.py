@@ -182,9 +182,13 @@ class ChangeDetection(unittest.TestCase):
             p = f["properties"]
             for key in ("id", "kind", "chainage_m", "offset_m", "side", "utm", "utm_zone",
                         "size_m", "height_above_rail_m", "intrudes_envelope", "margin_m",
-                        "reference_run", "lod_m", "confidence", "status"):
+                        "reference_run", "lod_m", "confidence", "status", "earlier_change",
+                        "first_seen_run"):
                 self.assertIn(key, p)
             self.assertEqual(p["status"], "new")
+            # Run 2 is the line's first run after its reference: nothing was found before.
+            self.assertIsNone(p["earlier_change"])
+            self.assertEqual(p["first_seen_run"], 2)
             self.assertEqual(p["intrudes_envelope"], p["margin_m"] < 0 and p["kind"] != "removed")
 
     def test_filters_and_csv(self):

@@ -89,6 +89,8 @@ test('the changed run lists its changes; one is opened and its status set', asyn
   await page.click(`#changes-list li[data-change-id="${first.id}"]`);
   await expect(page.locator('#change-detail')).toBeVisible();
   await expect(page.locator('#change-title')).toContainText(first.kind);
+  // The changed run is the first after the reference: nothing continues an earlier change.
+  await expect(page.locator('#change-props')).toContainText('first seenthis run');
   await expect.poll(() => page.evaluate(() => document.getElementById('change-snapshot').naturalWidth)).toBeGreaterThan(100);
   // Without the token the write is refused and says so.
   await page.selectOption('#change-status', 'confirmed');

@@ -183,6 +183,7 @@ export class ChangesPanel {
       ['vegetation rule', c.breaks_vegetation_rule ? 'broken' : 'kept'],
       ['UTM', `${c.utm.map((v) => v.toFixed(2)).join(', ')} (${c.utm_zone})`],
       ['reference run', c.reference_run],
+      ['first seen', c.earlier_change ? `run ${c.first_seen_run} (continues change ${c.earlier_change})` : 'this run'],
       ['points (reference, run)', `${c.points.reference}, ${c.points.run}`],
       ['level of detection', `${fmt(c.lod_m)} m`],
       ['confidence', fmt(c.confidence)],
