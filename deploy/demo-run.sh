@@ -157,7 +157,10 @@ if grep -q "^${scenario}_changed " <<<"$scenarios"; then
   "$bin/raillomer-sim" --scenario "${scenario}_changed" --out "${out}_changed"
   changed="$(stream_run "${out}_changed")"
   report_changes "$changed"
-  view="?run=$changed&compare=$run&color=change"
+  # The viewer compares the changed run with its reference, in whose map the changes lie.
+  reference="$(changes_json "http://127.0.0.1:$port/api/v1/runs/$changed/changes" |
+    /usr/bin/python3 -c 'import json,sys; print(json.load(sys.stdin)["detection"]["reference_run"])')"
+  view="?run=$changed&compare=$reference&color=change"
   echo "demo: the change report: http://127.0.0.1:$port/api/v1/runs/$changed/changes/report"
 fi
 

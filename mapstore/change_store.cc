@@ -504,6 +504,11 @@ Result ChangeStore::List(int64_t run, const ChangeFilter& f, std::vector<StoredC
   std::string where = "run_id = ? AND chainage_m >= ? AND chainage_m <= ? AND size_max_m >= ?";
   if (f.kind) where += " AND kind = ?";
   if (f.intrudes) where += " AND intrudes = ?";
+  if (!f.statuses.empty()) {
+    where += " AND status IN (?";
+    for (size_t i = 1; i < f.statuses.size(); ++i) where += ", ?";
+    where += ")";
+  }
   where += " ORDER BY chainage_m, id";
   // SQLite binds no infinities: the line's chainage is far inside these.
   const double far = 1e12;
@@ -517,6 +522,7 @@ Result ChangeStore::List(int64_t run, const ChangeFilter& f, std::vector<StoredC
         int next = 5;
         if (f.kind) q.Bind(next++, ToString(*f.kind));
         if (f.intrudes) q.Bind(next++, *f.intrudes ? 1 : 0);
+        for (const std::string& status : f.statuses) q.Bind(next++, status);
       },
       out);
 }

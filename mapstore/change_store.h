@@ -59,7 +59,8 @@ struct ChangeFilter {
   double to_m = std::numeric_limits<double>::infinity();
   std::optional<ChangeKind> kind;
   std::optional<bool> intrudes;
-  double min_size_m = 0.0;  ///< the largest of along, across, height at least this
+  double min_size_m = 0.0;            ///< the largest of along, across, height at least this
+  std::vector<std::string> statuses;  ///< any of these (every status when empty)
 };
 
 /// A compared stretch's registration, for drawing the later run where the comparison put it.

@@ -14,6 +14,29 @@ namespace {
 
 using nlohmann::json;
 
+/// The `status` filter of GET .../changes: statuses separated by commas (`new,confirmed`);
+/// false with a 400 naming a status there is not.
+bool StatusesOf(const HttpRequest& req, HttpResponse& res, std::vector<std::string>* out) {
+  if (!req.HasParam("status")) return true;
+  const std::string list = req.Param("status");
+  size_t start = 0;
+  for (;;) {
+    const size_t comma = list.find(',', start);
+    const std::string status = list.substr(start, comma - start);
+    if (!mapstore::IsChangeStatus(status, false)) {
+      res.SetError(400,
+                   "invalid",
+                   "status must be new, confirmed, dismissed, fixed or closed, or several of "
+                   "them separated by commas (got '" +
+                       status + "')");
+      return false;
+    }
+    out->push_back(status);
+    if (comma == std::string::npos) return true;
+    start = comma + 1;
+  }
+}
+
 /// The filters of GET .../changes; false with a 400 naming the bad one.
 bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter* f) {
   double from_km = -1e9, to_km = 1e9;
@@ -41,7 +64,7 @@ bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter*
     }
     f->intrudes = v == "true";
   }
-  return true;
+  return StatusesOf(req, res, &f->statuses);
 }
 
 class ChangeApi {

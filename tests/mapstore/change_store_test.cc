@@ -149,7 +149,7 @@ TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceDropsTheOldResults) {
   EXPECT_TRUE(done.empty());
 }
 
-TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionAndSize) {
+TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionSizeAndStatus) {
   ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
   std::vector<StoredChange> stored, closed;
   RunChange small = Change(ChangeKind::kAdded, 150.0, at_, false);
@@ -182,6 +182,16 @@ TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionAndSize) {
   f = ChangeFilter();
   f.min_size_m = 0.3;
   EXPECT_EQ(count(f), 2u);
+  StoredChange set;
+  ASSERT_TRUE(changes_->Update(stored[0].id, "dismissed", std::nullopt, &set));
+  ASSERT_TRUE(changes_->Update(stored[1].id, "confirmed", std::nullopt, &set));
+  f = ChangeFilter();
+  f.statuses = {"new", "confirmed"};
+  EXPECT_EQ(count(f), 2u);
+  f.statuses = {"dismissed"};
+  EXPECT_EQ(count(f), 1u);
+  f.statuses = {"closed"};
+  EXPECT_EQ(count(f), 0u);
 }
 
 TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {

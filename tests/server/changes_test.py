@@ -208,6 +208,14 @@ class ChangeDetection(unittest.TestCase):
         status, body = curl(self.url("/api/v1/runs/2/changes?kind=gone"))
         self.assertEqual(status, 400)
         self.assertIn(b"kind must be", body)
+        # Every change is new until an engineer sets it.
+        _, body = self.server.json("GET", "/api/v1/runs/2/changes?status=new,confirmed")
+        self.assertEqual(len(body["features"]), len(everything))
+        _, body = self.server.json("GET", "/api/v1/runs/2/changes?status=dismissed")
+        self.assertEqual(body["features"], [])
+        status, body = curl(self.url("/api/v1/runs/2/changes?status=new,open"))
+        self.assertEqual(status, 400)
+        self.assertIn(b"(got 'open')", body)
 
     def test_snapshot_is_a_png_with_both_runs_drawn(self):
         self.assertTrue(self.found["features"], "no change to draw")

@@ -1,5 +1,6 @@
-// Before the browser tests: a server with two runs of the demo line (the second changed, its
-// detection done), the state the specs read in results/fixture.json.
+// Before the browser tests: a server with three runs of the demo line (the second changed, the
+// third a repeat with other sensor noise; their detections done), the state the specs read in
+// results/fixture.json.
 import fs from 'node:fs';
 import path from 'node:path';
 import { getJson, startServer, stateFile, streamRun, waitFor, webRoot } from './fixture.js';
@@ -14,12 +15,15 @@ export default async function globalSetup() {
   const server = await startServer();
   await streamRun(server, 'demo', 'Demo').done;
   await streamRun(server, CHANGED, 'Demo', { seed: 5 }).done;
+  await streamRun(server, 'demo', 'Demo', { seed: 7 }).done;
   const runs = (await getJson(server, '/api/v1/runs')).runs;
-  const [reference, changed] = runs.map((r) => r.id);
-  await waitFor('change detection of the second run', async () => {
-    const c = await getJson(server, `/api/v1/runs/${changed}/changes`);
-    return c.detection.status === 'done';
-  }, 180_000, 500);
-  fs.writeFileSync(stateFile, JSON.stringify({ ...server, reference, changed }, null, 2));
+  const [reference, changed, repeat] = runs.map((r) => r.id);
+  for (const run of [changed, repeat]) {
+    await waitFor(`change detection of run ${run}`, async () => {
+      const c = await getJson(server, `/api/v1/runs/${run}/changes`);
+      return c.detection.status === 'done';
+    }, 180_000, 500);
+  }
+  fs.writeFileSync(stateFile, JSON.stringify({ ...server, reference, changed, repeat }, null, 2));
   return () => server.stop();
 }

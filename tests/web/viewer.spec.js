@@ -148,6 +148,13 @@ test('the changes are reviewed one after another: n, p, the arrows and Save, nex
   expect(stored.properties.status).toBe('dismissed');
   expect(stored.properties.note).toBe('a shadow');
   await expect(page.locator(`#changes-list li[data-change-id="${reviewed.id}"]`)).toContainText('dismissed');
+  // What is still open leaves the dismissed one out; the dismissed alone is that one.
+  await page.selectOption('#change-state', 'new,confirmed');
+  await expect(page.locator('#changes-list li')).toHaveCount(order.length - 1);
+  await expect(page.locator(`#changes-list li[data-change-id="${reviewed.id}"]`)).toHaveCount(0);
+  await page.selectOption('#change-state', 'dismissed');
+  await expect(page.locator('#changes-list li')).toHaveCount(1);
+  await expect(page.locator('#changes-list li')).toContainText('dismissed');
 });
 
 test('a point of interest is added, renamed and deleted through the page', async ({ page }) => {
@@ -210,6 +217,19 @@ test('two runs in one view: coloured by run, split by a divide, coloured by chan
   await waitForPoints(page);
   png = await shot(page, 'change-colours', canvas);
   // Registered as the detection registered them, the runs agree almost everywhere.
+  const grey = countHue(png, (r, g, b) => Math.abs(r - g) < 8 && Math.abs(g - b) < 8 && r > 60);
+  const red = countHue(png, (r, g, b) => r > 150 && g < 110 && b < 80);
+  expect(grey).toBeGreaterThan(2000);
+  expect(grey).toBeGreaterThan(5 * red);
+});
+
+test('two later runs of one reference are both drawn where the detection registered them', async ({ page }) => {
+  const f = fixture();
+  await page.goto(`${f.base}/?run=${f.changed}&compare=${f.repeat}&color=change`);
+  await expect(page.locator('#legend')).toContainText('distance to the other run');
+  await waitForPoints(page);
+  const png = await shot(page, 'two-later-runs', page.locator('#viewport > canvas'));
+  // Each in the reference's map, the runs agree almost everywhere: grey, not red.
   const grey = countHue(png, (r, g, b) => Math.abs(r - g) < 8 && Math.abs(g - b) < 8 && r > 60);
   const red = countHue(png, (r, g, b) => r > 150 && g < 110 && b < 80);
   expect(grey).toBeGreaterThan(2000);

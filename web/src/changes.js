@@ -1,5 +1,5 @@
-// A run's changes: the list (filtered by kind, intrusion and km), boxes in the 3D view, the
-// selected change's properties, snapshot and status, and new ones as the live hub finds them.
+// A run's changes: the list (filtered by kind, status, intrusion and km), boxes in the 3D view,
+// the selected change's properties, snapshot and status, and new ones as the live hub finds them.
 import * as THREE from 'three';
 import { api, send } from './api.js';
 import { formatKm, parseKm } from './track.js';
@@ -24,7 +24,7 @@ export class ChangesPanel {
     this.group = new THREE.Group();
     this.group.name = 'changes';
     app.view.scene.add(this.group);
-    for (const id of ['change-kind', 'change-intrusions', 'change-from', 'change-to']) {
+    for (const id of ['change-kind', 'change-state', 'change-intrusions', 'change-from', 'change-to']) {
       $(id).addEventListener('change', () => this.render());
     }
     $('change-save').onclick = () => this.save();
@@ -91,10 +91,12 @@ export class ChangesPanel {
 
   filtered() {
     const kind = $('change-kind').value;
+    const statuses = $('change-state').value ? $('change-state').value.split(',') : null;
     const intrusions = $('change-intrusions').checked;
     const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
     return this.items
       .filter((c) => !kind || c.kind === kind)
+      .filter((c) => !statuses || statuses.includes(c.status))
       .filter((c) => !intrusions || c.intrudes_envelope)
       .filter((c) => Number.isNaN(from) || c.chainage_m >= from * 1000)
       .filter((c) => Number.isNaN(to) || c.chainage_m <= to * 1000)

@@ -211,8 +211,8 @@ export class App {
 
   /**
    * Later runs are drawn where change detection registered them onto their reference (whose
-   * map the changes are placed in): a run alone onto its reference, two runs when one is the
-   * other's reference.
+   * map the changes are placed in): a run alone onto its reference; of two runs, the one whose
+   * reference the other is, or both when they share their reference.
    */
   loadRegistrations(ids) {
     return Promise.all(ids.map((id) => api.registration(id).catch(() => null)));
@@ -224,7 +224,10 @@ export class App {
     this.layers.forEach((layer, i) => {
       const a = answers[i];
       const other = this.layers.length === 2 ? this.layers[1 - i].run : null;
-      const use = a?.reference_run && a.stretches.length && (other === null || other === a.reference_run);
+      const theirs = other === null ? null : answers[1 - i];
+      const sameReference = theirs?.reference_run === a?.reference_run && theirs?.stretches.length > 0;
+      const use =
+        a?.reference_run && a.stretches.length && (other === null || other === a.reference_run || sameReference);
       const registration = use ? new Registration(a) : null;
       layer.setRegistration(registration, this.rawTrack);
       if (layer.run === this.run.id) this.registration = registration;
