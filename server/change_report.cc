@@ -83,6 +83,7 @@ std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::Sto
   std::string kinds;
   for (const char* k : {"added", "removed", "moved", "vegetation"})
     kinds += std::string(kinds.empty() ? "" : ", ") + k + " " + std::to_string(by_kind[k]);
+  if (!in.listed.empty()) row("Listed", Escape(in.listed));
   row("Changes", std::to_string(c.size()) + " (" + kinds + ")");
   row("Intruding the gauge",
       "<span class=\"" + std::string(intrusions ? "intrudes" : "") + "\">" +

@@ -238,6 +238,16 @@ class ChangeDetection(unittest.TestCase):
             self.assertIn('id="change-%d"' % f["properties"]["id"], html)
             self.assertIn(gauge_sentence(f["properties"]), html)
         self.assertEqual(html.count("data:image/png;base64,"), len(self.found["features"]))
+        self.assertNotIn("<th>Listed</th>", html)
+        # The list's filters apply and are said; nothing is dismissed yet.
+        status, html = curl(self.url("/api/v1/runs/2/changes/report?status=dismissed,fixed"))
+        self.assertEqual(status, 200)
+        html = html.decode()
+        self.assertIn("<th>Listed</th><td>status dismissed or fixed</td>", html)
+        self.assertNotIn('id="change-', html)
+        status, body = curl(self.url("/api/v1/runs/2/changes/report?status=gone"))
+        self.assertEqual(status, 400)
+        self.assertIn(b"(got 'gone')", body)
 
     def test_status_and_note_are_kept(self):
         change = self.found["features"][-1]["properties"]["id"]

@@ -155,6 +155,12 @@ test('the changes are reviewed one after another: n, p, the arrows and Save, nex
   await page.selectOption('#change-state', 'dismissed');
   await expect(page.locator('#changes-list li')).toHaveCount(1);
   await expect(page.locator('#changes-list li')).toContainText('dismissed');
+  // The report link carries the list's filters: the report holds the dismissed change alone.
+  const href = await page.locator('#report-link').getAttribute('href');
+  expect(href).toContain('status=dismissed');
+  const report = await (await fetch(f.base + href)).text();
+  expect(report).toContain('status dismissed');
+  expect(report.match(/id="change-\d+"/g)).toEqual([`id="change-${reviewed.id}"`]);
 });
 
 test('a point of interest is added, renamed and deleted through the page', async ({ page }) => {

@@ -58,7 +58,6 @@ export class ChangesPanel {
     this.items = [];
     this.selected = null;
     $('change-detail').hidden = true;
-    $('report-link').href = `/api/v1/runs/${run.id}/changes/report`;
     try {
       const answer = await api.changes(run.id);
       this.items = answer.features.map((f) => f.properties);
@@ -89,6 +88,19 @@ export class ChangesPanel {
     else this.items.push(change);
   }
 
+  /** The report of the run with the list's filters. */
+  reportUrl() {
+    const query = new URLSearchParams();
+    if ($('change-kind').value) query.set('kind', $('change-kind').value);
+    if ($('change-state').value) query.set('status', $('change-state').value);
+    if ($('change-intrusions').checked) query.set('intrudes_envelope', 'true');
+    const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
+    if (!Number.isNaN(from)) query.set('from_km', from);
+    if (!Number.isNaN(to)) query.set('to_km', to);
+    const q = query.toString();
+    return `/api/v1/runs/${this.run.id}/changes/report${q ? `?${q}` : ''}`;
+  }
+
   filtered() {
     const kind = $('change-kind').value;
     const statuses = $('change-state').value ? $('change-state').value.split(',') : null;
@@ -112,6 +124,7 @@ export class ChangesPanel {
         (d.reason ? ` (${d.reason})` : '') +
         ` · ${this.items.length} changes`
       : '';
+    if (this.run) $('report-link').href = this.reportUrl();
     const shown = this.filtered();
     this.showPosition(shown);
     const list = $('changes-list');
