@@ -264,9 +264,7 @@ class Hardening(unittest.TestCase):
             self.assertEqual(status, 201, body)
         self.assertEqual(self.server.write("POST", "/api/v1/runs/%d/finish" % run, {})[0], 200)
         # A fresh process: the tiles on disk, nothing of the ingest in memory.
-        data = self.server.data
-        self.server.stop()
-        self.server = Server(data=data)
+        self.server = self.server.restarted()
         self.server.request("GET", "/health")
         baseline = self.server.status("VmHWM")
         conn = http.client.HTTPConnection("127.0.0.1", self.server.port, timeout=60)

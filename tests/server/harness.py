@@ -88,6 +88,14 @@ class Server:
         if self.scratch:
             shutil.rmtree(self.scratch, ignore_errors=True)
 
+    def restarted(self):
+        """This one stopped and a new process started on its store, which takes over removing
+        the scratch folder."""
+        self.stop()
+        other = Server(data=self.data)
+        other.scratch, self.scratch = self.scratch, None
+        return other
+
     def request(self, method, path, body=None, token=None, headers=None, timeout=30):
         """(status, headers dict with lower-case names, body bytes) over a new connection."""
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=timeout)

@@ -1,12 +1,18 @@
 #!/usr/bin/env bash
 # Builds the submap decoder's libFuzzer target with clang (address and undefined-behaviour
 # sanitizers) and runs it for a bounded time from a seed corpus of valid submaps. Exit status 1
-# if it finds a crash (the input is kept in the work folder).
+# if it finds a crash (the input is kept in the work folder; a work folder the script made
+# itself is removed when nothing crashed).
 # Usage: bash tests/tools/fuzz_submap_decoder.sh [seconds (default 60)] [work dir]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 seconds="${1:-60}"
-work="${2:-$(mktemp -d /tmp/raillomer_fuzz_XXXXXX)}"
+work="${2:-}"
+own_work=false
+if [ -z "$work" ]; then
+  work="$(mktemp -d /tmp/raillomer_fuzz_XXXXXX)"
+  own_work=true
+fi
 mkdir -p "$work/corpus"
 clang++ -std=c++17 -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined \
   -I. -I/usr/include/eigen3 tests/api/submap_decoder_fuzz.cc api/stream.cc api/trajectory.cc \
@@ -35,6 +41,8 @@ if ./fuzz_submap_decoder -max_total_time="$seconds" -max_len=65536 -timeout=5 -r
     -print_final_stats=1 corpus > fuzz.log 2>&1; then
   tail -n 12 fuzz.log
   echo "fuzz_submap_decoder: no crash in ${seconds} s"
+  # A work folder of its own is kept only when it holds a crash.
+  if $own_work; then rm -rf "$work"; fi
 else
   tail -n 40 fuzz.log
   echo "fuzz_submap_decoder: a crash; the input is in $work" >&2

@@ -50,8 +50,17 @@ export async function startServer() {
     log,
     pid: proc.pid,
     base: `http://127.0.0.1:${started.port}`,
+    /** Stops the server and removes its folder (store and log). */
     stop() {
-      proc.kill('SIGTERM');
+      return new Promise((resolve) => {
+        const removed = () => {
+          fs.rmSync(dir, { recursive: true, force: true });
+          resolve();
+        };
+        if (proc.exitCode !== null || proc.signalCode !== null) return removed();
+        proc.once('exit', removed);
+        proc.kill('SIGTERM');
+      });
     },
   };
 }

@@ -78,6 +78,6 @@ test('viewer figures on a streamed 3 km run', async ({ page, browser }) => {
     errors.check();
     freshErrors.forEach((e) => e.check());
   } finally {
-    server.stop();
+    await server.stop();
   }
 });
