@@ -29,7 +29,7 @@ start_server() {
   local known pid
   known="$(cat "$data/server.port" 2>/dev/null || echo "$port")"
   pid="$(cat "$data/server.pid" 2>/dev/null || true)"
-  if [ -n "$pid" ] && [[ "$(ps -p "$pid" -o comm= 2>/dev/null)" == raillomer-serv* ]]; then
+  if [ -n "$pid" ] && [[ "$(cat "/proc/$pid/comm" 2>/dev/null || true)" == raillomer-serv* ]]; then
     if curl -sf "http://127.0.0.1:$known/health" >/dev/null; then
       port="$known"
       echo "demo: raillomer-server already up on port $port (pid $pid)"

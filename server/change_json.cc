@@ -104,8 +104,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
       "id,run,reference_run,kind,chainage_m,offset_m,side,easting,northing,height,utm_zone,"
       "lon,lat,along_m,across_m,height_m,height_above_rail_min_m,height_above_rail_max_m,"
       "intrudes_envelope,margin_m,lod_m,confidence,provisional,first_seen_run,earlier_change,"
-      "status,"
-      "note\n";
+      "status,note\n";
   for (const mapstore::StoredChange& s : changes) {
     const mapstore::RunChange& c = s.change;
     json lon_lat = {nullptr, nullptr};

@@ -57,6 +57,22 @@ th { background: #eee; }
 @media print { a { color: inherit; text-decoration: none; } }
 )css";
 
+/// A filter in words: "" for every change.
+std::string FilterText(const mapstore::ChangeFilter& f) {
+  std::vector<std::string> parts;
+  if (std::isfinite(f.from_m)) parts.push_back("from " + Km(f.from_m));
+  if (std::isfinite(f.to_m)) parts.push_back("to " + Km(f.to_m));
+  if (f.kind) parts.push_back(std::string("kind ") + mapstore::ToString(*f.kind));
+  if (f.intrudes) parts.push_back(*f.intrudes ? "intruding the gauge" : "clear of the gauge");
+  if (f.min_size_m > 0.0) parts.push_back("at least " + Fixed(f.min_size_m, 2) + " m");
+  std::string statuses;
+  for (const std::string& s : f.statuses) statuses += (statuses.empty() ? "" : " or ") + s;
+  if (!statuses.empty()) parts.push_back("status " + statuses);
+  std::string text;
+  for (const std::string& p : parts) text += (text.empty() ? "" : ", ") + p;
+  return text;
+}
+
 std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::StoredChange>& c) {
   std::map<std::string, int> by_kind;
   int intrusions = 0;
@@ -83,7 +99,8 @@ std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::Sto
   std::string kinds;
   for (const char* k : {"added", "removed", "moved", "vegetation"})
     kinds += std::string(kinds.empty() ? "" : ", ") + k + " " + std::to_string(by_kind[k]);
-  if (!in.listed.empty()) row("Listed", Escape(in.listed));
+  const std::string listed = FilterText(in.filter);
+  if (!listed.empty()) row("Listed", Escape(listed));
   row("Changes", std::to_string(c.size()) + " (" + kinds + ")");
   row("Intruding the gauge",
       "<span class=\"" + std::string(intrusions ? "intrudes" : "") + "\">" +

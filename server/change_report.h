@@ -15,7 +15,7 @@ struct ChangeReportInput {
   mapstore::DetectionState detection;
   std::string reason;  ///< why nothing was compared, if so
   std::vector<mapstore::StoredChange> changes;
-  std::string listed;  ///< which changes are listed, in words ("" when every one is)
+  mapstore::ChangeFilter filter;  ///< which changes are listed (the summary names it)
   /// A change's snapshot as PNG bytes ("" when it cannot be drawn).
   std::function<std::string(const mapstore::StoredChange&)> snapshot;
   std::string viewer_url = "/";  ///< links into the viewer: <viewer_url>?run=R&change=ID

@@ -1,6 +1,5 @@
 // The change-detection routes: a run's changes (GeoJSON or CSV), recomputing them against a
 // chosen reference, an engineer's status and note, a change's snapshot and a run's report.
-#include <cstdio>
 #include <limits>
 
 #include "server/change_json.h"
@@ -40,7 +39,8 @@ bool StatusesOf(const HttpRequest& req, HttpResponse& res, std::vector<std::stri
 
 /// The filters of GET .../changes; false with a 400 naming the bad one.
 bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter* f) {
-  double from_km = -1e9, to_km = 1e9;
+  double from_km = -std::numeric_limits<double>::infinity();
+  double to_km = std::numeric_limits<double>::infinity();
   if (!NumberParam(req, res, "from_km", &from_km) || !NumberParam(req, res, "to_km", &to_km) ||
       !NumberParam(req, res, "min_size_m", &f->min_size_m))
     return false;
@@ -66,29 +66,6 @@ bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter*
     f->intrudes = v == "true";
   }
   return StatusesOf(req, res, &f->statuses);
-}
-
-/// A number with `decimals` decimals.
-std::string Decimal(double v, int decimals) {
-  char text[64];
-  std::snprintf(text, sizeof(text), "%.*f", decimals, v);
-  return text;
-}
-
-/// A filter in words for the report's summary: "" for every change.
-std::string FilterText(const mapstore::ChangeFilter& f) {
-  std::vector<std::string> parts;
-  if (f.from_m > -1e11) parts.push_back("from km " + Decimal(f.from_m / 1000.0, 3));
-  if (f.to_m < 1e11) parts.push_back("to km " + Decimal(f.to_m / 1000.0, 3));
-  if (f.kind) parts.push_back(std::string("kind ") + mapstore::ToString(*f.kind));
-  if (f.intrudes) parts.push_back(*f.intrudes ? "intruding the gauge" : "clear of the gauge");
-  if (f.min_size_m > 0.0) parts.push_back("at least " + Decimal(f.min_size_m, 2) + " m");
-  std::string statuses;
-  for (const std::string& s : f.statuses) statuses += (statuses.empty() ? "" : " or ") + s;
-  if (!statuses.empty()) parts.push_back("status " + statuses);
-  std::string text;
-  for (const std::string& p : parts) text += (text.empty() ? "" : ", ") + p;
-  return text;
 }
 
 class ChangeApi {
@@ -206,14 +183,12 @@ class ChangeApi {
 
   void Report(const HttpRequest& req, HttpResponse& res) {
     int64_t run = 0;
-    mapstore::ChangeFilter filter;
-    if (!PathId(req, res, &run) || !FilterOf(req, res, &filter)) return;
     ChangeReportInput in;
-    in.listed = FilterText(filter);
+    if (!PathId(req, res, &run) || !FilterOf(req, res, &in.filter)) return;
     mapstore::Result r = store_.GetRun(run, &in.run);
     if (r) r = store_.GetLine(in.run.line, &in.line);
     if (r) r = worker_.State(run, &in.detection, &in.reason);
-    if (r) r = changes_.List(run, filter, &in.changes);
+    if (r) r = changes_.List(run, in.filter, &in.changes);
     if (!r) return SendResult(res, r);
     in.snapshot = [this](const mapstore::StoredChange& change) {
       std::string png;

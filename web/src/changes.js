@@ -88,30 +88,39 @@ export class ChangesPanel {
     else this.items.push(change);
   }
 
+  /** The panel's filters (absent ones null). */
+  filters() {
+    const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
+    return {
+      kind: $('change-kind').value || null,
+      statuses: $('change-state').value ? $('change-state').value.split(',') : null,
+      intrusions: $('change-intrusions').checked,
+      from: Number.isNaN(from) ? null : from,
+      to: Number.isNaN(to) ? null : to,
+    };
+  }
+
   /** The report of the run with the list's filters. */
   reportUrl() {
+    const f = this.filters();
     const query = new URLSearchParams();
-    if ($('change-kind').value) query.set('kind', $('change-kind').value);
-    if ($('change-state').value) query.set('status', $('change-state').value);
-    if ($('change-intrusions').checked) query.set('intrudes_envelope', 'true');
-    const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
-    if (!Number.isNaN(from)) query.set('from_km', from);
-    if (!Number.isNaN(to)) query.set('to_km', to);
+    if (f.kind) query.set('kind', f.kind);
+    if (f.statuses) query.set('status', f.statuses.join(','));
+    if (f.intrusions) query.set('intrudes_envelope', 'true');
+    if (f.from !== null) query.set('from_km', f.from);
+    if (f.to !== null) query.set('to_km', f.to);
     const q = query.toString();
     return `/api/v1/runs/${this.run.id}/changes/report${q ? `?${q}` : ''}`;
   }
 
   filtered() {
-    const kind = $('change-kind').value;
-    const statuses = $('change-state').value ? $('change-state').value.split(',') : null;
-    const intrusions = $('change-intrusions').checked;
-    const from = parseKm($('change-from').value), to = parseKm($('change-to').value);
+    const f = this.filters();
     return this.items
-      .filter((c) => !kind || c.kind === kind)
-      .filter((c) => !statuses || statuses.includes(c.status))
-      .filter((c) => !intrusions || c.intrudes_envelope)
-      .filter((c) => Number.isNaN(from) || c.chainage_m >= from * 1000)
-      .filter((c) => Number.isNaN(to) || c.chainage_m <= to * 1000)
+      .filter((c) => !f.kind || c.kind === f.kind)
+      .filter((c) => !f.statuses || f.statuses.includes(c.status))
+      .filter((c) => !f.intrusions || c.intrudes_envelope)
+      .filter((c) => f.from === null || c.chainage_m >= f.from * 1000)
+      .filter((c) => f.to === null || c.chainage_m <= f.to * 1000)
       .sort((a, b) => b.intrudes_envelope - a.intrudes_envelope || a.chainage_m - b.chainage_m);
   }
 
