@@ -1,6 +1,6 @@
 // Before the browser tests: a server with three runs of the demo line (the second changed, the
-// third a repeat with other sensor noise; their detections done), the state the specs read in
-// results/fixture.json.
+// third the changed line again with other sensor noise, whose changes continue the second's;
+// their detections done), the state the specs read in results/fixture.json.
 import fs from 'node:fs';
 import path from 'node:path';
 import { getJson, startServer, stateFile, streamRun, waitFor, webRoot } from './fixture.js';
@@ -15,7 +15,7 @@ export default async function globalSetup() {
   const server = await startServer();
   await streamRun(server, 'demo', 'Demo').done;
   await streamRun(server, CHANGED, 'Demo', { seed: 5 }).done;
-  await streamRun(server, 'demo', 'Demo', { seed: 7 }).done;
+  await streamRun(server, CHANGED, 'Demo', { seed: 7 }).done;
   const runs = (await getJson(server, '/api/v1/runs')).runs;
   const [reference, changed, repeat] = runs.map((r) => r.id);
   for (const run of [changed, repeat]) {

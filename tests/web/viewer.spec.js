@@ -107,6 +107,23 @@ test('the changed run lists its changes; one is opened and its status set', asyn
   expect((await fetch(f.base + href)).status).toBe(200);
 });
 
+test('a change found again by a later run says since when, in the list and its details', async ({ page }) => {
+  const f = fixture();
+  const api = await getJson(f, `/api/v1/runs/${f.repeat}/changes`);
+  const again = api.features.map((x) => x.properties).filter((c) => c.earlier_change);
+  expect(again.length).toBeGreaterThan(0);
+  await page.goto(`${f.base}/?run=${f.repeat}`);
+  const item = page.locator(`#changes-list li[data-change-id="${again[0].id}"]`);
+  await expect(item).toContainText(`since run ${f.changed}`);
+  await item.click();
+  await expect(page.locator('#change-props')).toContainText(
+    `first seenrun ${f.changed} (continues change ${again[0].earlier_change})`,
+  );
+  // A change new in this run carries no such mark.
+  const fresh = api.features.map((x) => x.properties).find((c) => !c.earlier_change);
+  if (fresh) await expect(page.locator(`#changes-list li[data-change-id="${fresh.id}"]`)).not.toContainText('since run');
+});
+
 test('the changes are reviewed one after another: n, p, the arrows and Save, next', async ({ page }) => {
   const f = fixture();
   const api = await getJson(f, `/api/v1/runs/${f.changed}/changes`);
@@ -235,7 +252,8 @@ test('two later runs of one reference are both drawn where the detection registe
   await expect(page.locator('#legend')).toContainText('distance to the other run');
   await waitForPoints(page);
   const png = await shot(page, 'two-later-runs', page.locator('#viewport > canvas'));
-  // Each in the reference's map, the runs agree almost everywhere: grey, not red.
+  // Each in the reference's map, the runs (one line changed the same way twice) agree almost
+  // everywhere: grey, not red.
   const grey = countHue(png, (r, g, b) => Math.abs(r - g) < 8 && Math.abs(g - b) < 8 && r > 60);
   const red = countHue(png, (r, g, b) => r > 150 && g < 110 && b < 80);
   expect(grey).toBeGreaterThan(2000);

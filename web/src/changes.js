@@ -149,6 +149,9 @@ export class ChangesPanel {
         ` · ${fmt(Math.max(...c.size_m), 1)} m` +
         (c.intrudes_envelope ? ' · <b>in gauge</b>' : '') +
         ` · <i>${escapeHtml(c.status)}</i>` +
+        (c.earlier_change
+          ? ` · <i title="found before as change ${c.earlier_change}">since run ${c.first_seen_run}</i>`
+          : '') +
         (c.provisional ? ' · <i title="found on provisional output; checked again on the final map">provisional</i>' : '');
       li.onclick = () => this.select(c.id, true);
       list.appendChild(li);
