@@ -244,7 +244,10 @@ std::unique_ptr<MapStore> MapStore::Open(const std::string& dir,
     *error = "cannot make the store folder " + dir + " private (0700): " + ec.message();
     return nullptr;
   }
+  std::unique_ptr<StoreLock> lock = StoreLock::Acquire(dir, error);
+  if (!lock) return nullptr;
   std::unique_ptr<MapStore> store(new MapStore(dir, options));
+  store->lock_ = std::move(lock);
   store->writer_ = std::make_unique<Database>();
   if (!store->writer_->Open(store->IndexPath(), true, error)) return nullptr;
   if (!MigrateSchema(*store->writer_, error)) {

@@ -18,6 +18,7 @@
 #include "api/stream.h"
 #include "mapstore/chainage.h"
 #include "mapstore/export.h"
+#include "mapstore/store_lock.h"
 #include "mapstore/tile_grid.h"
 
 namespace raillomer::mapstore {
@@ -372,7 +373,8 @@ class MapStore {
 
   std::string dir_;
   StoreOptions options_;
-  mutable std::mutex mu_;  ///< the writer connection, the hot tiles, the stats
+  std::unique_ptr<StoreLock> lock_;  ///< first taken, last let go: after the final flush
+  mutable std::mutex mu_;            ///< the writer connection, the hot tiles, the stats
   std::unique_ptr<Database> writer_;
   std::unique_ptr<Readers> readers_;
   std::map<HotKey, std::unique_ptr<HotTile>> hot_;

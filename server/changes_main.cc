@@ -6,6 +6,8 @@
 #include <fstream>
 #include <string>
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
@@ -75,6 +77,9 @@ void PrintExplained(const StretchOutcome& outcome, const Explain& explain) {
   }
 }
 
+/// Whether progress overwrites itself on one line (a terminal) or takes a line each (a log).
+bool ProgressInPlace() { return isatty(STDERR_FILENO) != 0; }
+
 /// CompareRuns, printing progress; with `save`, each stretch is stored as the server stores it.
 Result Compare(const MapStore& store,
                int64_t reference,
@@ -93,7 +98,10 @@ Result Compare(const MapStore& store,
   bool requested = false;
   Result r = CompareRuns(
       store, reference, run, options, changes, summary, [&](const StretchOutcome& outcome) {
-        std::fprintf(stderr, "\rraillomer-changes: km %.3f", outcome.range.to_m / 1000.0);
+        std::fprintf(
+            stderr,
+            ProgressInPlace() ? "\rraillomer-changes: km %.3f" : "raillomer-changes: km %.3f\n",
+            outcome.range.to_m / 1000.0);
         if (explain.on) PrintExplained(outcome, explain);
         if (!saved) return Result{};
         // The run's earlier changes go once the runs are known to compare.
@@ -214,9 +222,12 @@ Result ResolveRuns(const MapStore& store, const Options& o, RunInfo* info, int64
   *reference = o.reference != 0 ? o.reference : line.reference_run;
   if (*reference == 0) return {Outcome::kInvalid, "no reference run: name one with --reference"};
   if (*reference == o.run)
-    return {Outcome::kInvalid,
-            "run " + std::to_string(o.run) +
-                " is its line's reference run: name another to compare with, --reference <id>"};
+    return {
+        Outcome::kInvalid,
+        o.reference != 0
+            ? "--reference names the run itself: name another run of line '" + info->line + "'"
+            : "run " + std::to_string(o.run) +
+                  " is its line's reference run: name another to compare with, --reference <id>"};
   return {};
 }
 
@@ -240,6 +251,9 @@ int main(int argc, char** argv) {
   const std::filesystem::path json_dir = std::filesystem::path(o.json_path).parent_path();
   if (!o.json_path.empty() && !json_dir.empty() && !std::filesystem::is_directory(json_dir))
     return Fail("cannot write " + o.json_path + ": no folder " + json_dir.string());
+  if (!std::filesystem::is_regular_file(std::filesystem::path(o.data_dir) / "index.sqlite"))
+    return Fail("no store in " + o.data_dir +
+                " (no index.sqlite): name the folder raillomer-server --data stores into");
   std::string error;
   StoreOptions store_options;
   store_options.flush_interval_ms = 0;
@@ -260,7 +274,7 @@ int main(int argc, char** argv) {
   std::vector<RunChange> changes;
   RunComparisonSummary summary;
   r = Compare(*store, reference, o.run, options, o.save, explain, &changes, &summary);
-  std::fprintf(stderr, "\n");
+  if (ProgressInPlace()) std::fprintf(stderr, "\n");
   if (!r) return Fail(r.message);
   PrintTable(o.run, reference, info.line, summary, changes);
   if (!o.json_path.empty() && !WriteJson(o.json_path, o.run, reference, summary, changes))

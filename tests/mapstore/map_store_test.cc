@@ -280,6 +280,19 @@ TEST(MapStore, ReopensWithEverythingAndMergesIncrementally) {
   EXPECT_EQ(runs[0].submaps, 3);
 }
 
+TEST(MapStore, AStoreInUseIsRefusedToASecondOpenerNamingTheHolder) {
+  test::ScratchDir dir("raillomer_store_");
+  std::string error;
+  auto first = OpenStore(dir.path().string(), &error);
+  ASSERT_TRUE(first) << error;
+  EXPECT_FALSE(OpenStore(dir.path().string(), &error));
+  EXPECT_NE(error.find("in use by another process (pid " + std::to_string(getpid()) + ")"),
+            std::string::npos)
+      << error;
+  first.reset();  // closing lets the folder go (a killed holder does too: the next test)
+  EXPECT_TRUE(OpenStore(dir.path().string(), &error)) << error;
+}
+
 TEST(MapStore, ASubmapAcknowledgedBeforeACrashIsInTheTilesAfterRestart) {
   test::ScratchDir dir("raillomer_store_");
   std::string error;
