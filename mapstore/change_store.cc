@@ -153,7 +153,10 @@ Result ChangeStore::Request(int64_t run, int64_t reference, bool restart, Detect
   Transaction t(*db_);
   if (!t.ok()) return DbError("cannot begin", db_->Message());
   const int64_t now = NowNs();
-  Statement drop_changes(*db_, "DELETE FROM changes WHERE run_id = ?");
+  // The earlier comparison's changes stay, marked to be checked again: each stretch compared
+  // anew takes over those it finds again (their ids, statuses and notes) and withdraws the
+  // rest; Finish withdraws those of stretches not compared again.
+  Statement recheck_changes(*db_, "UPDATE changes SET provisional = 1 WHERE run_id = ?");
   Statement drop_stretches(*db_, "DELETE FROM change_stretches WHERE run_id = ?");
   Statement set(*db_,
                 "INSERT INTO change_detection (run_id, reference_run, status, error, "
@@ -162,7 +165,7 @@ Result ChangeStore::Request(int64_t run, int64_t reference, bool restart, Detect
                 "status = 'pending', error = '', requested_ns = excluded.requested_ns, "
                 "updated_ns = excluded.updated_ns");
   std::string error;
-  if (!drop_changes.Bind(1, run).Run() || !drop_stretches.Bind(1, run).Run() ||
+  if (!recheck_changes.Bind(1, run).Run() || !drop_stretches.Bind(1, run).Run() ||
       !set.Bind(1, run).Bind(2, reference).Bind(3, now).Bind(4, now).Run() || !t.Commit(&error))
     return DbError("cannot store the detection request", db_->Message() + error);
   return out ? DetectionLocked(run, out) : Result{};
@@ -262,11 +265,10 @@ Result ChangeStore::SaveStretch(int64_t run,
   if (state.reference_run != reference)
     return Fail(Outcome::kConflict, "the run is now compared with another reference");
   Statement seen(*db_, "SELECT provisional FROM change_stretches WHERE run_id = ? AND stretch = ?");
-  if (seen.Bind(1, run).Bind(2, o.range.index).Step()) {
-    if (seen.Int(0) == 0 || o.provisional) return {Outcome::kDuplicate, ""};
-    r = TakeProvisionalLocked(run, o.range.index, &provisional);
-    if (!r) return r;
-  }
+  if (seen.Bind(1, run).Bind(2, o.range.index).Step() && (seen.Int(0) == 0 || o.provisional))
+    return {Outcome::kDuplicate, ""};
+  r = TakeProvisionalLocked(run, o.range.index, &provisional);
+  if (!r) return r;
   StoredChange base;
   base.run_id = run;
   base.reference_run = reference;
@@ -278,11 +280,7 @@ Result ChangeStore::SaveStretch(int64_t run,
   base.created_ns = base.updated_ns = NowNs();
   r = InsertStretchLocked(run, reference, o, base.created_ns);
   if (r) r = StoreChangesLocked(base, o, &provisional, stored);
-  Statement drop(*db_, "DELETE FROM changes WHERE id = ?");
-  for (const StoredChange& gone : provisional) {
-    drop.Reset();
-    if (r && !drop.Bind(1, gone.id).Run()) r = DbError("cannot withdraw a change", drop.error());
-  }
+  if (r) r = WithdrawLocked(provisional);
   if (r && !o.provisional) r = CloseFixedLocked(run, o.range, *stored, closed);
   if (!r) return r;
   const int64_t now = base.created_ns;
@@ -300,7 +298,7 @@ Result ChangeStore::TakeProvisionalLocked(int64_t run,
                                           int stretch,
                                           std::vector<StoredChange>* provisional) {
   Result r = ListWhere(
-      "run_id = ? AND stretch = ?",
+      "run_id = ? AND stretch = ? AND provisional = 1",
       [&](Statement& q) { q.Bind(1, run).Bind(2, stretch); },
       provisional);
   if (!r) return r;
@@ -346,9 +344,13 @@ Result ChangeStore::StoreChangesLocked(const StoredChange& base,
 Result ChangeStore::UpdateChangeLocked(const StoredChange& s) {
   Statement set(*db_,
                 "UPDATE changes SET chainage_m = ?, offset_m = ?, x = ?, y = ?, z = ?, "
-                "properties = ?, intrudes = ?, size_max_m = ?, provisional = ?, updated_ns = ? "
-                "WHERE id = ?");
-  if (!BindMeasured(set, 1, s).Bind(10, s.updated_ns).Bind(11, s.id).Run())
+                "properties = ?, intrudes = ?, size_max_m = ?, provisional = ?, updated_ns = ?, "
+                "reference_run = ? WHERE id = ?");
+  if (!BindMeasured(set, 1, s)
+           .Bind(10, s.updated_ns)
+           .Bind(11, s.reference_run)
+           .Bind(12, s.id)
+           .Run())
     return DbError("cannot store a change again", set.error());
   return {};
 }
@@ -479,6 +481,42 @@ Result ChangeStore::CloseFixedLocked(int64_t run,
   return {};
 }
 
+Result ChangeStore::WithdrawLocked(const std::vector<StoredChange>& gone) {
+  Statement drop(*db_, "DELETE FROM changes WHERE id = ?");
+  Statement relink(*db_, "UPDATE changes SET earlier_change = ? WHERE earlier_change = ?");
+  for (const StoredChange& c : gone) {
+    drop.Reset();
+    relink.Reset();
+    // A later change that continued it continues what it continued (its first run stays).
+    if (c.earlier_change != 0)
+      relink.Bind(1, c.earlier_change);
+    else
+      relink.BindNull(1);
+    if (!drop.Bind(1, c.id).Run() || !relink.Bind(2, c.id).Run())
+      return DbError("cannot withdraw a change", drop.error() + relink.error());
+  }
+  return {};
+}
+
+Result ChangeStore::Finish(int64_t run, std::vector<StoredChange>* withdrawn) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction t(*db_);
+  if (!t.ok()) return DbError("cannot begin", db_->Message());
+  std::vector<StoredChange> stale;
+  Result r = ListWhere(
+      "run_id = ? AND provisional = 1", [&](Statement& q) { q.Bind(1, run); }, &stale);
+  if (r) r = WithdrawLocked(stale);
+  if (!r) return r;
+  Statement done(*db_,
+                 "UPDATE change_detection SET status = 'done', error = '', updated_ns = ? "
+                 "WHERE run_id = ?");
+  std::string error;
+  if (!done.Bind(1, NowNs()).Bind(2, run).Run() || !t.Commit(&error))
+    return DbError("cannot finish the detection", done.error() + error);
+  if (withdrawn) *withdrawn = std::move(stale);
+  return {};
+}
+
 Result ChangeStore::SetStatus(int64_t run, const std::string& status, const std::string& error) {
   std::lock_guard<std::mutex> lock(mu_);
   Statement q(*db_,
@@ -539,18 +577,23 @@ Result ChangeStore::Get(int64_t id, StoredChange* out) const {
 }
 
 Result ChangeStore::Update(int64_t id,
-                           const std::string& status,
+                           const std::optional<std::string>& status,
                            const std::optional<std::string>& note,
                            StoredChange* out) {
-  if (!IsChangeStatus(status, true))
+  if (status && !IsChangeStatus(*status, true))
     return Fail(Outcome::kInvalid,
-                "status must be new, confirmed, dismissed or fixed (got '" + status + "')");
+                "status must be new, confirmed, dismissed or fixed (got '" + *status + "')");
   {
+    // One statement: a note alone leaves the status (closed too) as it is then.
     std::lock_guard<std::mutex> lock(mu_);
     Statement q(*db_,
-                "UPDATE changes SET status = ?, note = IFNULL(?, note), closed_by_run = NULL, "
-                "updated_ns = ? WHERE id = ?");
-    q.Bind(1, status);
+                "UPDATE changes SET status = IFNULL(?1, status), note = IFNULL(?2, note), "
+                "closed_by_run = CASE WHEN ?1 IS NULL THEN closed_by_run END, updated_ns = ?3 "
+                "WHERE id = ?4");
+    if (status)
+      q.Bind(1, *status);
+    else
+      q.BindNull(1);
     if (note)
       q.Bind(2, *note);
     else

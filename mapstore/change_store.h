@@ -85,7 +85,8 @@ class ChangeStore {
   ChangeStore& operator=(const ChangeStore&) = delete;
 
   /// Asks for `run` to be compared with `reference`: a new detection, or (`restart`, or another
-  /// reference than the stored one) the run's stored stretches and changes dropped first.
+  /// reference than the stored one) the run's stored stretches dropped and its changes marked
+  /// provisional, to be taken over where the new comparison finds them again.
   Result Request(int64_t run, int64_t reference, bool restart, DetectionState* out);
   Result Detection(int64_t run, DetectionState* out) const;  ///< kNotFound if never requested
   Result Detections(std::vector<DetectionState>* out) const;
@@ -98,11 +99,11 @@ class ChangeStore {
   /// ids. A stretch already stored is a kDuplicate (nothing stored), unless it was stored
   /// provisional and this outcome is not: then the outcome replaces it. A change of the same
   /// kind within 2 m keeps its id, status and note; the provisional changes not found again
-  /// are deleted (`withdrawn` gets them). A detection requested meanwhile against another
-  /// reference is a kConflict. A final outcome closes changes of earlier runs of the line
-  /// marked `fixed` in the stretch and not seen again within 2 m (`closed` gets them). A new
-  /// change of the kind of an earlier run's (not closed) within 2 m continues it: it takes its
-  /// note and status (`new` again if it was `fixed`) and its first run.
+  /// (the stretch's own, or an earlier comparison's) are deleted (`withdrawn` gets them). A
+  /// detection requested meanwhile against another reference is a kConflict. A final outcome closes
+  /// changes of earlier runs of the line marked `fixed` in the stretch and not seen again within 2
+  /// m (`closed` gets them). A new change of the kind of an earlier run's (not closed) within 2 m
+  /// continues it: it takes its note and status (`new` again if it was `fixed`) and its first run.
   Result SaveStretch(int64_t run,
                      int64_t reference,
                      const StretchOutcome& outcome,
@@ -110,12 +111,16 @@ class ChangeStore {
                      std::vector<StoredChange>* closed,
                      std::vector<StoredChange>* withdrawn = nullptr);
   Result SetStatus(int64_t run, const std::string& status, const std::string& error);
+  /// Marks the run's detection done, withdrawing the changes of an earlier comparison that no
+  /// stretch of this one found again (`withdrawn` gets them).
+  Result Finish(int64_t run, std::vector<StoredChange>* withdrawn);
 
   Result List(int64_t run, const ChangeFilter& filter, std::vector<StoredChange>* out) const;
   Result Get(int64_t id, StoredChange* out) const;
-  /// Sets a change's status (IsChangeStatus settable) and, if given, its note.
+  /// Sets a change's status (IsChangeStatus settable), its note, or both; what is not given
+  /// stays as it is (a closed change keeps its status under a new note).
   Result Update(int64_t id,
-                const std::string& status,
+                const std::optional<std::string>& status,
                 const std::optional<std::string>& note,
                 StoredChange* out);
   Result Frame(int64_t run, int stretch, StretchFrame* out) const;
@@ -135,8 +140,11 @@ class ChangeStore {
   Result InsertChangeLocked(StoredChange* change);
   /// Stores what detection measured of a change again, under its id.
   Result UpdateChangeLocked(const StoredChange& change);
-  /// Deletes a provisional stretch; `provisional` gets its changes.
+  /// Deletes the stretch's row if it was provisional; `provisional` gets the stretch's
+  /// provisional changes (its own, or an earlier comparison's: Request).
   Result TakeProvisionalLocked(int64_t run, int stretch, std::vector<StoredChange>* provisional);
+  /// Deletes the changes; one that a later change continued hands that on to what it continued.
+  Result WithdrawLocked(const std::vector<StoredChange>& gone);
   /// Stores each change of the outcome: as an update of a provisional one of its kind within
   /// 2 m (which leaves `provisional`), else as a new one, continuing an earlier run's.
   Result StoreChangesLocked(const StoredChange& base,

@@ -179,6 +179,38 @@ ALTER TABLE changes ADD COLUMN provisional INTEGER NOT NULL DEFAULT 0;
 ALTER TABLE changes ADD COLUMN earlier_change INTEGER;
 ALTER TABLE changes ADD COLUMN first_seen_run INTEGER;
 )sql",
+      // 8: a change's id is never given again, even after the change is withdrawn: reports
+      // and links name changes by it.
+      R"sql(
+CREATE TABLE changes_v8 (
+  id INTEGER PRIMARY KEY AUTOINCREMENT,
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  reference_run INTEGER NOT NULL,
+  stretch INTEGER NOT NULL,
+  line TEXT NOT NULL,
+  kind TEXT NOT NULL,
+  chainage_m REAL NOT NULL,
+  offset_m REAL NOT NULL,
+  utm_zone TEXT NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL,
+  properties TEXT NOT NULL,
+  intrudes INTEGER NOT NULL,
+  size_max_m REAL NOT NULL,
+  status TEXT NOT NULL DEFAULT 'new',
+  note TEXT NOT NULL DEFAULT '',
+  closed_by_run INTEGER,
+  created_ns INTEGER NOT NULL,
+  updated_ns INTEGER NOT NULL,
+  provisional INTEGER NOT NULL DEFAULT 0,
+  earlier_change INTEGER,
+  first_seen_run INTEGER
+);
+INSERT INTO changes_v8 SELECT * FROM changes;
+DROP TABLE changes;
+ALTER TABLE changes_v8 RENAME TO changes;
+CREATE INDEX changes_by_run ON changes (run_id, chainage_m);
+CREATE INDEX changes_by_line ON changes (line, status);
+)sql",
   };
   return migrations;
 }

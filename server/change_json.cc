@@ -99,6 +99,19 @@ json ChangeCollection(const std::vector<mapstore::StoredChange>& changes, const 
   return {{"type", "FeatureCollection"}, {"detection", detection}, {"features", features}};
 }
 
+namespace {
+
+/// Free text as one CSV field: quoted, quotes doubled, and a leading = + - @ tab or carriage
+/// return escaped with ' so that a spreadsheet shows the text instead of running a formula.
+std::string CsvText(const std::string& text) {
+  std::string out = "\"";
+  if (!text.empty() && std::string("=+-@\t\r").find(text.front()) != std::string::npos) out += '\'';
+  for (char ch : text) out += ch == '"' ? std::string("\"\"") : std::string(1, ch);
+  return out + "\"";
+}
+
+}  // namespace
+
 std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
   std::string out =
       "id,run,reference_run,kind,chainage_m,offset_m,side,easting,northing,height,utm_zone,"
@@ -109,9 +122,7 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
     const mapstore::RunChange& c = s.change;
     json lon_lat = {nullptr, nullptr};
     Wgs84(c.utm_zone, c.centre_utm, &lon_lat);
-    std::string note = "\"";
-    for (char ch : s.note) note += ch == '"' ? std::string("\"\"") : std::string(1, ch);
-    note += "\"";
+    const std::string note = CsvText(s.note);
     char row[768];
     std::snprintf(row,
                   sizeof(row),

@@ -1,6 +1,8 @@
 // The change-detection routes: a run's changes (GeoJSON or CSV), recomputing them against a
 // chosen reference, an engineer's status and note, a change's snapshot and a run's report.
+#include <cmath>
 #include <limits>
+#include <optional>
 
 #include "server/change_json.h"
 #include "server/change_report.h"
@@ -46,6 +48,15 @@ bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter*
     return false;
   f->from_m = 1000.0 * from_km;
   f->to_m = 1000.0 * to_km;
+  if ((req.HasParam("from_km") && !std::isfinite(f->from_m)) ||
+      (req.HasParam("to_km") && !std::isfinite(f->to_m))) {
+    res.SetError(400, "invalid", "from_km and to_km must be kilometres a line can have");
+    return false;
+  }
+  if (f->from_m > f->to_m) {
+    res.SetError(400, "invalid", "from_km must not be above to_km");
+    return false;
+  }
   if (req.HasParam("kind")) {
     mapstore::ChangeKind kind;
     if (!mapstore::ParseChangeKind(req.Param("kind"), &kind)) {
@@ -66,6 +77,25 @@ bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter*
     f->intrudes = v == "true";
   }
   return StatusesOf(req, res, &f->statuses);
+}
+
+/// Whether a PATCH's note is one: a string of at most 4000 characters (UTF-8, which the JSON
+/// parser has checked), no control characters but tab and line breaks; else `why` says.
+bool NoteIsValid(const json& note, std::string* why) {
+  if (!note.is_string()) return *why = "note must be a string", false;
+  size_t characters = 0;
+  for (const char c : note.get_ref<const std::string&>()) {
+    const auto byte = static_cast<unsigned char>(c);
+    if ((byte < 0x20 && c != '\t' && c != '\n' && c != '\r') || byte == 0x7f)
+      return *why = "note must not hold control characters (found code " + std::to_string(byte) +
+                    "); tab and line breaks are allowed",
+             false;
+    characters += (byte & 0xc0) != 0x80;  // continuation bytes do not start a character
+  }
+  if (characters > 4000)
+    return *why = "note must be at most 4000 characters (got " + std::to_string(characters) + ")",
+           false;
+  return true;
 }
 
 class ChangeApi {
@@ -155,17 +185,16 @@ class ChangeApi {
         return res.SetError(400, "invalid", "unknown member '" + key + "' (status, note)");
     if (body.contains("status") && !body["status"].is_string())
       return res.SetError(400, "invalid", "status must be a string");
-    if (body.contains("note") &&
-        (!body["note"].is_string() || body["note"].get_ref<const std::string&>().size() > 4000))
-      return res.SetError(400, "invalid", "note must be a string of at most 4000 bytes");
+    std::string why;
+    if (body.contains("note") && !NoteIsValid(body["note"], &why))
+      return res.SetError(400, "invalid", why);
     if (!body.contains("status") && !body.contains("note"))
       return res.SetError(400, "invalid", "give a status, a note or both");
-    mapstore::StoredChange change;
-    mapstore::Result r = changes_.Get(id, &change);
-    if (!r) return SendResult(res, r);
-    std::optional<std::string> note;
+    std::optional<std::string> status, note;
+    if (body.contains("status")) status = body["status"].get<std::string>();
     if (body.contains("note")) note = body["note"].get<std::string>();
-    r = changes_.Update(id, body.value("status", change.status), note, &change);
+    mapstore::StoredChange change;
+    const mapstore::Result r = changes_.Update(id, status, note, &change);
     if (!r) return SendResult(res, r);
     SendJson(res, ChangeFeature(change), "application/geo+json");
   }

@@ -284,8 +284,9 @@ void ChangeWorker::FinishIfDone(const mapstore::RunInfo& run, size_t stretches) 
       !changes_->StoredStretches(run.id, &stored, &provisional))
     return;
   if (!provisional.empty() || stored.size() < stretches) return;
-  changes_->SetStatus(run.id, "done", "");
-  if (changes_->Detection(run.id, &now)) announce_({}, {}, {}, now);
+  std::vector<mapstore::StoredChange> withdrawn;
+  if (!changes_->Finish(run.id, &withdrawn)) return;
+  if (changes_->Detection(run.id, &now)) announce_({}, {}, withdrawn, now);
 }
 
 }  // namespace raillomer::server

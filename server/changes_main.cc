@@ -104,7 +104,7 @@ Result Compare(const MapStore& store,
             outcome.range.to_m / 1000.0);
         if (explain.on) PrintExplained(outcome, explain);
         if (!saved) return Result{};
-        // The run's earlier changes go once the runs are known to compare.
+        // The run's earlier changes are checked again once the runs are known to compare.
         if (!requested) {
           requested = true;
           const Result q = saved->Request(run, reference, true, nullptr);
@@ -116,7 +116,7 @@ Result Compare(const MapStore& store,
   if (!r || !saved) return r;
   RunInfo info;
   r = store.GetRun(run, &info);
-  if (r && info.status == "finished") r = saved->SetStatus(run, "done", "");
+  if (r && info.status == "finished") r = saved->Finish(run, nullptr);
   return r;
 }
 

@@ -1,5 +1,6 @@
 #include "server/route_util.h"
 
+#include <algorithm>
 #include <limits>
 
 #include "server/http_parse.h"
@@ -35,9 +36,20 @@ void SendJson(HttpResponse& res, const json& j, const char* type) {
 
 /// A JSON body as an object; false (and a 400 set) if it is not one.
 bool ParseObject(const HttpRequest& req, HttpResponse& res, json* out) {
-  *out = json::parse(req.body, nullptr, false);
-  if (out->is_discarded() || !out->is_object()) {
-    res.SetError(400, "invalid", "the body must be a JSON object");
+  try {
+    *out = json::parse(req.body);
+  } catch (const json::exception& e) {  // a parse error, or a number beyond a double
+    // "[json.exception.parse_error.101] parse error at line 1, column 5: ...; last read: '...'":
+    // where and what, without the tag or the bytes read (which need not be UTF-8).
+    std::string what = e.what();
+    what = what.substr(std::min(what.size(), what.find("] ") + 2));
+    res.SetError(
+        400, "invalid", "the body is not JSON: " + what.substr(0, what.find("; last read")));
+    return false;
+  }
+  if (!out->is_object()) {
+    res.SetError(
+        400, "invalid", std::string("the body must be a JSON object, not ") + out->type_name());
     return false;
   }
   return true;

@@ -1,5 +1,6 @@
 // Change detection's records: a stretch and its changes stored once (a repeat is a duplicate,
-// a detection re-requested against another reference refuses the old one's stretches), filters,
+// a detection re-requested against another reference refuses the old one's stretches and
+// takes over the old changes it finds again), filters,
 // an engineer's status and note, a later run closing a change marked fixed that it no longer
 // sees and continuing the changes it finds again.
 #include <gtest/gtest.h>
@@ -132,21 +133,101 @@ TEST_F(ChangeStoreTest, StoresAStretchOnceWithItsChanges) {
   EXPECT_TRUE(frames[0].T_reference_later.isApprox(o.T_reference_later));
 }
 
-TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceDropsTheOldResults) {
+TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceChecksTheOldResultsAgain) {
+  // Run 3 against run 1: two changes in stretch 0 (one confirmed with a note), one in stretch 1.
   ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
-  std::vector<StoredChange> stored, closed;
-  ASSERT_TRUE(changes_->SaveStretch(
-      3, 1, Stretch(0, {Change(ChangeKind::kRemoved, 5.0, at_, false)}), &stored, &closed));
+  std::vector<StoredChange> stored, closed, withdrawn;
+  const Eigen::Vector3d east(30.0, 0.0, 0.0);
+  ASSERT_TRUE(changes_->SaveStretch(3,
+                                    1,
+                                    Stretch(0,
+                                            {Change(ChangeKind::kRemoved, 5.0, at_, false),
+                                             Change(ChangeKind::kAdded, 35.0, at_ + east, false)}),
+                                    &stored,
+                                    &closed));
+  const int64_t kept = stored[0].id, gone = stored[1].id;
+  ASSERT_TRUE(
+      changes_->SaveStretch(3,
+                            1,
+                            Stretch(1, {Change(ChangeKind::kAdded, 95.0, at_ + 3 * east, false)}),
+                            &stored,
+                            &closed));
+  const int64_t unchecked = stored[0].id;
+  StoredChange set;
+  ASSERT_TRUE(
+      changes_->Update(kept, std::string("confirmed"), std::string("seen from the cab"), &set));
+
+  // Against run 2 now: the changes stand, provisional, until their stretches are compared
+  // again; a stretch compared against the old reference is refused.
   ASSERT_TRUE(changes_->Request(3, 2, false, nullptr));
   std::vector<StoredChange> listed;
   ASSERT_TRUE(changes_->List(3, ChangeFilter(), &listed));
-  EXPECT_TRUE(listed.empty());
-  // A stretch compared against the old reference is refused.
+  ASSERT_EQ(listed.size(), 3u);
+  for (const StoredChange& c : listed) EXPECT_TRUE(c.provisional) << c.id;
   EXPECT_EQ(changes_->SaveStretch(3, 1, Stretch(1, {}), &stored, &closed).outcome,
             Outcome::kConflict);
   std::set<int> done;
   ASSERT_TRUE(changes_->StoredStretches(3, &done));
   EXPECT_TRUE(done.empty());
+
+  // Stretch 0 finds the removed object again, 0.5 m off: it keeps its id, status and note.
+  ASSERT_TRUE(changes_->SaveStretch(
+      3,
+      2,
+      Stretch(0, {Change(ChangeKind::kRemoved, 5.5, at_ + Eigen::Vector3d(0.5, 0.0, 0.0), false)}),
+      &stored,
+      &closed,
+      &withdrawn));
+  ASSERT_EQ(stored.size(), 1u);
+  EXPECT_EQ(stored[0].id, kept);
+  ASSERT_EQ(withdrawn.size(), 1u);
+  EXPECT_EQ(withdrawn[0].id, gone);
+  StoredChange now;
+  ASSERT_TRUE(changes_->Get(kept, &now));
+  EXPECT_EQ(now.status, "confirmed");
+  EXPECT_EQ(now.note, "seen from the cab");
+  EXPECT_EQ(now.reference_run, 2);
+  EXPECT_FALSE(now.provisional);
+  EXPECT_NEAR(now.change.chainage_m, 5.5, 1e-9);
+
+  // Finishing withdraws what no stretch compared again found.
+  ASSERT_TRUE(changes_->Finish(3, &withdrawn));
+  ASSERT_EQ(withdrawn.size(), 1u);
+  EXPECT_EQ(withdrawn[0].id, unchecked);
+  ASSERT_TRUE(changes_->List(3, ChangeFilter(), &listed));
+  EXPECT_EQ(listed.size(), 1u);
+  DetectionState state;
+  ASSERT_TRUE(changes_->Detection(3, &state));
+  EXPECT_EQ(state.status, "done");
+  // An id is never given again, not even the latest one withdrawn.
+  ASSERT_TRUE(
+      changes_->SaveStretch(3,
+                            2,
+                            Stretch(1, {Change(ChangeKind::kAdded, 95.0, at_ + 3 * east, false)}),
+                            &stored,
+                            &closed));
+  EXPECT_GT(stored[0].id, unchecked);
+}
+
+TEST_F(ChangeStoreTest, AWithdrawnChangeHandsOnWhatItContinuedToTheChangeThatContinuedIt) {
+  std::vector<StoredChange> stored, closed, withdrawn;
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  ASSERT_TRUE(changes_->SaveStretch(
+      2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, false)}), &stored, &closed));
+  const int64_t week2 = stored[0].id;
+  ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
+  ASSERT_TRUE(changes_->SaveStretch(
+      3, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, false)}), &stored, &closed));
+  const int64_t week3 = stored[0].id;
+  ASSERT_EQ(stored[0].earlier_change, week2);
+  // Run 2 compared again no longer has it: run 3's change continues nothing, first seen in 2.
+  ASSERT_TRUE(changes_->Request(2, 1, true, nullptr));
+  ASSERT_TRUE(changes_->SaveStretch(2, 1, Stretch(0, {}), &stored, &closed, &withdrawn));
+  ASSERT_EQ(withdrawn.size(), 1u);
+  StoredChange now;
+  ASSERT_TRUE(changes_->Get(week3, &now));
+  EXPECT_EQ(now.earlier_change, 0);
+  EXPECT_EQ(now.first_seen_run, 2);
 }
 
 TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionSizeAndStatus) {
@@ -183,8 +264,8 @@ TEST_F(ChangeStoreTest, FiltersByKilometreKindIntrusionSizeAndStatus) {
   f.min_size_m = 0.3;
   EXPECT_EQ(count(f), 2u);
   StoredChange set;
-  ASSERT_TRUE(changes_->Update(stored[0].id, "dismissed", std::nullopt, &set));
-  ASSERT_TRUE(changes_->Update(stored[1].id, "confirmed", std::nullopt, &set));
+  ASSERT_TRUE(changes_->Update(stored[0].id, std::string("dismissed"), std::nullopt, &set));
+  ASSERT_TRUE(changes_->Update(stored[1].id, std::string("confirmed"), std::nullopt, &set));
   f = ChangeFilter();
   f.statuses = {"new", "confirmed"};
   EXPECT_EQ(count(f), 2u);
@@ -200,9 +281,10 @@ TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {
   ASSERT_TRUE(changes_->SaveStretch(
       2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)}), &stored, &closed));
   StoredChange updated;
-  EXPECT_EQ(changes_->Update(stored[0].id, "closed", std::nullopt, &updated).outcome,
+  EXPECT_EQ(changes_->Update(stored[0].id, std::string("closed"), std::nullopt, &updated).outcome,
             Outcome::kInvalid);
-  ASSERT_TRUE(changes_->Update(stored[0].id, "fixed", std::string("tree cut"), &updated));
+  ASSERT_TRUE(
+      changes_->Update(stored[0].id, std::string("fixed"), std::string("tree cut"), &updated));
   EXPECT_EQ(updated.status, "fixed");
   EXPECT_EQ(updated.note, "tree cut");
   // Run 3 sees the same stretch without it.
@@ -214,7 +296,13 @@ TEST_F(ChangeStoreTest, AFixedChangeALaterRunNoLongerSeesIsClosed) {
   EXPECT_EQ(now.status, "closed");
   EXPECT_EQ(now.closed_by_run, 3);
   EXPECT_EQ(now.note, "tree cut");
-  EXPECT_EQ(changes_->Update(123456, "new", std::nullopt, &now).outcome, Outcome::kNotFound);
+  // A note alone leaves it closed.
+  ASSERT_TRUE(changes_->Update(updated.id, std::nullopt, std::string("cut on Monday"), &now));
+  EXPECT_EQ(now.status, "closed");
+  EXPECT_EQ(now.closed_by_run, 3);
+  EXPECT_EQ(now.note, "cut on Monday");
+  EXPECT_EQ(changes_->Update(123456, std::string("new"), std::nullopt, &now).outcome,
+            Outcome::kNotFound);
 }
 
 TEST_F(ChangeStoreTest, AChangeFoundAgainByALaterRunContinuesTheEarlierOne) {
@@ -235,9 +323,11 @@ TEST_F(ChangeStoreTest, AChangeFoundAgainByALaterRunContinuesTheEarlierOne) {
   EXPECT_EQ(stored[0].earlier_change, 0);
   EXPECT_EQ(stored[0].first_seen_run, 2);
   StoredChange set;
-  ASSERT_TRUE(changes_->Update(stored[0].id, "confirmed", std::string("tree to cut"), &set));
-  ASSERT_TRUE(changes_->Update(stored[1].id, "dismissed", std::string("a shadow"), &set));
-  ASSERT_TRUE(changes_->Update(stored[2].id, "fixed", std::string("removed"), &set));
+  ASSERT_TRUE(
+      changes_->Update(stored[0].id, std::string("confirmed"), std::string("tree to cut"), &set));
+  ASSERT_TRUE(
+      changes_->Update(stored[1].id, std::string("dismissed"), std::string("a shadow"), &set));
+  ASSERT_TRUE(changes_->Update(stored[2].id, std::string("fixed"), std::string("removed"), &set));
   const std::vector<StoredChange> week2 = stored;
 
   // Run 3 finds each again within 2 m, a removed object where the first was, and something
@@ -286,7 +376,8 @@ TEST_F(ChangeStoreTest, AStretchComparedOnProvisionalOutputIsReplacedByTheFinalO
   EXPECT_TRUE(stored[0].provisional);
   const int64_t kept_id = stored[0].id, gone_id = stored[1].id;
   StoredChange confirmed;
-  ASSERT_TRUE(changes_->Update(kept_id, "confirmed", std::string("seen from the cab"), &confirmed));
+  ASSERT_TRUE(changes_->Update(
+      kept_id, std::string("confirmed"), std::string("seen from the cab"), &confirmed));
   ASSERT_NO_FATAL_FAILURE(ExpectStretchZeroProvisional());
   // Provisional again: nothing changes.
   EXPECT_EQ(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn).outcome,
@@ -322,7 +413,7 @@ TEST_F(ChangeStoreTest, OnlyAFinalStretchClosesAFixedChange) {
   ASSERT_TRUE(changes_->SaveStretch(
       2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)}), &stored, &closed));
   StoredChange updated;
-  ASSERT_TRUE(changes_->Update(stored[0].id, "fixed", std::nullopt, &updated));
+  ASSERT_TRUE(changes_->Update(stored[0].id, std::string("fixed"), std::nullopt, &updated));
   ASSERT_TRUE(changes_->Request(3, 1, false, nullptr));
   StretchOutcome early = Stretch(0, {});
   early.provisional = true;

@@ -216,6 +216,12 @@ class ChangeDetection(unittest.TestCase):
         status, body = curl(self.url("/api/v1/runs/2/changes?status=new,open"))
         self.assertEqual(status, 400)
         self.assertIn(b"(got 'open')", body)
+        # A range the wrong way round, or beyond any line, is refused, not listed empty.
+        for query, message in (("from_km=0.2&to_km=0.1", b"from_km must not be above to_km"),
+                               ("from_km=1e306", b"kilometres a line can have")):
+            status, body = curl(self.url("/api/v1/runs/2/changes?" + query))
+            self.assertEqual(status, 400, query)
+            self.assertIn(message, body)
 
     def test_snapshot_is_a_png_with_both_runs_drawn(self):
         self.assertTrue(self.found["features"], "no change to draw")
@@ -265,6 +271,28 @@ class ChangeDetection(unittest.TestCase):
         status, _ = self.server.write("PATCH", "/api/v1/changes/999999", {"status": "new"})
         self.assertEqual(status, 404)
 
+    def test_bad_notes_are_refused_and_text_notes_are_kept_safe(self):
+        change = self.found["features"][0]["properties"]["id"]
+        path = "/api/v1/changes/%d" % change
+        # Characters are counted, not bytes; control characters but tab and breaks are refused.
+        status, body = self.server.write("PATCH", path, {"note": "\u00e9" * 4000})
+        self.assertEqual(status, 200, body)
+        for note, message in (("\u00e9" * 4001, "at most 4000 characters (got 4001)"),
+                              ("a\u0000b", "control characters (found code 0)")):
+            status, body = self.server.write("PATCH", path, {"note": note})
+            self.assertEqual(status, 400)
+            self.assertIn(message, body["error"]["message"])
+        status, _, raw = self.server.request("PATCH", path, b'{"note": "x",', self.server.token)
+        self.assertEqual(status, 400)
+        self.assertIn(b"the body is not JSON: parse error at line 1, column 14: syntax error", raw)
+        # A note that a spreadsheet would run as a formula is escaped in the CSV.
+        status, _ = self.server.write("PATCH", path, {"note": '=HYPERLINK("http://x","y")'})
+        self.assertEqual(status, 200)
+        _, csv = curl(self.url("/api/v1/runs/2/changes?format=csv"))
+        self.assertIn(b',"\'=HYPERLINK(""http://x"",""y"")"', csv)
+        _, body = self.server.json("GET", path)
+        self.assertEqual(body["properties"]["note"], '=HYPERLINK("http://x","y")')
+
     def test_bad_recompute_requests_are_refused_and_change_nothing(self):
         before = self.server.json("GET", "/api/v1/runs/2/changes")[1]
         for query, code in (("reference=2", 400), ("reference=99", 404)):
@@ -297,7 +325,8 @@ def signature(collection):
 
 class KilledDuringDetection(unittest.TestCase):
     """Runs after ChangeDetection (its results change here): a recompute interrupted by kill -9
-    resumes on restart; the changes come out as an uninterrupted comparison's, none twice."""
+    resumes on restart; the changes come out as an uninterrupted comparison's, none twice, each
+    with the id, status and note it had."""
 
     def test_a_killed_server_resumes_detection_and_loses_nothing(self):
         server = FIX["server"]
@@ -321,6 +350,12 @@ class KilledDuringDetection(unittest.TestCase):
         ids = [f["id"] for f in found["features"]]
         self.assertEqual(len(ids), len(set(ids)))
         self.assertEqual(signature(found), signature(FIX["found"]))
+        # Found again, each change keeps its id, status and note (set by ChangeDetection).
+        self.assertEqual(sorted(ids), sorted(f["id"] for f in FIX["found"]["features"]))
+        kept = [f["properties"] for f in found["features"]
+                if f["properties"]["note"] == "seen on site"]
+        self.assertEqual([p["status"] for p in kept], ["confirmed"])
+        self.assertFalse(any(f["properties"]["provisional"] for f in found["features"]))
         rows = subprocess.run(
             ["sqlite3", os.path.join(server.data, "index.sqlite"),
              "SELECT count(*), count(DISTINCT stretch) FROM change_stretches WHERE run_id = 2"],
