@@ -380,10 +380,8 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
       *error = "the path has a malformed %-escape or a NUL byte";
       return false;
     }
-    if (q != std::string::npos && !ParseQuery(target_.substr(q + 1), &request_.params)) {
-      *error = "the query string has a malformed %-escape or a NUL byte";
+    if (q != std::string::npos && !ParseQuery(target_.substr(q + 1), &request_.params, error))
       return false;
-    }
     return true;
   }
 

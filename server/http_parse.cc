@@ -51,7 +51,9 @@ bool PercentDecode(std::string_view in, bool plus_is_space, std::string* out) {
   return true;
 }
 
-bool ParseQuery(std::string_view query, std::vector<std::pair<std::string, std::string>>* params) {
+bool ParseQuery(std::string_view query,
+                std::vector<std::pair<std::string, std::string>>* params,
+                std::string* error) {
   params->clear();
   while (!query.empty()) {
     const size_t end = std::min(query.find('&'), query.size());
@@ -60,9 +62,11 @@ bool ParseQuery(std::string_view query, std::vector<std::pair<std::string, std::
     if (pair.empty()) continue;
     const size_t eq = pair.find('=');
     std::string name, value;
-    if (!PercentDecode(pair.substr(0, eq), true, &name)) return false;
-    if (eq != std::string_view::npos && !PercentDecode(pair.substr(eq + 1), true, &value))
-      return false;
+    if (!PercentDecode(pair.substr(0, eq), true, &name) ||
+        (eq != std::string_view::npos && !PercentDecode(pair.substr(eq + 1), true, &value)))
+      return *error = "the query string has a malformed %-escape or a NUL byte", false;
+    for (const auto& [seen, unused] : *params)
+      if (seen == name) return *error = "the query string names '" + name + "' twice", false;
     params->emplace_back(std::move(name), std::move(value));
   }
   return true;

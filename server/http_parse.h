@@ -15,8 +15,11 @@ namespace raillomer::server {
 /// if an escape is malformed or the result holds a NUL byte, which no path or value may.
 bool PercentDecode(std::string_view in, bool plus_is_space, std::string* out);
 
-/// A query string's name=value pairs, decoded, in order; false if one does not decode.
-bool ParseQuery(std::string_view query, std::vector<std::pair<std::string, std::string>>* params);
+/// A query string's name=value pairs, decoded, in order; false with `error` saying why if one
+/// does not decode or a name comes twice (which of the two values to take is a guess).
+bool ParseQuery(std::string_view query,
+                std::vector<std::pair<std::string, std::string>>* params,
+                std::string* error);
 
 /// Bytes first..last (inclusive) of an entity.
 struct ByteRange {

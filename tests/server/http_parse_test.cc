@@ -30,13 +30,18 @@ TEST(HttpParse, PercentDecodingRefusesMalformedEscapesAndNul) {
 
 TEST(HttpParse, QueryStrings) {
   std::vector<std::pair<std::string, std::string>> params;
-  ASSERT_TRUE(ParseQuery("level=2&bbox=1%2C2,3,4&&flag&line=K+12", &params));
+  std::string error;
+  ASSERT_TRUE(ParseQuery("level=2&bbox=1%2C2,3,4&&flag&line=K+12", &params, &error));
   ASSERT_EQ(params.size(), 4u);
   EXPECT_EQ(params[0], std::make_pair(std::string("level"), std::string("2")));
   EXPECT_EQ(params[1].second, "1,2,3,4");
   EXPECT_EQ(params[2], std::make_pair(std::string("flag"), std::string()));
   EXPECT_EQ(params[3].second, "K 12");
-  EXPECT_FALSE(ParseQuery("a=%00", &params));
+  EXPECT_FALSE(ParseQuery("a=%00", &params, &error));
+  EXPECT_EQ(error, "the query string has a malformed %-escape or a NUL byte");
+  // Which of two values to take would be a guess: refused, whichever comes first.
+  EXPECT_FALSE(ParseQuery("kind=added&level=2&kind=bogus", &params, &error));
+  EXPECT_EQ(error, "the query string names 'kind' twice");
 }
 
 TEST(HttpParse, OneRangeIsServedAndNoRangeAsksForMoreThanTheEntity) {
