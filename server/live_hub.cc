@@ -2,7 +2,9 @@
 
 #include <atomic>
 #include <chrono>
+#include <cstdint>
 #include <deque>
+#include <limits>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -14,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "api/clock.h"
+#include "server/http_parse.h"
 
 namespace raillomer::server {
 namespace {
@@ -130,6 +133,7 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
     beast::get_lowest_layer(ws_).socket().set_option(net::socket_base::send_buffer_size(64 * 1024),
                                                      ignored);
     ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    ws_.read_message_max(kMaxCommandBytes);  // a longer message closes the connection (1009)
     ws_.async_accept(request, [self = shared_from_this()](beast::error_code ec) {
       if (ec) return;
       self->hub_->Add(self);
@@ -153,36 +157,18 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
   }
 
   void OnCommand(const std::string& text) {
-    const nlohmann::json command = nlohmann::json::parse(text, nullptr, false);
     nlohmann::json reply;
-    auto runs_of = [](const nlohmann::json& v, std::set<int64_t>* out) {
-      if (v.is_string() && v.get<std::string>() == "all") {
-        out->insert(0);
-        return true;
-      }
-      if (v.is_number_integer()) {
-        out->insert(v.get<int64_t>());
-        return true;
-      }
-      if (!v.is_array()) return false;
-      for (const auto& r : v) {
-        if (!r.is_number_integer()) return false;
-        out->insert(r.get<int64_t>());
-      }
-      return true;
-    };
     std::set<int64_t> add, remove;
-    if (!command.is_object() ||
-        (command.contains("subscribe") && !runs_of(command["subscribe"], &add)) ||
-        (command.contains("unsubscribe") && !runs_of(command["unsubscribe"], &remove)) ||
-        (!command.contains("subscribe") && !command.contains("unsubscribe"))) {
+    const std::string error = ParseCommand(text, &add, &remove);
+    if (!error.empty()) {
+      reply = {{"type", "error"}, {"message", error}};
+    } else if (Subscribed(add, remove).size() > kMaxRuns) {
       reply = {{"type", "error"},
                {"message",
-                "send {\"subscribe\": [run ids]} or {\"subscribe\": \"all\"}, or "
-                "{\"unsubscribe\": [...]}"}};
+                "at most " + std::to_string(kMaxRuns) +
+                    " runs at once: subscribe to \"all\" to follow more"}};
     } else {
-      for (int64_t r : add) runs_.insert(r);
-      for (int64_t r : remove) runs_.erase(r);
+      runs_ = Subscribed(add, remove);
       reply = {{"type", "subscribed"}, {"runs", nlohmann::json::array()}};
       for (int64_t r : runs_)
         reply["runs"].push_back(r == 0 ? nlohmann::json("all") : nlohmann::json(r));
@@ -190,6 +176,52 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
     auto m = std::make_shared<Message>();
     m->text = reply.dump();
     Push(std::move(m));
+  }
+
+  /// The runs this client would follow after a command.
+  std::set<int64_t> Subscribed(const std::set<int64_t>& add,
+                               const std::set<int64_t>& remove) const {
+    std::set<int64_t> runs = runs_;
+    runs.insert(add.begin(), add.end());
+    for (int64_t r : remove) runs.erase(r);
+    return runs;
+  }
+
+  /// A command's runs to follow and to let go (0: every run); what is wrong with it, or "".
+  static std::string ParseCommand(const std::string& text,
+                                  std::set<int64_t>* add,
+                                  std::set<int64_t>* remove) {
+    const nlohmann::json command = nlohmann::json::parse(text, nullptr, false);
+    if (command.is_discarded()) return "a command must be JSON";
+    if (!command.is_object() ||
+        (!command.contains("subscribe") && !command.contains("unsubscribe")))
+      return "send {\"subscribe\": [run ids]} or {\"subscribe\": \"all\"}, or "
+             "{\"unsubscribe\": [...]}";
+    for (const auto& [key, value] : command.items()) {
+      if (key != "subscribe" && key != "unsubscribe")
+        return "unknown member '" + key + "' (subscribe, unsubscribe)";
+      const std::string wrong = RunsOf(value, key == "subscribe" ? add : remove);
+      if (!wrong.empty()) return key + ": " + wrong;
+    }
+    return "";
+  }
+
+  /// "all", a run id or an array of them into `out`; what is wrong, or "".
+  static std::string RunsOf(const nlohmann::json& v, std::set<int64_t>* out) {
+    if (v.is_string() && v.get<std::string>() == "all") {
+      out->insert(0);
+      return "";
+    }
+    const nlohmann::json runs = v.is_array() ? v : nlohmann::json::array({v});
+    if (runs.size() > kMaxRuns) return "at most " + std::to_string(kMaxRuns) + " runs at once";
+    for (const nlohmann::json& r : runs) {
+      // A run id is a whole number from 1 (an unsigned beyond int64 is not one).
+      if (!r.is_number_integer() || (r.is_number_unsigned() && r.get<uint64_t>() > INT64_MAX) ||
+          r.get<int64_t>() < 1)
+        return "\"all\", a run id or a list of run ids (whole numbers from 1), not " + r.dump();
+      out->insert(r.get<int64_t>());
+    }
+    return "";
   }
 
   void Enqueue(std::shared_ptr<const Message> m) {
@@ -241,6 +273,10 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
                       }
                     });
   }
+
+  /// Runs one client follows at most; a command is a few dozen bytes, kMaxCommandBytes at most.
+  static constexpr size_t kMaxRuns = 256;
+  static constexpr size_t kMaxCommandBytes = 16 * 1024;
 
   Impl* hub_;
   websocket::stream<beast::tcp_stream> ws_;
@@ -298,12 +334,12 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     std::set<int64_t> runs;
     const std::string run = QueryValue(target, "run");
     if (!run.empty()) {
-      try {
-        runs.insert(std::stoll(run));
-      } catch (const std::exception&) {
-        Refuse(request, http::status::bad_request, "run must be a run id");
+      int64_t id = 0;
+      if (!ParseInt64(run, 1, std::numeric_limits<int64_t>::max(), &id)) {
+        Refuse(request, http::status::bad_request, "run must be a run id (got '" + run + "')");
         return;
       }
+      runs.insert(id);
     }
     stream_.expires_never();
     std::make_shared<WsSession>(hub_, stream_.release_socket(), std::move(runs))
@@ -317,14 +353,14 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     stream_.expires_after(std::chrono::seconds(5));
     auto response = std::make_shared<http::response<http::string_body>>(status, request.version());
     response->set(http::field::content_type, "application/json");
-    response->body() = nlohmann::json{
-        {"error",
-         {{"code",
-           status == http::status::unauthorized          ? "unauthorized"
-           : status == http::status::service_unavailable ? "busy"
-                                                         : "bad_request"},
-          {"message",
-           message}}}}.dump();
+    response->body() = nlohmann::json{{"error",
+                                       {{"code",
+                                         status == http::status::unauthorized ? "unauthorized"
+                                         : status == http::status::service_unavailable ? "busy"
+                                         : status == http::status::not_found           ? "not_found"
+                                                                             : "bad_request"},
+                                        {"message", message}}}}
+                           .dump();
     response->prepare_payload();
     http::async_write(
         stream_, *response, [self = shared_from_this(), response](beast::error_code, size_t) {

@@ -170,6 +170,46 @@ class Hardening(unittest.TestCase):
             s.close()
         answer, _ = raw_exchange(self.server.ws_port, b"GET /nowhere HTTP/1.1\r\nHost: x\r\n\r\n")
         self.assertEqual(status_of(answer), 404, answer)
+        self.assertIn(b'"code":"not_found"', answer)
+        upgrade = ("GET /live?run=1abc HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                   "Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                   "Sec-WebSocket-Version: 13\r\n\r\n").encode()
+        answer, _ = raw_exchange(self.server.ws_port, upgrade)
+        self.assertEqual(status_of(answer), 400, answer)
+        self.assertIn(b"run must be a run id (got '1abc')", answer)
+
+    # 3b. A live client's commands are bounded: a subscription to more runs than a client can
+    # follow, or a command longer than any real one, is refused, not held.
+    def test_the_live_hub_bounds_each_clients_commands(self):
+        import asyncio
+        import websockets
+
+        async def exchange():
+            uri = "ws://127.0.0.1:%d/live" % self.server.ws_port
+            async with websockets.connect(uri) as ws:
+                replies = []
+                for command in ({"subscribe": list(range(1, 300))}, {"subscribe": [-5]},
+                                {"subscribe": [18446744073709551615]}, {"subscribe": "ALL"},
+                                {"subscribe": [1], "extra": 1}, {"subscribe": [3]}):
+                    await ws.send(json.dumps(command))
+                    replies.append(json.loads(await ws.recv()))
+                await ws.send(json.dumps({"subscribe": list(range(1, 5000))}))
+                try:
+                    await asyncio.wait_for(ws.recv(), 5)
+                    return replies, None
+                except websockets.ConnectionClosed as e:
+                    return replies, e.rcvd.code if e.rcvd else None
+
+        replies, closed = asyncio.run(exchange())
+        messages = [r.get("message", "") for r in replies]
+        self.assertIn("at most 256 runs", messages[0])
+        self.assertIn("not -5", messages[1])
+        self.assertIn("not 18446744073709551615", messages[2])
+        self.assertIn('not "ALL"', messages[3])
+        self.assertIn("unknown member 'extra'", messages[4])
+        self.assertEqual(replies[5], {"type": "subscribed", "runs": [3]})
+        self.assertEqual(closed, 1009)  # message too big
+        self.assertPeakGrowthBelow(UNAUTHENTICATED_GROWTH_MB)
 
     # 4. Headers are bounded in size: a flood is refused (431) before it is held.
     def test_header_flood_is_refused(self):
