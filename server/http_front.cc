@@ -425,15 +425,18 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     return false;
   }
 
-  /// The token, from the Authorization header, the raillomer_token cookie or (reads only)
-  /// the token query parameter.
+  /// The token, from the Authorization header or, for reads only, the raillomer_token cookie
+  /// or the token query parameter. A write takes the header alone: a browser sends a cookie
+  /// with a form another page on this host posts (SameSite does not tell ports apart), never
+  /// a header.
   std::string Token(Access access, bool* from_query) const {
     *from_query = false;
     const std::string auth = request_.Header("Authorization");
     if (auth.size() > 7 && EqualsIgnoreCase(auth.substr(0, 7), "Bearer ")) return auth.substr(7);
+    if (access != Access::kRead) return "";
     const std::string cookie = CookieValue(request_.Header("Cookie"), "raillomer_token");
     if (!cookie.empty()) return cookie;
-    if (access == Access::kRead && request_.HasParam("token")) {
+    if (request_.HasParam("token")) {
       *from_query = true;
       return request_.Param("token");
     }
@@ -457,7 +460,9 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
       Refuse(std::move(res));
       return false;
     }
-    if (token_from_query_) cookie_token_ = token;
+    // The cookie keeps a read token the viewer's address carried, for its later requests; only
+    // where reads need one (then `token` is the server's own, nothing a client wrote).
+    if (token_from_query_ && !front_->hooks_.authorize("", Access::kRead)) cookie_token_ = token;
     const std::string encoding = request_.Header("Content-Encoding");
     if (!encoding.empty() && !EqualsIgnoreCase(encoding, "identity")) {
       Refuse(415,

@@ -377,6 +377,21 @@ class Hardening(unittest.TestCase):
         self.assertEqual(mode("index.sqlite"), 0o600)
         self.assertEqual(mode("ingest.token"), 0o600)
 
+    # 12. A write takes the token from the Authorization header alone: a cookie is what a
+    # browser sends along with a form that another page on this host posts. A ?token= on a
+    # read that needs none is not echoed into a cookie.
+    def test_writes_take_the_token_from_the_header_alone(self):
+        body = json.dumps({"line": "L", "vehicle": "V"})
+        cookie = {"Cookie": "raillomer_token=" + self.server.token, "Content-Type": "text/plain"}
+        status, _, answer = self.server.request("POST", "/api/v1/runs", body, headers=cookie)
+        self.assertEqual(status, 401, answer)
+        self.assertEqual(self.server.json("GET", "/api/v1/runs")[1]["runs"], [])
+        self.assertEqual(self.server.request("POST", "/api/v1/runs", body, self.server.token)[0],
+                         201)
+        status, headers, _ = self.server.request("GET", "/health?token=a;%20Domain=evil.example")
+        self.assertEqual(status, 200)
+        self.assertNotIn("set-cookie", headers)
+
 
 class Requests:
     """Raw HTTP/1.1 requests as bytes, with the ingest token unless told otherwise."""
