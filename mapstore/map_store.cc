@@ -124,6 +124,19 @@ bool ValidPose(const api::StreamPose& p, std::string* error) {
 
 Result Fail(Outcome outcome, std::string message) { return {outcome, std::move(message)}; }
 
+/// Metres as a whole number, however large (a cast to int of a huge one is undefined).
+std::string Metres(double m) {
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.0f", m);
+  return text;
+}
+
+/// Whether a name holds no control character and at most `max` bytes.
+bool Printable(const std::string& s, size_t max) {
+  return s.size() <= max &&
+         std::all_of(s.begin(), s.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
+}
+
 }  // namespace
 
 const char* ToString(Outcome outcome) {
@@ -366,13 +379,9 @@ Result MapStore::RunLocked(const Database& db, int64_t run_id, RunInfo* out) con
 }
 
 Result MapStore::CreateRun(const NewRun& run, RunInfo* out) {
-  auto printable = [](const std::string& s) {
-    return !s.empty() && s.size() <= 200 &&
-           std::all_of(s.begin(), s.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
-  };
-  if (!printable(run.line))
+  if (run.line.empty() || !Printable(run.line, 200))
     return Fail(Outcome::kInvalid, "line must be 1-200 printable characters");
-  if (!printable(run.vehicle))
+  if (run.vehicle.empty() || !Printable(run.vehicle, 200))
     return Fail(Outcome::kInvalid, "vehicle must be 1-200 printable characters");
   if (run.start_ns < 0) return Fail(Outcome::kInvalid, "start_ns must not be negative");
   std::lock_guard<std::mutex> lock(mu_);
@@ -575,10 +584,19 @@ Result MapStore::Segment(const std::string& name,
   }
   out->samples.clear();
   Eigen::AlignedBox2d box;
-  for (const TrackSample& s : TrackGeometry(centreline, 10.0)) {
+  const std::vector<TrackSample> samples = TrackGeometry(centreline, 10.0);
+  for (const TrackSample& s : samples) {
     if (s.point.chainage_m < from_m || s.point.chainage_m > to_m) continue;
     out->samples.push_back(s);
     box.extend(s.point.p.head<2>());
+  }
+  if (out->samples.empty()) {  // a range between two samples (a metre apart): the nearer one
+    const double mid = 0.5 * (from_m + to_m);
+    out->samples.push_back(*std::min_element(
+        samples.begin(), samples.end(), [mid](const TrackSample& a, const TrackSample& b) {
+          return std::abs(a.point.chainage_m - mid) < std::abs(b.point.chainage_m - mid);
+        }));
+    box.extend(out->samples.front().point.p.head<2>());
   }
   // The reference run's tiles within 10 m of the segment's centreline.
   const double margin = 10.0;
@@ -732,15 +750,11 @@ Result MapStore::Export(const ExportRequest& request,
 namespace {
 
 bool ValidPoi(const Poi& p, std::string* error) {
-  auto printable = [](const std::string& t, size_t max) {
-    return t.size() <= max &&
-           std::all_of(t.begin(), t.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
-  };
-  if (p.kind.empty() || !printable(p.kind, 64))
+  if (p.kind.empty() || !Printable(p.kind, 64))
     return *error = "kind must be 1-64 printable characters", false;
-  if (!printable(p.name, 200))
+  if (!Printable(p.name, 200))
     return *error = "name must be at most 200 printable characters", false;
-  if (!printable(p.line, 200))
+  if (!Printable(p.line, 200))
     return *error = "line must be at most 200 printable characters", false;
   int zone = 0;
   bool north = true;
@@ -884,6 +898,10 @@ Result MapStore::PinKmPost(const std::string& name,
                            LineInfo* out) {
   if (!std::isfinite(chainage_m) || !p_utm.allFinite())
     return Fail(Outcome::kInvalid, "a km post needs a finite chainage and position");
+  if (p_utm.x() < 0.0 || p_utm.x() > 1.0e6 || p_utm.y() < 0.0 || p_utm.y() > 1.0e7)
+    return Fail(Outcome::kInvalid, "a km post's easting and northing must be a UTM position");
+  if (!Printable(label, 200))
+    return Fail(Outcome::kInvalid, "label must be at most 200 printable characters");
   std::lock_guard<std::mutex> lock(mu_);
   LineInfo line;
   Result r = LineLocked(*writer_, name, &line);
@@ -897,8 +915,7 @@ Result MapStore::PinKmPost(const std::string& name,
   const double along = ProjectChainage(centreline, p_utm, &off_m);
   if (off_m > 50.0) {
     return Fail(Outcome::kInvalid,
-                "the post lies " + std::to_string(static_cast<int>(off_m)) +
-                    " m from the line's centreline (at most 50 m)");
+                "the post lies " + Metres(off_m) + " m from the line's centreline (at most 50 m)");
   }
   Transaction t(*writer_);
   if (!t.ok()) return Fail(Outcome::kError, writer_->Message());

@@ -1,5 +1,6 @@
 #include "server/api_json.h"
 
+#include <cstdint>
 #include <limits>
 
 #include <GeographicLib/UTMUPS.hpp>
@@ -149,10 +150,15 @@ bool ParsePose(const json& j, api::StreamPose* p, std::string* error) {
   return true;
 }
 
+bool FitsInt64(const json& v) {
+  return v.is_number_integer() &&
+         !(v.is_number_unsigned() && v.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX));
+}
+
 bool ReadInt(const json& j, const char* key, int64_t* value, std::string* error) {
   if (!j.contains(key)) return true;
-  if (!j[key].is_number_integer()) {
-    *error = std::string(key) + " must be an integer";
+  if (!FitsInt64(j[key])) {
+    *error = std::string(key) + " must be an integer within 64 bits";
     return false;
   }
   *value = j[key].get<int64_t>();

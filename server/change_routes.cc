@@ -41,18 +41,9 @@ bool StatusesOf(const HttpRequest& req, HttpResponse& res, std::vector<std::stri
 
 /// The filters of GET .../changes; false with a 400 naming the bad one.
 bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter* f) {
-  double from_km = -std::numeric_limits<double>::infinity();
-  double to_km = std::numeric_limits<double>::infinity();
-  if (!NumberParam(req, res, "from_km", &from_km) || !NumberParam(req, res, "to_km", &to_km) ||
+  if (!KmParam(req, res, "from_km", &f->from_m) || !KmParam(req, res, "to_km", &f->to_m) ||
       !NumberParam(req, res, "min_size_m", &f->min_size_m))
     return false;
-  f->from_m = 1000.0 * from_km;
-  f->to_m = 1000.0 * to_km;
-  if ((req.HasParam("from_km") && !std::isfinite(f->from_m)) ||
-      (req.HasParam("to_km") && !std::isfinite(f->to_m))) {
-    res.SetError(400, "invalid", "from_km and to_km must be kilometres a line can have");
-    return false;
-  }
   if (f->from_m > f->to_m) {
     res.SetError(400, "invalid", "from_km must not be above to_km");
     return false;

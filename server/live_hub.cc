@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "api/clock.h"
+#include "server/api_json.h"
 #include "server/http_parse.h"
 
 namespace raillomer::server {
@@ -215,9 +216,8 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
     const nlohmann::json runs = v.is_array() ? v : nlohmann::json::array({v});
     if (runs.size() > kMaxRuns) return "at most " + std::to_string(kMaxRuns) + " runs at once";
     for (const nlohmann::json& r : runs) {
-      // A run id is a whole number from 1 (an unsigned beyond int64 is not one).
-      if (!r.is_number_integer() || (r.is_number_unsigned() && r.get<uint64_t>() > INT64_MAX) ||
-          r.get<int64_t>() < 1)
+      // A run id is a whole number from 1.
+      if (!FitsInt64(r) || r.get<int64_t>() < 1)
         return "\"all\", a run id or a list of run ids (whole numbers from 1), not " + r.dump();
       out->insert(r.get<int64_t>());
     }

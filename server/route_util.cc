@@ -1,6 +1,7 @@
 #include "server/route_util.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 #include "server/http_parse.h"
@@ -91,6 +92,21 @@ bool NumberParam(const HttpRequest& req, HttpResponse& res, const char* name, do
         400, "invalid", std::string(name) + " must be a number (got '" + req.Param(name) + "')");
     return false;
   }
+  return true;
+}
+
+bool KmParam(const HttpRequest& req, HttpResponse& res, const char* name, double* metres) {
+  double km = 0.0;
+  if (!req.HasParam(name)) return true;
+  if (!NumberParam(req, res, name, &km)) return false;
+  if (!std::isfinite(1000.0 * km)) {
+    res.SetError(
+        400,
+        "invalid",
+        std::string(name) + " must be kilometres a line can have (got '" + req.Param(name) + "')");
+    return false;
+  }
+  *metres = 1000.0 * km;
   return true;
 }
 

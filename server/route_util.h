@@ -30,6 +30,9 @@ bool IntParam(const HttpRequest& req,
               int64_t* value);
 /// An optional number query parameter; a 400 naming it if it is not a finite number.
 bool NumberParam(const HttpRequest& req, HttpResponse& res, const char* name, double* value);
+/// An optional kilometre query parameter (from_km, to_km) in metres; a 400 naming it if it is
+/// not a number or its metres are not finite.
+bool KmParam(const HttpRequest& req, HttpResponse& res, const char* name, double* metres);
 
 /// A route whose handler is a member function of `api` (shared by the routes it serves).
 template <typename Api>

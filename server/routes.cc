@@ -33,6 +33,11 @@ bool BoxParam(const HttpRequest& req, HttpResponse& res, Eigen::AlignedBox2d* bo
     }
     start = end + 1;
   }
+  if (v[0] > v[2] || v[1] > v[3]) {
+    res.SetError(
+        400, "invalid", "bbox's minimum easting and northing must not exceed its maximum ones");
+    return false;
+  }
   *box = Eigen::AlignedBox2d(Eigen::Vector2d(v[0], v[1]), Eigen::Vector2d(v[2], v[3]));
   return true;
 }
@@ -437,15 +442,14 @@ class Api {
   }
 
   void Segment(const HttpRequest& req, HttpResponse& res) {
-    double from_km = 0.0, to_km = 0.0;
-    if (!req.HasParam("from_km") || !req.HasParam("to_km") ||
-        !ParseFiniteDouble(req.Param("from_km"), &from_km) ||
-        !ParseFiniteDouble(req.Param("to_km"), &to_km))
+    if (!req.HasParam("from_km") || !req.HasParam("to_km"))
       return res.SetError(
           400, "invalid", "from_km and to_km (kilometres of chainage) are required numbers");
+    double from_m = 0.0, to_m = 0.0;
+    if (!KmParam(req, res, "from_km", &from_m) || !KmParam(req, res, "to_km", &to_m)) return;
+    const double from_km = from_m / 1000.0, to_km = to_m / 1000.0;
     mapstore::TrackSegment segment;
-    const mapstore::Result r =
-        store_.Segment(req.matches[1], from_km * 1000.0, to_km * 1000.0, &segment);
+    const mapstore::Result r = store_.Segment(req.matches[1], from_m, to_m, &segment);
     if (!r) return SendResult(res, r);
     json coordinates = json::array(), chainage = json::array(), curvature = json::array(),
          gradient = json::array(), cant = json::array();
@@ -486,8 +490,9 @@ class Api {
           400,
           "invalid",
           "a km post needs km, easting and northing (numbers; UTM of the line's zone)");
-    const std::string label =
-        body.contains("label") && body["label"].is_string() ? body["label"].get<std::string>() : "";
+    if (body.contains("label") && !body["label"].is_string())
+      return res.SetError(400, "invalid", "label must be a string");
+    const std::string label = body.value("label", std::string());
     mapstore::LineInfo line;
     const mapstore::Result r = store_.PinKmPost(
         req.matches[1],
@@ -637,17 +642,26 @@ class Api {
       return false;
     out->level = static_cast<int>(level);
     out->max_points = c_.config->max_export_points;
-    if (req.HasParam("line")) {
-      double from_km = 0.0, to_km = 0.0;
+    const bool along = req.HasParam("line");
+    if (along && req.HasParam("bbox")) {
+      res.SetError(400, "invalid", "give bbox, or line with from_km and to_km, not both");
+      return false;
+    }
+    for (const char* name : {"from_km", "to_km", "half_width_m"}) {
+      if (!along && req.HasParam(name)) {
+        res.SetError(
+            400, "invalid", std::string(name) + " goes with line (an export along a line)");
+        return false;
+      }
+    }
+    if (along) {
       if (!req.HasParam("from_km") || !req.HasParam("to_km")) {
         res.SetError(400, "invalid", "an export along a line needs from_km and to_km");
         return false;
       }
-      if (!NumberParam(req, res, "from_km", &from_km) || !NumberParam(req, res, "to_km", &to_km))
+      if (!KmParam(req, res, "from_km", &out->from_m) || !KmParam(req, res, "to_km", &out->to_m))
         return false;
       out->line = req.Param("line");
-      out->from_m = 1000.0 * from_km;
-      out->to_m = 1000.0 * to_km;
     }
     if (req.HasParam("bbox")) {
       if (!BoxParam(req, res, &out->box)) return false;

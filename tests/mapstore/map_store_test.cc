@@ -421,6 +421,15 @@ void ExpectKmPostPinned(MapStore& store) {
   EXPECT_EQ(
       store.PinKmPost("Line A", "far", 0.0, post + Eigen::Vector2d(0.0, 80.0), nullptr).outcome,
       Outcome::kInvalid);
+  // A position beyond UTM's, or a label with a control character, is refused.
+  const Result huge = store.PinKmPost("Line A", "", 0.0, Eigen::Vector2d(1e308, 1e308), nullptr);
+  EXPECT_NE(huge.message.find("must be a UTM position"), std::string::npos) << huge.message;
+  EXPECT_EQ(store.PinKmPost("Line A", "a\x01b", 12400.0, post, nullptr).outcome,
+            Outcome::kInvalid);
+  // A range shorter than the centreline's sampling (a metre) gets the nearer sample.
+  ASSERT_TRUE(store.Segment("Line A", 12400.2, 12400.25, &segment));
+  ASSERT_EQ(segment.samples.size(), 1u);
+  EXPECT_NEAR(segment.samples[0].point.chainage_m, 12400.0, 0.6);
 }
 
 /// A second run of the line leaves its centreline as it was, and is referenced to it: its

@@ -415,6 +415,7 @@ JSON_BODIES = [b"", b"null", b"[]", b"{", b"\xff\xfe{}", b'{"a":' * 5000 + b"1" 
                b'{"line": 3, "vehicle": "v"}', b'{"line": "", "vehicle": "v"}',
                b'{"line": "x\u0001", "vehicle": "v"}', b'{"line": "l", "vehicle": "v", '
                b'"start_ns": -1}', b'{"line": "l", "vehicle": "v", "start_ns": 1.5}',
+               b'{"line": "l", "vehicle": "v", "start_ns": 9223372036854775808}',
                b'{"line": "%s", "vehicle": "v"}' % (b"x" * 300), b"NaN", b"1e999"]
 
 
@@ -499,6 +500,10 @@ def bad_reads(r, run):
              runs + "/export?line=L&from_km=1", runs + "/export?line=L&from_km=a&to_km=1",
              runs + "/export?half_width_m=-1&line=L&from_km=0&to_km=1",
              runs + "/export?half_width_m=inf&bbox=0,0,1,1",
+             runs + "/export?line=L&from_km=0&to_km=0.1&bbox=0,0,1,1",
+             runs + "/export?bbox=0,0,1,1&from_km=abc", runs + "/export?bbox=0,0,1,1&half_width_m=-1",
+             runs + "/export?line=L&from_km=0&to_km=1e306", runs + "/tiles?bbox=1,1,0,0",
+             "/api/v1/pois?bbox=1e6,1e7,0,0", "/api/v1/lines/L/segment?from_km=0&to_km=1e306",
              "/api/v1/lines/Nowhere", "/api/v1/lines/Nowhere/segment?from_km=0&to_km=1",
              "/api/v1/lines/L/segment", "/api/v1/lines/L/segment?from_km=x&to_km=1",
              "/api/v1/lines/L/segment?from_km=1e999&to_km=1",
