@@ -131,10 +131,20 @@ std::string Metres(double m) {
   return text;
 }
 
-/// Whether a name holds no control character and at most `max` bytes.
+/// Whether a name (UTF-8) holds at most `max` bytes and nothing that prints as other than it
+/// is: no control character (C0, DEL, C1), no line or paragraph separator, no bidirectional
+/// embedding, override or isolate (U+2028-U+202E, U+2066-U+2069).
 bool Printable(const std::string& s, size_t max) {
-  return s.size() <= max &&
-         std::all_of(s.begin(), s.end(), [](unsigned char c) { return c >= 0x20 && c != 0x7f; });
+  if (s.size() > max) return false;
+  const auto at = [&s](size_t i) { return i < s.size() ? static_cast<unsigned char>(s[i]) : 0; };
+  for (size_t i = 0; i < s.size(); ++i) {
+    const unsigned char c = at(i);
+    if (c < 0x20 || c == 0x7f) return false;
+    if (c == 0xc2 && at(i + 1) >= 0x80 && at(i + 1) <= 0x9f) return false;
+    if (c == 0xe2 && at(i + 1) == 0x80 && at(i + 2) >= 0xa8 && at(i + 2) <= 0xae) return false;
+    if (c == 0xe2 && at(i + 1) == 0x81 && at(i + 2) >= 0xa6 && at(i + 2) <= 0xa9) return false;
+  }
+  return true;
 }
 
 }  // namespace

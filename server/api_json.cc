@@ -1,7 +1,10 @@
 #include "server/api_json.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <utility>
+#include <vector>
 
 #include <GeographicLib/UTMUPS.hpp>
 
@@ -87,6 +90,24 @@ bool Numbers(const json& v, size_t n) {
   return true;
 }
 
+/// A POI's properties nest at most this deep: a reader's JSON parser (Python's) may give up on
+/// much deeper ones.
+constexpr int kMaxPropertyDepth = 16;
+
+/// How deep objects and arrays nest in `v` (1 for a flat object), walked without recursion.
+int DepthOf(const json& v) {
+  int deepest = 0;
+  std::vector<std::pair<const json*, int>> open = {{&v, 1}};
+  while (!open.empty()) {
+    const auto [at, depth] = open.back();
+    open.pop_back();
+    if (!at->is_structured()) continue;
+    deepest = std::max(deepest, depth);
+    for (const json& child : *at) open.emplace_back(&child, depth + 1);
+  }
+  return deepest;
+}
+
 }  // namespace
 
 bool ParsePoi(const json& j, mapstore::Poi* p, std::string* error) {
@@ -101,6 +122,10 @@ bool ParsePoi(const json& j, mapstore::Poi* p, std::string* error) {
       (j.contains("line") && !j["line"].is_string() && !j["line"].is_null()) ||
       (j.contains("properties") && !j["properties"].is_object())) {
     *error = "name and line must be strings and properties an object";
+    return false;
+  }
+  if (j.contains("properties") && DepthOf(j["properties"]) > kMaxPropertyDepth) {
+    *error = "properties may nest at most " + std::to_string(kMaxPropertyDepth) + " levels deep";
     return false;
   }
   p->kind = j["kind"];

@@ -548,7 +548,7 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
     res.SetHeader("Cache-Control",
                   request_.path.rfind("/assets/", 0) == 0 ? "public, max-age=31536000, immutable"
                                                           : "no-cache");
-    if (request_.Header("If-None-Match") == f.etag) {
+    if (EtagMatches(request_.Header("If-None-Match"), f.etag)) {
       res.status = 304;
       return Answer(std::move(res));
     }

@@ -138,6 +138,20 @@ std::string CookieValue(std::string_view header, std::string_view name) {
   return "";
 }
 
+bool EtagMatches(std::string_view if_none_match, std::string_view etag) {
+  const auto opaque = [](std::string_view tag) {
+    return tag.substr(0, 2) == "W/" ? tag.substr(2) : tag;
+  };
+  if (etag.empty()) return false;
+  while (!if_none_match.empty()) {
+    const size_t end = std::min(if_none_match.find(','), if_none_match.size());
+    const std::string_view tag = Trim(if_none_match.substr(0, end));
+    if_none_match.remove_prefix(std::min(end + 1, if_none_match.size()));
+    if (tag == "*" || opaque(tag) == opaque(etag)) return true;
+  }
+  return false;
+}
+
 bool EqualsIgnoreCase(std::string_view a, std::string_view b) {
   if (a.size() != b.size()) return false;
   for (size_t i = 0; i < a.size(); ++i)

@@ -47,6 +47,10 @@ bool ParseFiniteDouble(std::string_view text, double* value);
 /// The value of cookie `name` in a Cookie header ("" if it is not there).
 std::string CookieValue(std::string_view header, std::string_view name);
 
+/// Whether an If-None-Match header names `etag`: `*`, or a comma-separated list holding it
+/// (compared weakly, as RFC 9110 asks for If-None-Match: W/ prefixes aside).
+bool EtagMatches(std::string_view if_none_match, std::string_view etag);
+
 /// ASCII case-insensitive equality, for header names and tokens.
 bool EqualsIgnoreCase(std::string_view a, std::string_view b);
 

@@ -308,7 +308,8 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     parser_.body_limit(64 * 1024);
     http::async_read(
         stream_, buffer_, parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
-          if (!ec) self->OnRequest();
+          if (!ec) return self->OnRequest();
+          self->RefuseUnread(ec);
         });
   }
 
@@ -331,6 +332,13 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
       Refuse(request, http::status::unauthorized, "a valid read token is needed");
       return;
     }
+    if (request[http::field::sec_websocket_key].empty() ||
+        request[http::field::sec_websocket_version] != "13") {
+      Refuse(request,
+             http::status::bad_request,
+             "a WebSocket upgrade needs Sec-WebSocket-Key and Sec-WebSocket-Version: 13");
+      return;
+    }
     std::set<int64_t> runs;
     const std::string run = QueryValue(target, "run");
     if (!run.empty()) {
@@ -346,6 +354,40 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
         ->Run(std::move(request));
   }
 
+  /// An upgrade request that could not be read whole: answered when it broke a limit or did
+  /// not parse; a connection closed or timed out gets nothing.
+  void RefuseUnread(beast::error_code ec) {
+    http::request<http::string_body> none;
+    if (ec == http::error::header_limit)
+      Refuse(none,
+             http::status::request_header_fields_too_large,
+             "the upgrade's header is over 16 KiB");
+    else if (ec == http::error::body_limit)
+      Refuse(none, http::status::payload_too_large, "an upgrade request carries no body");
+    else if (ec.category() == http::make_error_code(http::error::bad_method).category() &&
+             ec != http::error::end_of_stream && ec != http::error::partial_message)
+      Refuse(
+          none, http::status::bad_request, "the upgrade request does not parse: " + ec.message());
+  }
+
+  /// The error code a refusal's body names.
+  static const char* CodeOf(http::status status) {
+    switch (status) {
+      case http::status::unauthorized:
+        return "unauthorized";
+      case http::status::service_unavailable:
+        return "busy";
+      case http::status::not_found:
+        return "not_found";
+      case http::status::request_header_fields_too_large:
+        return "header_too_large";
+      case http::status::payload_too_large:
+        return "too_large";
+      default:
+        return "bad_request";
+    }
+  }
+
   void Refuse(const http::request<http::string_body>& request,
               http::status status,
               const std::string& message) {
@@ -353,14 +395,8 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     stream_.expires_after(std::chrono::seconds(5));
     auto response = std::make_shared<http::response<http::string_body>>(status, request.version());
     response->set(http::field::content_type, "application/json");
-    response->body() = nlohmann::json{{"error",
-                                       {{"code",
-                                         status == http::status::unauthorized ? "unauthorized"
-                                         : status == http::status::service_unavailable ? "busy"
-                                         : status == http::status::not_found           ? "not_found"
-                                                                             : "bad_request"},
-                                        {"message", message}}}}
-                           .dump();
+    response->body() =
+        nlohmann::json{{"error", {{"code", CodeOf(status)}, {"message", message}}}}.dump();
     response->prepare_payload();
     http::async_write(
         stream_, *response, [self = shared_from_this(), response](beast::error_code, size_t) {

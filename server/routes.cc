@@ -368,7 +368,7 @@ class Api {
                   std::to_string(info.origin.x()) + " " + std::to_string(info.origin.y()) + " " +
                       std::to_string(info.origin.z()));
     res.SetHeader("X-Tile-Zone", info.utm_zone);
-    if (req.Header("If-None-Match") == info.etag) {
+    if (EtagMatches(req.Header("If-None-Match"), info.etag)) {
       res.status = 304;
       return;
     }

@@ -177,6 +177,16 @@ class Hardening(unittest.TestCase):
         answer, _ = raw_exchange(self.server.ws_port, upgrade)
         self.assertEqual(status_of(answer), 400, answer)
         self.assertIn(b"run must be a run id (got '1abc')", answer)
+        # Each refusal is JSON that says why: no key, a header flood, no HTTP at all.
+        for request, status, says in (
+                (upgrade.replace(b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n", b""), 400,
+                 b"needs Sec-WebSocket-Key"),
+                (upgrade.replace(b"Host: x", b"Host: x\r\nX-Pad: " + b"a" * 20000), 431,
+                 b"over 16 KiB"),
+                (b"GARBAGE\r\n\r\n", 400, b"does not parse")):
+            answer, _ = raw_exchange(self.server.ws_port, request)
+            self.assertEqual(status_of(answer), status, answer)
+            self.assertIn(says, answer)
 
     # 3b. A live client's commands are bounded: a subscription to more runs than a client can
     # follow, or a command longer than any real one, is refused, not held.
@@ -416,6 +426,7 @@ JSON_BODIES = [b"", b"null", b"[]", b"{", b"\xff\xfe{}", b'{"a":' * 5000 + b"1" 
                b'{"line": "x\u0001", "vehicle": "v"}', b'{"line": "l", "vehicle": "v", '
                b'"start_ns": -1}', b'{"line": "l", "vehicle": "v", "start_ns": 1.5}',
                b'{"line": "l", "vehicle": "v", "start_ns": 9223372036854775808}',
+               b'{"line": "a\xe2\x80\xaeb", "vehicle": "v"}', b'{"line": "l", "vehicle": "\xc2\x85"}',
                b'{"line": "%s", "vehicle": "v"}' % (b"x" * 300), b"NaN", b"1e999"]
 
 
@@ -476,7 +487,9 @@ def bad_posts_and_pois(r, run):
         r.json("POST", "/api/v1/lines/Nowhere/kmposts", body)
     for body in [b'{"kind": 1}', b'{"kind": "m", "utm_zone": "50N", "position": [1, 2]}',
                  b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "properties": []}',
-                 b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "line": 5}']:
+                 b'{"kind": "m", "utm_zone": "50N", "position": [1, 2, 3], "line": 5}',
+                 b'{"kind": "m", "utm_zone": "50N", "position": [432100, 3585200, 3], '
+                 b'"properties": ' + b'{"a":' * 17 + b"1" + b"}" * 18]:
         r.json("POST", "/api/v1/pois", body)
         r.json("PUT", "/api/v1/pois/1", body)
     r.json("POST", "/api/v1/runs/%d/finish" % run, b'{"end_ns": "soon"}')

@@ -86,6 +86,14 @@ TEST(HttpParse, StrictNumbers) {
     EXPECT_FALSE(ParseFiniteDouble(bad, &d)) << bad;
 }
 
+TEST(HttpParse, AnIfNoneMatchListOrStarMatchesAnETag) {
+  EXPECT_TRUE(EtagMatches("\"a1\"", "\"a1\""));
+  EXPECT_TRUE(EtagMatches("\"x\", W/\"a1\" ,\"y\"", "\"a1\""));
+  EXPECT_TRUE(EtagMatches("*", "\"a1\""));
+  EXPECT_FALSE(EtagMatches("\"a12\", \"a\"", "\"a1\""));
+  EXPECT_FALSE(EtagMatches("", "\"a1\""));
+}
+
 TEST(HttpParse, Cookies) {
   EXPECT_EQ(CookieValue("a=1; raillomer_token=abc; b=2", "raillomer_token"), "abc");
   EXPECT_EQ(CookieValue("raillomer_token_x=1", "raillomer_token"), "");
