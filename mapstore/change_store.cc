@@ -154,9 +154,9 @@ Result ChangeStore::Request(int64_t run, int64_t reference, bool restart, Detect
   if (!t.ok()) return DbError("cannot begin", db_->Message());
   const int64_t now = NowNs();
   // The earlier comparison's changes stay, marked to be checked again: each stretch compared
-  // anew takes over those it finds again (their ids, statuses and notes) and withdraws the
-  // rest; Finish withdraws those of stretches not compared again.
-  Statement recheck_changes(*db_, "UPDATE changes SET provisional = 1 WHERE run_id = ?");
+  // anew on final output takes over those it finds again (their ids, statuses and notes) and
+  // withdraws the rest; Finish withdraws those of stretches not compared again.
+  Statement recheck_changes(*db_, "UPDATE changes SET rechecking = 1 WHERE run_id = ?");
   Statement drop_stretches(*db_, "DELETE FROM change_stretches WHERE run_id = ?");
   Statement set(*db_,
                 "INSERT INTO change_detection (run_id, reference_run, status, error, "
@@ -267,7 +267,7 @@ Result ChangeStore::SaveStretch(int64_t run,
   Statement seen(*db_, "SELECT provisional FROM change_stretches WHERE run_id = ? AND stretch = ?");
   if (seen.Bind(1, run).Bind(2, o.range.index).Step() && (seen.Int(0) == 0 || o.provisional))
     return {Outcome::kDuplicate, ""};
-  r = TakeProvisionalLocked(run, o.range.index, &provisional);
+  r = TakeProvisionalLocked(run, o.range.index, !o.provisional, &provisional);
   if (!r) return r;
   StoredChange base;
   base.run_id = run;
@@ -296,9 +296,13 @@ Result ChangeStore::SaveStretch(int64_t run,
 
 Result ChangeStore::TakeProvisionalLocked(int64_t run,
                                           int stretch,
+                                          bool rechecked,
                                           std::vector<StoredChange>* provisional) {
+  // Oldest first: where two would match a change found again, the older one (an earlier
+  // comparison's, with what engineers set) is taken over.
   Result r = ListWhere(
-      "run_id = ? AND stretch = ? AND provisional = 1",
+      std::string("run_id = ? AND stretch = ? AND ((provisional = 1 AND rechecking = 0)") +
+          (rechecked ? " OR rechecking = 1" : "") + ") ORDER BY id",
       [&](Statement& q) { q.Bind(1, run).Bind(2, stretch); },
       provisional);
   if (!r) return r;
@@ -345,7 +349,7 @@ Result ChangeStore::UpdateChangeLocked(const StoredChange& s) {
   Statement set(*db_,
                 "UPDATE changes SET chainage_m = ?, offset_m = ?, x = ?, y = ?, z = ?, "
                 "properties = ?, intrudes = ?, size_max_m = ?, provisional = ?, updated_ns = ?, "
-                "reference_run = ? WHERE id = ?");
+                "reference_run = ?, rechecking = 0 WHERE id = ?");
   if (!BindMeasured(set, 1, s)
            .Bind(10, s.updated_ns)
            .Bind(11, s.reference_run)
@@ -498,13 +502,21 @@ Result ChangeStore::WithdrawLocked(const std::vector<StoredChange>& gone) {
   return {};
 }
 
-Result ChangeStore::Finish(int64_t run, std::vector<StoredChange>* withdrawn) {
+Result ChangeStore::Finish(int64_t run,
+                           int64_t requested_ns,
+                           std::vector<StoredChange>* withdrawn) {
   std::lock_guard<std::mutex> lock(mu_);
   Transaction t(*db_);
   if (!t.ok()) return DbError("cannot begin", db_->Message());
+  // Requested again since the caller looked (its stretches dropped): not this one's to finish.
+  DetectionState state;
+  Result r = DetectionLocked(run, &state);
+  if (!r) return r;
+  if (state.requested_ns != requested_ns || state.stretches_provisional > 0)
+    return Fail(Outcome::kConflict, "the detection was requested again, or is not final yet");
   std::vector<StoredChange> stale;
-  Result r = ListWhere(
-      "run_id = ? AND provisional = 1", [&](Statement& q) { q.Bind(1, run); }, &stale);
+  r = ListWhere(
+      "run_id = ? AND rechecking = 1", [&](Statement& q) { q.Bind(1, run); }, &stale);
   if (r) r = WithdrawLocked(stale);
   if (!r) return r;
   Statement done(*db_,

@@ -86,7 +86,8 @@ class ChangeStore {
 
   /// Asks for `run` to be compared with `reference`: a new detection, or (`restart`, or another
   /// reference than the stored one) the run's stored stretches dropped and its changes marked
-  /// provisional, to be taken over where the new comparison finds them again.
+  /// to be checked again: a stretch compared on final output takes over those it finds again
+  /// (SaveStretch) and withdraws the rest; they are listed as they were meanwhile.
   Result Request(int64_t run, int64_t reference, bool restart, DetectionState* out);
   Result Detection(int64_t run, DetectionState* out) const;  ///< kNotFound if never requested
   Result Detections(std::vector<DetectionState>* out) const;
@@ -98,8 +99,9 @@ class ChangeStore {
   /// Stores a compared (or skipped) stretch with its changes; `stored` gets them with their
   /// ids. A stretch already stored is a kDuplicate (nothing stored), unless it was stored
   /// provisional and this outcome is not: then the outcome replaces it. A change of the same
-  /// kind within 2 m keeps its id, status and note; the provisional changes not found again
-  /// (the stretch's own, or an earlier comparison's) are deleted (`withdrawn` gets them). A
+  /// kind within 2 m keeps its id, status and note; the provisional changes not found again,
+  /// and on a final outcome the earlier comparison's left to be checked again (Request), are
+  /// deleted (`withdrawn` gets them). A
   /// detection requested meanwhile against another reference is a kConflict. A final outcome closes
   /// changes of earlier runs of the line marked `fixed` in the stretch and not seen again within 2
   /// m (`closed` gets them). A new change of the kind of an earlier run's (not closed) within 2 m
@@ -112,8 +114,10 @@ class ChangeStore {
                      std::vector<StoredChange>* withdrawn = nullptr);
   Result SetStatus(int64_t run, const std::string& status, const std::string& error);
   /// Marks the run's detection done, withdrawing the changes of an earlier comparison that no
-  /// stretch of this one found again (`withdrawn` gets them).
-  Result Finish(int64_t run, std::vector<StoredChange>* withdrawn);
+  /// stretch of this one checked again (`withdrawn` gets them). A kConflict, changing nothing,
+  /// if the detection was requested again since `requested_ns` (DetectionState) or still has
+  /// stretches compared on provisional output only.
+  Result Finish(int64_t run, int64_t requested_ns, std::vector<StoredChange>* withdrawn);
 
   Result List(int64_t run, const ChangeFilter& filter, std::vector<StoredChange>* out) const;
   Result Get(int64_t id, StoredChange* out) const;
@@ -140,9 +144,13 @@ class ChangeStore {
   Result InsertChangeLocked(StoredChange* change);
   /// Stores what detection measured of a change again, under its id.
   Result UpdateChangeLocked(const StoredChange& change);
-  /// Deletes the stretch's row if it was provisional; `provisional` gets the stretch's
-  /// provisional changes (its own, or an earlier comparison's: Request).
-  Result TakeProvisionalLocked(int64_t run, int stretch, std::vector<StoredChange>* provisional);
+  /// Deletes the stretch's row (the caller knows it is absent or provisional); `provisional`
+  /// gets, oldest first, the stretch's provisional changes and, if `rechecked` (a final
+  /// outcome), the changes an earlier comparison left to be checked again (Request).
+  Result TakeProvisionalLocked(int64_t run,
+                               int stretch,
+                               bool rechecked,
+                               std::vector<StoredChange>* provisional);
   /// Deletes the changes; one that a later change continued hands that on to what it continued.
   Result WithdrawLocked(const std::vector<StoredChange>& gone);
   /// Stores each change of the outcome: as an update of a provisional one of its kind within

@@ -14,6 +14,7 @@
 
 #include "api/atomic_file.h"
 #include "api/clock.h"
+#include "api/printable.h"
 #include "api/trajectory.h"
 #include "mapstore/schema.h"
 #include "mapstore/sqlite.h"
@@ -131,21 +132,8 @@ std::string Metres(double m) {
   return text;
 }
 
-/// Whether a name (UTF-8) holds at most `max` bytes and nothing that prints as other than it
-/// is: no control character (C0, DEL, C1), no line or paragraph separator, no bidirectional
-/// embedding, override or isolate (U+2028-U+202E, U+2066-U+2069).
-bool Printable(const std::string& s, size_t max) {
-  if (s.size() > max) return false;
-  const auto at = [&s](size_t i) { return i < s.size() ? static_cast<unsigned char>(s[i]) : 0; };
-  for (size_t i = 0; i < s.size(); ++i) {
-    const unsigned char c = at(i);
-    if (c < 0x20 || c == 0x7f) return false;
-    if (c == 0xc2 && at(i + 1) >= 0x80 && at(i + 1) <= 0x9f) return false;
-    if (c == 0xe2 && at(i + 1) == 0x80 && at(i + 2) >= 0xa8 && at(i + 2) <= 0xae) return false;
-    if (c == 0xe2 && at(i + 1) == 0x81 && at(i + 2) >= 0xa6 && at(i + 2) <= 0xa9) return false;
-  }
-  return true;
-}
+/// Whether a name holds at most `max` bytes and prints as it is (api::Printable).
+bool Printable(const std::string& s, size_t max) { return s.size() <= max && api::Printable(s); }
 
 }  // namespace
 

@@ -211,6 +211,12 @@ ALTER TABLE changes_v8 RENAME TO changes;
 CREATE INDEX changes_by_run ON changes (run_id, chainage_m);
 CREATE INDEX changes_by_line ON changes (line, status);
 )sql",
+      // 9: a run's changes under a comparison requested again, each until its stretch is
+      // compared again (rechecking); the changes that continue one, found when it is withdrawn.
+      R"sql(
+ALTER TABLE changes ADD COLUMN rechecking INTEGER NOT NULL DEFAULT 0;
+CREATE INDEX changes_by_earlier ON changes (earlier_change);
+)sql",
   };
   return migrations;
 }

@@ -28,9 +28,9 @@ bool ParsePoi(const nlohmann::json& j, mapstore::Poi* poi, std::string* error);
 /// "q": [x, y, z, w]}; the sequence is a whole number the index can hold (below 2^63).
 bool ParsePose(const nlohmann::json& j, api::StreamPose* pose, std::string* error);
 
-/// An optional integer member of an object: left as it is when absent.
 /// Whether a JSON value is an integer an int64_t holds (an unsigned one beyond it would wrap).
 bool FitsInt64(const nlohmann::json& v);
+/// An optional integer member of an object: left as it is when absent.
 bool ReadInt(const nlohmann::json& j, const char* key, int64_t* value, std::string* error);
 
 }  // namespace raillomer::server

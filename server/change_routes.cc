@@ -4,6 +4,7 @@
 #include <limits>
 #include <optional>
 
+#include "api/printable.h"
 #include "server/change_json.h"
 #include "server/change_report.h"
 #include "server/http_parse.h"
@@ -71,18 +72,16 @@ bool FilterOf(const HttpRequest& req, HttpResponse& res, mapstore::ChangeFilter*
 }
 
 /// Whether a PATCH's note is one: a string of at most 4000 characters (UTF-8, which the JSON
-/// parser has checked), no control characters but tab and line breaks; else `why` says.
+/// parser has checked) that prints as it is, line breaks and tabs allowed; else `why` says.
 bool NoteIsValid(const json& note, std::string* why) {
   if (!note.is_string()) return *why = "note must be a string", false;
-  size_t characters = 0;
-  for (const char c : note.get_ref<const std::string&>()) {
-    const auto byte = static_cast<unsigned char>(c);
-    if ((byte < 0x20 && c != '\t' && c != '\n' && c != '\r') || byte == 0x7f)
-      return *why = "note must not hold control characters (found code " + std::to_string(byte) +
-                    "); tab and line breaks are allowed",
-             false;
-    characters += (byte & 0xc0) != 0x80;  // continuation bytes do not start a character
-  }
+  const std::string& text = note.get_ref<const std::string&>();
+  if (!api::Printable(text, true))
+    return *why =
+               "note must not hold control characters, line separators or bidirectional "
+               "overrides (tab and line breaks are allowed)",
+           false;
+  const size_t characters = api::Utf8Characters(text);
   if (characters > 4000)
     return *why = "note must be at most 4000 characters (got " + std::to_string(characters) + ")",
            false;

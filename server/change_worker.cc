@@ -285,7 +285,7 @@ void ChangeWorker::FinishIfDone(const mapstore::RunInfo& run, size_t stretches) 
     return;
   if (!provisional.empty() || stored.size() < stretches) return;
   std::vector<mapstore::StoredChange> withdrawn;
-  if (!changes_->Finish(run.id, &withdrawn)) return;
+  if (!changes_->Finish(run.id, now.requested_ns, &withdrawn)) return;
   if (changes_->Detection(run.id, &now)) announce_({}, {}, withdrawn, now);
 }
 

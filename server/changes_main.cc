@@ -116,7 +116,9 @@ Result Compare(const MapStore& store,
   if (!r || !saved) return r;
   RunInfo info;
   r = store.GetRun(run, &info);
-  if (r && info.status == "finished") r = saved->Finish(run, nullptr);
+  DetectionState state;
+  if (r && info.status == "finished") r = saved->Detection(run, &state);
+  if (r && info.status == "finished") r = saved->Finish(run, state.requested_ns, nullptr);
   return r;
 }
 
@@ -198,8 +200,9 @@ void AddOptions(CLI::App* app, Options* o) {
   app->add_option("--json", o->json_path, "also write the changes and the summary as JSON here");
   app->add_flag("--save",
                 o->save,
-                "store the changes in the store as the server's own detection does (replacing "
-                "the run's earlier ones), for the server to serve");
+                "store the changes in the store as the server's own detection does (a change "
+                "found again keeps its id, status and note; the rest are withdrawn), for the "
+                "server to serve");
   app->add_option("--explain-at",
                   o->explain_at,
                   "easting,northing (the reference run's map): print every object compared "

@@ -163,7 +163,8 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
     const std::string error = ParseCommand(text, &add, &remove);
     if (!error.empty()) {
       reply = {{"type", "error"}, {"message", error}};
-    } else if (Subscribed(add, remove).size() > kMaxRuns) {
+    } else if (const std::set<int64_t> runs = Subscribed(add, remove);
+               !runs.count(0) && runs.size() > kMaxRuns) {
       reply = {{"type", "error"},
                {"message",
                 "at most " + std::to_string(kMaxRuns) +
@@ -175,7 +176,7 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
         reply["runs"].push_back(r == 0 ? nlohmann::json("all") : nlohmann::json(r));
     }
     auto m = std::make_shared<Message>();
-    m->text = reply.dump();
+    m->text = reply.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
     Push(std::move(m));
   }
 
@@ -396,7 +397,11 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     auto response = std::make_shared<http::response<http::string_body>>(status, request.version());
     response->set(http::field::content_type, "application/json");
     response->body() =
-        nlohmann::json{{"error", {{"code", CodeOf(status)}, {"message", message}}}}.dump();
+        nlohmann::json{{"error", {{"code", CodeOf(status)}, {"message", message}}}}.dump(
+            -1,
+            ' ',
+            false,
+            nlohmann::json::error_handler_t::replace);  // the target need not be UTF-8
     response->prepare_payload();
     http::async_write(
         stream_, *response, [self = shared_from_this(), response](beast::error_code, size_t) {

@@ -43,7 +43,8 @@ bool ParseObject(const HttpRequest& req, HttpResponse& res, json* out) {
     // "[json.exception.parse_error.101] parse error at line 1, column 5: ...; last read: '...'":
     // where and what, without the tag or the bytes read (which need not be UTF-8).
     std::string what = e.what();
-    what = what.substr(std::min(what.size(), what.find("] ") + 2));
+    const size_t tag = what.find("] ");
+    if (tag != std::string::npos) what = what.substr(tag + 2);
     res.SetError(
         400, "invalid", "the body is not JSON: " + what.substr(0, what.find("; last read")));
     return false;

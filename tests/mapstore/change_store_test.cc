@@ -157,13 +157,13 @@ TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceChecksTheOldResultsAgain)
   ASSERT_TRUE(
       changes_->Update(kept, std::string("confirmed"), std::string("seen from the cab"), &set));
 
-  // Against run 2 now: the changes stand, provisional, until their stretches are compared
+  // Against run 2 now: the changes stand as they were until their stretches are compared
   // again; a stretch compared against the old reference is refused.
   ASSERT_TRUE(changes_->Request(3, 2, false, nullptr));
   std::vector<StoredChange> listed;
   ASSERT_TRUE(changes_->List(3, ChangeFilter(), &listed));
   ASSERT_EQ(listed.size(), 3u);
-  for (const StoredChange& c : listed) EXPECT_TRUE(c.provisional) << c.id;
+  for (const StoredChange& c : listed) EXPECT_FALSE(c.provisional) << c.id;
   EXPECT_EQ(changes_->SaveStretch(3, 1, Stretch(1, {}), &stored, &closed).outcome,
             Outcome::kConflict);
   std::set<int> done;
@@ -190,13 +190,16 @@ TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceChecksTheOldResultsAgain)
   EXPECT_FALSE(now.provisional);
   EXPECT_NEAR(now.change.chainage_m, 5.5, 1e-9);
 
-  // Finishing withdraws what no stretch compared again found.
-  ASSERT_TRUE(changes_->Finish(3, &withdrawn));
+  // Finishing withdraws what no stretch compared again found; not if the detection was
+  // requested again meanwhile.
+  DetectionState state;
+  ASSERT_TRUE(changes_->Detection(3, &state));
+  EXPECT_EQ(changes_->Finish(3, state.requested_ns - 1, &withdrawn).outcome, Outcome::kConflict);
+  ASSERT_TRUE(changes_->Finish(3, state.requested_ns, &withdrawn));
   ASSERT_EQ(withdrawn.size(), 1u);
   EXPECT_EQ(withdrawn[0].id, unchecked);
   ASSERT_TRUE(changes_->List(3, ChangeFilter(), &listed));
   EXPECT_EQ(listed.size(), 1u);
-  DetectionState state;
   ASSERT_TRUE(changes_->Detection(3, &state));
   EXPECT_EQ(state.status, "done");
   // An id is never given again, not even the latest one withdrawn.
@@ -207,6 +210,35 @@ TEST_F(ChangeStoreTest, ARequestAgainstAnotherReferenceChecksTheOldResultsAgain)
                             &stored,
                             &closed));
   EXPECT_GT(stored[0].id, unchecked);
+}
+
+TEST_F(ChangeStoreTest, ALiveRunComparedAgainKeepsItsChangesUntilTheFinalOutput) {
+  // Run 2's change, confirmed; then the run is compared again while its output is provisional.
+  ASSERT_TRUE(changes_->Request(2, 1, false, nullptr));
+  std::vector<StoredChange> stored, closed, withdrawn;
+  ASSERT_TRUE(changes_->SaveStretch(
+      2, 1, Stretch(0, {Change(ChangeKind::kAdded, 12.0, at_, true)}), &stored, &closed));
+  const int64_t kept = stored[0].id;
+  StoredChange set;
+  ASSERT_TRUE(changes_->Update(kept, std::string("confirmed"), std::string("cab"), &set));
+  ASSERT_TRUE(changes_->Request(2, 1, true, nullptr));
+  // The provisional output misses it: it stays, for the final output to check.
+  StretchOutcome early = Stretch(0, {});
+  early.provisional = true;
+  ASSERT_TRUE(changes_->SaveStretch(2, 1, early, &stored, &closed, &withdrawn));
+  EXPECT_TRUE(withdrawn.empty());
+  // The final output finds it: the same change, still confirmed.
+  ASSERT_TRUE(changes_->SaveStretch(2,
+                                    1,
+                                    Stretch(0, {Change(ChangeKind::kAdded, 12.3, at_, true)}),
+                                    &stored,
+                                    &closed,
+                                    &withdrawn));
+  ASSERT_EQ(stored.size(), 1u);
+  EXPECT_EQ(stored[0].id, kept);
+  EXPECT_EQ(stored[0].status, "confirmed");
+  EXPECT_EQ(stored[0].note, "cab");
+  EXPECT_TRUE(withdrawn.empty());
 }
 
 TEST_F(ChangeStoreTest, AWithdrawnChangeHandsOnWhatItContinuedToTheChangeThatContinuedIt) {

@@ -424,8 +424,7 @@ void ExpectKmPostPinned(MapStore& store) {
   // A position beyond UTM's, or a label with a control character, is refused.
   const Result huge = store.PinKmPost("Line A", "", 0.0, Eigen::Vector2d(1e308, 1e308), nullptr);
   EXPECT_NE(huge.message.find("must be a UTM position"), std::string::npos) << huge.message;
-  EXPECT_EQ(store.PinKmPost("Line A", "a\x01b", 12400.0, post, nullptr).outcome,
-            Outcome::kInvalid);
+  EXPECT_EQ(store.PinKmPost("Line A", "a\x01b", 12400.0, post, nullptr).outcome, Outcome::kInvalid);
   // A range shorter than the centreline's sampling (a metre) gets the nearer sample.
   ASSERT_TRUE(store.Segment("Line A", 12400.2, 12400.25, &segment));
   ASSERT_EQ(segment.samples.size(), 1u);
@@ -693,6 +692,42 @@ TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   auto newer = OpenStore(dir.path().string(), &error);
   EXPECT_FALSE(newer);
   EXPECT_NE(error.find("schema version 99"), std::string::npos) << error;
+}
+
+TEST(MapStore, MigrationEightKeepsTheChangesAndNeverGivesAnIdAgain) {
+  test::ScratchDir dir("raillomer_store_");
+  const std::string path = (dir.path() / "index.sqlite").string();
+  std::string error;
+  const std::string change =
+      "INSERT INTO changes (run_id, reference_run, stretch, line, kind, chainage_m, offset_m, "
+      "utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, updated_ns, "
+      "first_seen_run) VALUES (7, 1, 0, 'L', 'added', 12.0, -2.0, '50N', 1, 2, 3, '{}', 0, 1.5, "
+      "5, 6, 7)";
+  {
+    // Version 7 held change 5, the latest, with a note.
+    Database db;
+    ASSERT_TRUE(db.Open(path, true, &error)) << error;
+    ASSERT_TRUE(MigrateSchemaTo(db, 7, &error)) << error;
+    ASSERT_TRUE(
+        db.Exec("INSERT INTO runs (id, line, vehicle, status, start_ns, created_ns) "
+                "VALUES (7, 'L', 'V', 'finished', 5, 6)",
+                &error))
+        << error;
+    ASSERT_TRUE(db.Exec(change, &error)) << error;
+    ASSERT_TRUE(db.Exec("UPDATE changes SET id = 5, note = 'cut it'", &error)) << error;
+  }
+  ASSERT_TRUE(OpenStore(dir.path().string(), &error)) << error;  // migrates, then closes
+  Database db;
+  ASSERT_TRUE(db.Open(path, false, &error)) << error;
+  Statement kept(db, "SELECT id, note, rechecking, first_seen_run FROM changes");
+  ASSERT_TRUE(kept.Step());
+  EXPECT_EQ(kept.Int(0), 5);
+  EXPECT_EQ(kept.Text(1), "cut it");
+  EXPECT_EQ(kept.Int(2), 0);
+  EXPECT_EQ(kept.Int(3), 7);
+  // Change 5 withdrawn, the next is 6, not 5 again.
+  ASSERT_TRUE(db.Exec("DELETE FROM changes WHERE id = 5; " + change, &error)) << error;
+  EXPECT_EQ(db.LastInsertId(), 6);
 }
 
 TEST(MapStore, MigrationFourTakesLostSubmapsOutOfTheirRunsCounts) {

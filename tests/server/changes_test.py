@@ -278,7 +278,8 @@ class ChangeDetection(unittest.TestCase):
         status, body = self.server.write("PATCH", path, {"note": "\u00e9" * 4000})
         self.assertEqual(status, 200, body)
         for note, message in (("\u00e9" * 4001, "at most 4000 characters (got 4001)"),
-                              ("a\u0000b", "control characters (found code 0)")):
+                              ("a\u0000b", "control characters"),
+                              ("a\u202eb", "bidirectional overrides")):
             status, body = self.server.write("PATCH", path, {"note": note})
             self.assertEqual(status, 400)
             self.assertIn(message, body["error"]["message"])
@@ -330,6 +331,10 @@ class KilledDuringDetection(unittest.TestCase):
 
     def test_a_killed_server_resumes_detection_and_loses_nothing(self):
         server = FIX["server"]
+        reviewed = FIX["found"]["features"][0]["properties"]["id"]
+        status, body = server.write("PATCH", "/api/v1/changes/%d" % reviewed,
+                                    {"status": "dismissed", "note": "kept across a recompute"})
+        self.assertEqual(status, 200, body)
         status, body = server.write("POST", "/api/v1/runs/2/changes")
         self.assertEqual(status, 202, body)
         total = FIX["found"]["detection"]["stretches_done"]
@@ -350,11 +355,11 @@ class KilledDuringDetection(unittest.TestCase):
         ids = [f["id"] for f in found["features"]]
         self.assertEqual(len(ids), len(set(ids)))
         self.assertEqual(signature(found), signature(FIX["found"]))
-        # Found again, each change keeps its id, status and note (set by ChangeDetection).
+        # Found again, each change keeps its id, status and note.
         self.assertEqual(sorted(ids), sorted(f["id"] for f in FIX["found"]["features"]))
-        kept = [f["properties"] for f in found["features"]
-                if f["properties"]["note"] == "seen on site"]
-        self.assertEqual([p["status"] for p in kept], ["confirmed"])
+        _, body = server.json("GET", "/api/v1/changes/%d" % reviewed)
+        self.assertEqual((body["properties"]["status"], body["properties"]["note"]),
+                         ("dismissed", "kept across a recompute"))
         self.assertFalse(any(f["properties"]["provisional"] for f in found["features"]))
         rows = subprocess.run(
             ["sqlite3", os.path.join(server.data, "index.sqlite"),
@@ -401,10 +406,20 @@ class OfflineComparison(unittest.TestCase):
         for args, words in ((["--run", "1"], "is its line's reference run"),
                             (["--run", "99"], "no run 99"),
                             (["--run", "2", "--reference", "98"], "98"),
-                            (["--run", "2", "--json", "/nonexistent/x.json"], "no folder")):
+                            (["--run", "2", "--json", "/nonexistent/x.json"], "no folder"),
+                            (["--run", "2", "--reference", "2"], "names the run itself")):
             done = self.changes(*args)
             self.assertEqual(done.returncode, 2, args)
             self.assertIn(words, done.stderr, args)
+        # A mistyped folder is not made a store; the store the server holds is not opened.
+        binary = os.path.join(harness.bin_dir(), "raillomer-changes")
+        missing = os.path.join(self.copy, "no-such-store")
+        for data, words in ((missing, "no store in"), (FIX["server"].data, "in use by another")):
+            done = subprocess.run([binary, "--data", data, "--run", "2"], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True, timeout=60)
+            self.assertEqual(done.returncode, 2, data)
+            self.assertIn(words, done.stderr, data)
+        self.assertFalse(os.path.exists(missing))
 
 
 if __name__ == "__main__":

@@ -177,6 +177,10 @@ class Hardening(unittest.TestCase):
         answer, _ = raw_exchange(self.server.ws_port, upgrade)
         self.assertEqual(status_of(answer), 400, answer)
         self.assertIn(b"run must be a run id (got '1abc')", answer)
+        # A run that is not UTF-8 is named in the refusal, not a reason to fall over.
+        answer, _ = raw_exchange(self.server.ws_port, upgrade.replace(b"run=1abc", b"run=\xff"))
+        self.assertEqual(status_of(answer), 400, answer)
+        self.assertTrue(self.server.alive())
         # Each refusal is JSON that says why: no key, a header flood, no HTTP at all.
         for request, status, says in (
                 (upgrade.replace(b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n", b""), 400,

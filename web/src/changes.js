@@ -71,7 +71,8 @@ export class ChangesPanel {
 
   onLive(message) {
     for (const f of [...message.changes, ...message.closed]) this.upsert(f.properties);
-    // Found on the estimator's provisional output and not again on its final output.
+    // Found on the estimator's provisional output and not again on its final output, or by an
+    // earlier comparison of the run and not again by this one.
     const withdrawn = new Set(message.withdrawn ?? []);
     this.items = this.items.filter((c) => !withdrawn.has(c.id));
     if (this.selected && withdrawn.has(this.selected.id)) {
