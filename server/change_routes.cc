@@ -1,6 +1,5 @@
 // The change-detection routes: a run's changes (GeoJSON or CSV), recomputing them against a
 // chosen reference, an engineer's status and note, a change's snapshot and a run's report.
-#include <cmath>
 #include <limits>
 #include <optional>
 

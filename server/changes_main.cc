@@ -116,10 +116,10 @@ Result Compare(const MapStore& store,
   if (!r || !saved) return r;
   RunInfo info;
   r = store.GetRun(run, &info);
+  if (!r || info.status != "finished") return r;
   DetectionState state;
-  if (r && info.status == "finished") r = saved->Detection(run, &state);
-  if (r && info.status == "finished") r = saved->Finish(run, state.requested_ns, nullptr);
-  return r;
+  r = saved->Detection(run, &state);
+  return r ? saved->Finish(run, state.requested_ns, nullptr) : r;
 }
 
 /// The summary line and a row per change.

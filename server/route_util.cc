@@ -1,6 +1,5 @@
 #include "server/route_util.h"
 
-#include <algorithm>
 #include <cmath>
 #include <limits>
 
