@@ -664,7 +664,7 @@ Result ExportCursor::Read(const TileKey& key, std::vector<ExportPoint>* points) 
   TilePoints decoded;
   if (!DecodeTile(bytes, &decoded, &error))
     return Fail(Outcome::kError, "tile " + key.ToString() + ": " + error);
-  zone_ = decoded.utm_zone;
+  if (zone_.empty()) zone_ = decoded.utm_zone;
   for (size_t i = 0; i < decoded.points.size(); ++i) {
     const Eigen::Vector3d p = decoded.origin + decoded.points[i].cast<double>();
     if (filter_->Takes(p.head<2>())) points->push_back({p, decoded.intensities[i]});
@@ -708,7 +708,11 @@ Result MapStore::PrepareExport(const ExportRequest& request,
   std::vector<TileInfo> tiles;
   Result r = TilesInBox(request.run_id, request.level, filter->box, &tiles);
   if (!r) return r;
+  RunInfo run;
+  r = GetRun(request.run_id, &run);
+  if (!r) return r;
   std::unique_ptr<ExportCursor> cursor(new ExportCursor(this, request.run_id, std::move(filter)));
+  cursor->zone_ = run.utm_zone;  // also for an export with no point, whose header names it
   // The count (one pass, a tile at a time): the file's header needs it before any point.
   std::vector<ExportPoint> points;
   for (const TileInfo& t : tiles) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -13,6 +14,90 @@
 namespace raillomer::server {
 
 using nlohmann::json;
+
+namespace {
+
+/// A key as a message quotes it: JSON-escaped, at most 64 bytes of it.
+std::string QuotedKey(const std::string& key) {
+  std::string quoted = json(key.substr(0, 64)).dump(-1, ' ', false, json::error_handler_t::replace);
+  if (key.size() > 64) quoted.insert(quoted.size() - 1, "...");
+  return quoted;
+}
+
+/// The DOM parser's events, with each object's keys noted and checked as it closes: the first
+/// key found named twice in one object is kept. nlohmann's SAX calls are resolved at compile
+/// time, so hiding three of its DOM parser's members takes their place; unlike a parser
+/// callback this costs next to nothing.
+class KeyCheckingParser : public nlohmann::detail::json_sax_dom_parser<json> {
+ public:
+  explicit KeyCheckingParser(json* out) : json_sax_dom_parser(*out, true) {}
+
+  bool start_object(std::size_t n) {
+    if (keys_.size() <= open_) keys_.emplace_back();
+    keys_[open_++].clear();  // the vectors are reused, object after object
+    return json_sax_dom_parser::start_object(n);
+  }
+  bool key(std::string& name) {
+    keys_[open_ - 1].push_back(name);
+    return json_sax_dom_parser::key(name);
+  }
+  bool end_object() {
+    if (twice_.empty()) twice_ = NamedTwice(&keys_[--open_]);
+    return json_sax_dom_parser::end_object();
+  }
+  const std::string& twice() const { return twice_; }
+
+ private:
+  /// A key `keys` holds twice, or "" (`keys` may be reordered).
+  static std::string NamedTwice(std::vector<std::string>* keys) {
+    if (keys->size() > 16) {  // a large object: sorted, so no pair is compared twice
+      std::sort(keys->begin(), keys->end());
+      const auto same = std::adjacent_find(keys->begin(), keys->end());
+      return same == keys->end() ? "" : *same;
+    }
+    for (auto k = keys->begin(); k != keys->end(); ++k)
+      if (std::find(k + 1, keys->end(), *k) != keys->end()) return *k;
+    return "";
+  }
+
+  std::vector<std::vector<std::string>> keys_;  // of each object open at this point
+  size_t open_ = 0;
+  std::string twice_;
+};
+
+}  // namespace
+
+std::string ParseJson(const std::string& text, json* out) {
+  KeyCheckingParser parser(out);
+  try {
+    json::sax_parse(text, &parser);
+  } catch (const json::exception& e) {  // a parse error, or a number beyond a double
+    // "[json.exception.parse_error.101] parse error at line 1, column 5: ...; last read: '...'":
+    // where and what, without the tag or the bytes read (which need not be UTF-8).
+    std::string what = e.what();
+    const size_t tag = what.find("] ");
+    if (tag != std::string::npos) what = what.substr(tag + 2);
+    return what.substr(0, what.find("; last read"));
+  }
+  if (!parser.twice().empty())
+    return "member " + QuotedKey(parser.twice()) + " appears twice in one object";
+  return "";
+}
+
+std::string UnknownMember(const json& object,
+                          std::initializer_list<const char*> known,
+                          std::initializer_list<const char*> ignored) {
+  const auto among = [](const std::string& key, std::initializer_list<const char*> names) {
+    return std::any_of(names.begin(), names.end(), [&](const char* n) { return key == n; });
+  };
+  for (const auto& [key, value] : object.items()) {
+    if (among(key, known) || among(key, ignored)) continue;
+    std::string names;
+    for (const char* n : known) names += (names.empty() ? "" : ", ") + std::string(n);
+    return "unknown member " + QuotedKey(key) + " (" + names + ")";
+  }
+  return "";
+}
 
 json RunJson(const mapstore::RunInfo& r) {
   json j = {{"id", r.id},
@@ -111,6 +196,10 @@ int DepthOf(const json& v) {
 }  // namespace
 
 bool ParsePoi(const json& j, mapstore::Poi* p, std::string* error) {
+  *error = UnknownMember(j,
+                         {"kind", "utm_zone", "position", "name", "line", "properties"},
+                         {"id", "created_ns", "updated_ns"});
+  if (!error->empty()) return false;
   if (!j.contains("kind") || !j["kind"].is_string() || !j.contains("utm_zone") ||
       !j["utm_zone"].is_string() || !j.contains("position") || !Numbers(j["position"], 3)) {
     *error =
@@ -149,6 +238,11 @@ bool ParsePose(const json& j, api::StreamPose* p, std::string* error) {
   p->sequence = j["sequence"].get<uint64_t>();
   if (p->sequence > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
     *error = "pose sequence " + std::to_string(p->sequence) + " is beyond 2^63 - 1";
+    return false;
+  }
+  *error = UnknownMember(j, {"sequence", "stamp_ns", "georeferenced", "utm_zone", "p", "q"});
+  if (!error->empty()) {
+    *error = "pose " + std::to_string(p->sequence) + ": " + *error;
     return false;
   }
   p->stamp_ns = j["stamp_ns"].get<int64_t>();

@@ -3,6 +3,7 @@
 // The API's JSON: stored records as JSON objects, and request bodies parsed into records with
 // a message naming what is wrong. nlohmann/json stays out of the other server headers.
 
+#include <initializer_list>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -16,6 +17,17 @@ nlohmann::json RunJson(const mapstore::RunInfo& run);
 nlohmann::json TileJson(const mapstore::TileInfo& tile);
 nlohmann::json LineJson(const mapstore::LineInfo& line);
 nlohmann::json PoiJson(const mapstore::Poi& poi);
+
+/// `text` as JSON into `out`; what is wrong with it, or "". A member named twice in one object
+/// is wrong: a plain parse keeps the last, so a client's first value would vanish unsaid.
+std::string ParseJson(const std::string& text, nlohmann::json* out);
+
+/// The first member of `object` not among `known`, as a message listing those; "" if none.
+/// `ignored` are members a client may send back as it read them (id, timestamps): allowed,
+/// never written.
+std::string UnknownMember(const nlohmann::json& object,
+                          std::initializer_list<const char*> known,
+                          std::initializer_list<const char*> ignored = {});
 
 /// UTM of `zone` to WGS84 [lon, lat, h]; false outside the zone's range.
 bool Wgs84(const std::string& zone, const Eigen::Vector3d& p_utm, nlohmann::json* lon_lat_h);

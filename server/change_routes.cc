@@ -168,10 +168,9 @@ class ChangeApi {
   void Update(const HttpRequest& req, HttpResponse& res) {
     int64_t id = 0;
     json body;
-    if (!PathId(req, res, &id, "change") || !ParseObject(req, res, &body)) return;
-    for (const auto& [key, value] : body.items())
-      if (key != "status" && key != "note")
-        return res.SetError(400, "invalid", "unknown member '" + key + "' (status, note)");
+    if (!PathId(req, res, &id, "change") || !ParseObject(req, res, &body) ||
+        !OnlyMembers(body, res, {"status", "note"}))
+      return;
     if (body.contains("status") && !body["status"].is_string())
       return res.SetError(400, "invalid", "status must be a string");
     std::string why;

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <optional>
@@ -447,6 +448,16 @@ class HttpFront::Impl::Session : public std::enable_shared_from_this<Session> {
   /// false when the refusal is on its way.
   bool Admit() {
     const Access access = route_ ? route_->access : Access::kRead;
+    const auto authorizations =
+        std::count_if(request_.headers.begin(), request_.headers.end(), [](const auto& h) {
+          return EqualsIgnoreCase(h.first, "Authorization");
+        });
+    if (authorizations > 1) {  // which one counts would be a guess
+      Refuse(400,
+             "bad_request",
+             "send one Authorization header, not " + std::to_string(authorizations));
+      return false;
+    }
     const std::string token = Token(access, &token_from_query_);
     if (!front_->hooks_.authorize(token, access)) {
       HttpResponse res;

@@ -193,15 +193,16 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
   static std::string ParseCommand(const std::string& text,
                                   std::set<int64_t>* add,
                                   std::set<int64_t>* remove) {
-    const nlohmann::json command = nlohmann::json::parse(text, nullptr, false);
-    if (command.is_discarded()) return "a command must be JSON";
+    nlohmann::json command;
+    const std::string unparsed = ParseJson(text, &command);
+    if (!unparsed.empty()) return "a command must be JSON: " + unparsed;
     if (!command.is_object() ||
         (!command.contains("subscribe") && !command.contains("unsubscribe")))
       return "send {\"subscribe\": [run ids]} or {\"subscribe\": \"all\"}, or "
              "{\"unsubscribe\": [...]}";
+    const std::string unknown = UnknownMember(command, {"subscribe", "unsubscribe"});
+    if (!unknown.empty()) return unknown;
     for (const auto& [key, value] : command.items()) {
-      if (key != "subscribe" && key != "unsubscribe")
-        return "unknown member '" + key + "' (subscribe, unsubscribe)";
       const std::string wrong = RunsOf(value, key == "subscribe" ? add : remove);
       if (!wrong.empty()) return key + ": " + wrong;
     }

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "server/api_json.h"
 #include "server/http_parse.h"
 
 namespace raillomer::server {
@@ -36,16 +37,9 @@ void SendJson(HttpResponse& res, const json& j, const char* type) {
 
 /// A JSON body as an object; false (and a 400 set) if it is not one.
 bool ParseObject(const HttpRequest& req, HttpResponse& res, json* out) {
-  try {
-    *out = json::parse(req.body);
-  } catch (const json::exception& e) {  // a parse error, or a number beyond a double
-    // "[json.exception.parse_error.101] parse error at line 1, column 5: ...; last read: '...'":
-    // where and what, without the tag or the bytes read (which need not be UTF-8).
-    std::string what = e.what();
-    const size_t tag = what.find("] ");
-    if (tag != std::string::npos) what = what.substr(tag + 2);
-    res.SetError(
-        400, "invalid", "the body is not JSON: " + what.substr(0, what.find("; last read")));
+  const std::string wrong = ParseJson(req.body, out);
+  if (!wrong.empty()) {
+    res.SetError(400, "invalid", "the body is not JSON: " + wrong);
     return false;
   }
   if (!out->is_object()) {
@@ -54,6 +48,16 @@ bool ParseObject(const HttpRequest& req, HttpResponse& res, json* out) {
     return false;
   }
   return true;
+}
+
+bool OnlyMembers(const json& body,
+                 HttpResponse& res,
+                 std::initializer_list<const char*> known,
+                 std::initializer_list<const char*> ignored) {
+  const std::string unknown = UnknownMember(body, known, ignored);
+  if (unknown.empty()) return true;
+  res.SetError(400, "invalid", unknown);
+  return false;
 }
 
 /// The id in the path's first capture; a 404 if it is not one the store could hold.

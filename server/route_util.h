@@ -4,6 +4,7 @@
 // path and query parameters checked with a 4xx naming what is wrong.
 
 #include <cstdint>
+#include <initializer_list>
 #include <memory>
 
 #include <nlohmann/json.hpp>
@@ -17,8 +18,14 @@ int StatusOf(mapstore::Outcome outcome);
 /// The store's error as the API states it.
 void SendResult(HttpResponse& res, const mapstore::Result& r);
 void SendJson(HttpResponse& res, const nlohmann::json& j, const char* type = "application/json");
-/// A JSON body as an object; false (and a 400 set) if it is not one.
+/// A JSON body as an object (each member named once); false (and a 400 set) if it is not one.
 bool ParseObject(const HttpRequest& req, HttpResponse& res, nlohmann::json* out);
+/// Whether `body` holds only members among `known` and `ignored` (see UnknownMember); a 400
+/// naming the first other one if not.
+bool OnlyMembers(const nlohmann::json& body,
+                 HttpResponse& res,
+                 std::initializer_list<const char*> known,
+                 std::initializer_list<const char*> ignored = {});
 /// The id in the path's first capture; a 404 if it is not one the store could hold.
 bool PathId(const HttpRequest& req, HttpResponse& res, int64_t* id, const char* what = "run");
 /// An optional integer query parameter in [min, max]; a 400 naming it if it is not one.

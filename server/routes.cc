@@ -150,7 +150,8 @@ class Api {
 
   void CreateRun(const HttpRequest& req, HttpResponse& res) {
     json body;
-    if (!ParseObject(req, res, &body)) return;
+    if (!ParseObject(req, res, &body) || !OnlyMembers(body, res, {"line", "vehicle", "start_ns"}))
+      return;
     if (!body.contains("line") || !body["line"].is_string() || !body.contains("vehicle") ||
         !body["vehicle"].is_string())
       return res.SetError(400, "invalid", "a run needs line and vehicle (strings)");
@@ -184,7 +185,8 @@ class Api {
     int64_t id = 0;
     if (!PathId(req, res, &id)) return;
     json body = json::object();
-    if (!req.body.empty() && !ParseObject(req, res, &body)) return;
+    if (!req.body.empty() && (!ParseObject(req, res, &body) || !OnlyMembers(body, res, {"end_ns"})))
+      return;
     int64_t end_ns = NowNs();
     std::string error;
     if (!ReadInt(body, "end_ns", &end_ns, &error)) return res.SetError(400, "invalid", error);
@@ -217,7 +219,7 @@ class Api {
                       HttpResponse& res,
                       std::vector<api::StreamPose>* out) {
     json body;
-    if (!ParseObject(req, res, &body)) return false;
+    if (!ParseObject(req, res, &body) || !OnlyMembers(body, res, {"poses"})) return false;
     if (!body.contains("poses") || !body["poses"].is_array()) {
       res.SetError(400, "invalid", "the body needs \"poses\": [...]");
       return false;
@@ -483,7 +485,9 @@ class Api {
 
   void PinKmPost(const HttpRequest& req, HttpResponse& res) {
     json body;
-    if (!ParseObject(req, res, &body)) return;
+    if (!ParseObject(req, res, &body) ||
+        !OnlyMembers(body, res, {"km", "easting", "northing", "label"}))
+      return;
     if (!body.contains("km") || !body["km"].is_number() || !body.contains("easting") ||
         !body["easting"].is_number() || !body.contains("northing") || !body["northing"].is_number())
       return res.SetError(

@@ -260,6 +260,12 @@ class RestApi : public ::testing::Test {
     ASSERT_TRUE(api::las::Decode(r.body, &las, &las_error)) << las_error;
     EXPECT_EQ(las.points.size(), 100u * 110u);
     EXPECT_EQ(las.epsg, 32650);
+    // A box with no point of the run: an empty file that still names the run's zone.
+    r = Curl(ShellQuote(runs_ + "/export?format=las&bbox=432000,3585000,432001,3585001"), dir_);
+    ASSERT_EQ(r.status, 200) << r.body;
+    ASSERT_TRUE(api::las::Decode(r.body, &las, &las_error)) << las_error;
+    EXPECT_EQ(las.points.size(), 0u);
+    EXPECT_EQ(las.epsg, 32650);
     r = Curl(ShellQuote(runs_ + "/export?format=ply&line=Test%20line&from_km=12.000&to_km=12.008"),
              dir_);
     EXPECT_EQ(r.status, 200) << r.body;
