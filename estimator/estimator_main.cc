@@ -14,6 +14,7 @@
 #include <CLI/CLI.hpp>
 
 #include "api/atomic_file.h"
+#include "api/cli_checks.h"
 #include "api/ingest_client.h"
 #include "api/trajectory.h"
 #include "estimator/io/bag_reader.h"
@@ -51,16 +52,19 @@ struct Options {
 
 void AddSourceOptions(CLI::App* app, Options* o) {
   auto* source = app->add_option_group("source", "Where the sensor data comes from");
-  source->add_option("--bag", o->bag_path, "ROS1 bag of the sensor data contract");
-  source->add_option(
-      "--sim", o->sim_scenario, "Run the simulator in-process: built-in scenario name or YAML");
+  source->add_option("--bag", o->bag_path, "ROS1 bag of the sensor data contract")
+      ->check(api::NotEmpty());
+  source
+      ->add_option(
+          "--sim", o->sim_scenario, "Run the simulator in-process: built-in scenario name or YAML")
+      ->check(api::NotEmpty());
   source->require_option(1);
   app->add_option("--config",
                   o->config_path,
                   "Rig configuration YAML (required with --bag; --sim uses the scenario's rig)");
   app->add_option("--out", o->out_dir, "Output folder (created if missing)")->required();
   app->add_option("--duration", o->duration_s, "Process only the first N seconds of data")
-      ->check(CLI::PositiveNumber);
+      ->check(api::FinitePositive());
   app->add_option("--seed", o->seed, "With --sim: noise seed (the corridor keeps its world_seed)")
       ->check(CLI::Range(int64_t{0}, int64_t{4294967295}));
   app->add_flag("--realtime",
@@ -106,7 +110,7 @@ void AddOutputOptions(CLI::App* app, Options* o) {
                   "UTM zone as its EPSG code)");
   app->add_option(
          "--map-voxel", o->map_voxel_m, "With --map: one point per voxel of this size (0: all)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(api::FiniteNonNegative());
   app->add_option("--map-box",
                   o->map_box_text,
                   "With --map: only points inside the horizontal box x0,y0,x1,y1 (UTM easting, "
@@ -129,7 +133,7 @@ void AddServerOptions(CLI::App* app, Options* o) {
                   o->server_wait_s,
                   "With --server: seconds to wait at the end for the backlog to drain (default "
                   "120)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(api::FiniteNonNegative());
 }
 
 /// Where the sensor data comes from: a bag or the simulator, and the span of its data.

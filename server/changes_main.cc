@@ -1,9 +1,12 @@
 // raillomer-changes: compares a run of a line with a reference run in a store folder, offline
 // (the server's own detection does the same as runs arrive), and prints the changes.
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <string>
 
 #include <unistd.h>
@@ -24,7 +27,8 @@ nlohmann::json ChangeJson(const RunChange& c) {
           {"utm_zone", c.utm_zone},
           {"chainage_m", c.chainage_m},
           {"offset_m", c.offset_m},
-          {"side", c.offset_m >= 0.0 ? "left" : "right"},
+          {"side", SideOf(c)},
+          {"offset_range_m", {c.offset_from_m, c.offset_to_m}},
           {"size_m", {c.size_m.x(), c.size_m.y(), c.size_m.z()}},
           {"height_above_rail_m", {c.height_above_rail_min_m, c.height_above_rail_max_m}},
           {"margin_m", c.margin_m},
@@ -154,7 +158,7 @@ void PrintTable(int64_t run,
                 ToString(c.kind),
                 c.chainage_m / 1000.0,
                 c.offset_m,
-                c.offset_m >= 0.0 ? "left" : "right",
+                SideOf(c),
                 c.size_m.x(),
                 c.size_m.y(),
                 c.size_m.z(),
@@ -190,7 +194,8 @@ struct Options {
   int64_t run = 0, reference = 0;
   std::vector<double> explain_at;
   Explain explain;  ///< its radius from --explain-radius; the rest from --explain-at
-  double from_km = -1e9, to_km = 1e9;
+  double from_km = -std::numeric_limits<double>::infinity();
+  double to_km = std::numeric_limits<double>::infinity();
 };
 
 void AddOptions(CLI::App* app, Options* o) {
@@ -216,7 +221,57 @@ void AddOptions(CLI::App* app, Options* o) {
   app->add_option("--to-km", o->to_km, "compare up to this kilometre (default: the line's end)");
 }
 
-/// The run and the run to compare it with: --reference, else its line's reference run.
+/// Whether `path` can be written (checked before a long comparison): "" or why not.
+std::string WritableFile(const std::string& path) {
+  const std::filesystem::path file(path);
+  const std::filesystem::path folder = file.has_parent_path() ? file.parent_path() : ".";
+  std::error_code ec;
+  if (std::filesystem::is_directory(file, ec)) return "cannot write " + path + ": it is a folder";
+  if (!std::filesystem::is_directory(folder, ec))
+    return "cannot write " + path + ": no folder " + folder.string();
+  const bool exists = std::filesystem::exists(file, ec);
+  if (::access(exists ? file.c_str() : folder.c_str(), W_OK) != 0)
+    return "cannot write " + path + ": " + std::strerror(errno);
+  return "";
+}
+
+/// What is wrong with the options on their own (before the store is opened), or "".
+std::string CheckOptions(const CLI::App& app, const Options& o) {
+  const bool range = app.count("--from-km") > 0 || app.count("--to-km") > 0;
+  for (const auto& [name, km] : {std::pair{"--from-km", o.from_km}, {"--to-km", o.to_km}})
+    if (app.count(name) > 0 && !std::isfinite(km)) return std::string(name) + " must be a number";
+  if (range && !(o.from_km < o.to_km)) return "--from-km must be below --to-km";
+  if (range && o.save)
+    return "--save compares and stores the whole run: leave out --from-km and --to-km (the "
+           "changes outside them would be withdrawn)";
+  if (o.explain_at.size() == 2 &&
+      !(std::isfinite(o.explain_at[0]) && std::isfinite(o.explain_at[1])))
+    return "--explain-at must be two numbers: easting,northing";
+  if (!(o.explain.radius_m > 0.0 && std::isfinite(o.explain.radius_m)))
+    return "--explain-radius must be a positive number of metres";
+  return o.json_path.empty() ? "" : WritableFile(o.json_path);
+}
+
+/// The store's index, or what is wrong with it: missing, unreadable or empty (a store is never
+/// created here).
+std::string CheckStore(const std::string& data_dir) {
+  const std::filesystem::path index = std::filesystem::path(data_dir) / "index.sqlite";
+  std::error_code ec;
+  const auto status = std::filesystem::status(index, ec);
+  if (ec && ec != std::errc::no_such_file_or_directory)
+    return "cannot read " + index.string() + ": " + ec.message();
+  if (!std::filesystem::is_regular_file(status))
+    return "no store in " + data_dir +
+           " (no index.sqlite): name the folder raillomer-server --data stores into";
+  if (std::filesystem::file_size(index, ec) == 0)
+    return index.string() + " is empty: not a store (a store's index is never empty)";
+  if (::access(index.c_str(), R_OK | W_OK) != 0)
+    return "cannot open " + index.string() + ": " + std::strerror(errno);
+  return "";
+}
+
+/// The run and the run to compare it with: --reference, else its line's reference run; the
+/// kilometres asked for must reach the line.
 Result ResolveRuns(const MapStore& store, const Options& o, RunInfo* info, int64_t* reference) {
   LineInfo line;
   Result r = store.GetRun(o.run, info);
@@ -231,6 +286,19 @@ Result ResolveRuns(const MapStore& store, const Options& o, RunInfo* info, int64
             ? "--reference names the run itself: name another run of line '" + info->line + "'"
             : "run " + std::to_string(o.run) +
                   " is its line's reference run: name another to compare with, --reference <id>"};
+  const double start_km = line.chainage_offset_m / 1000.0;
+  const double end_km = start_km + line.length_m / 1000.0;
+  if (o.from_km > end_km || o.to_km < start_km) {
+    char text[200];
+    std::snprintf(text,
+                  sizeof(text),
+                  "line '%s' runs from km %.3f to km %.3f: nothing of it lies between --from-km "
+                  "and --to-km",
+                  line.name.c_str(),
+                  start_km,
+                  end_km);
+    return {Outcome::kInvalid, text};
+  }
   return {};
 }
 
@@ -251,17 +319,13 @@ int main(int argc, char** argv) {
   Options o;
   AddOptions(&app, &o);
   CLI11_PARSE(app, argc, argv);
-  const std::filesystem::path json_dir = std::filesystem::path(o.json_path).parent_path();
-  if (!o.json_path.empty() && !json_dir.empty() && !std::filesystem::is_directory(json_dir))
-    return Fail("cannot write " + o.json_path + ": no folder " + json_dir.string());
-  if (!std::filesystem::is_regular_file(std::filesystem::path(o.data_dir) / "index.sqlite"))
-    return Fail("no store in " + o.data_dir +
-                " (no index.sqlite): name the folder raillomer-server --data stores into");
-  std::string error;
+  std::string error = CheckOptions(app, o);
+  if (error.empty()) error = CheckStore(o.data_dir);
+  if (!error.empty()) return Fail(error);
   StoreOptions store_options;
   store_options.flush_interval_ms = 0;
   auto store = MapStore::Open(o.data_dir, store_options, &error);
-  if (!store) return Fail(error);
+  if (!store) return Fail("cannot open the store in " + o.data_dir + ": " + error);
   RunInfo info;
   int64_t reference = 0;
   Result r = ResolveRuns(*store, o, &info, &reference);
@@ -281,6 +345,6 @@ int main(int argc, char** argv) {
   if (!r) return Fail(r.message);
   PrintTable(o.run, reference, info.line, summary, changes);
   if (!o.json_path.empty() && !WriteJson(o.json_path, o.run, reference, summary, changes))
-    return Fail("cannot write " + o.json_path);
+    return Fail("cannot write " + o.json_path + ": " + std::strerror(errno));
   return 0;
 }

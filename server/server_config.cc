@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
@@ -79,6 +80,14 @@ void ReadChanges(api::MapReader& c, ChangeWorkerOptions* o) {
 }  // namespace
 
 bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* error) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (!std::filesystem::is_regular_file(status)) {
+    *error = path + (std::filesystem::is_directory(status) ? ": a folder, not a config file"
+                     : std::filesystem::exists(status)     ? ": not a regular file"
+                                                           : ": no such file");
+    return false;
+  }
   try {
     const YAML::Node root_node = YAML::LoadFile(path);
     api::MapReader root(root_node, "", path);
@@ -131,6 +140,9 @@ bool LoadServerConfig(const std::string& path, ServerConfig* c, std::string* err
     *error = e.what();
     return false;
   } catch (const YAML::Exception& e) {
+    *error = path + ": " + e.what();
+    return false;
+  } catch (const std::exception& e) {  // the file could not be read
     *error = path + ": " + e.what();
     return false;
   }

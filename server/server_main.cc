@@ -67,8 +67,10 @@ struct Flags {
 
 void AddFlags(CLI::App* app, Flags* f) {
   app->add_option("--data", f->data_dir, "the store's folder (created if missing)");
-  app->add_option("--port", f->port, "HTTP port (default 8470; 0 lets the OS pick)");
-  app->add_option("--ws-port", f->ws_port, "live WebSocket port (default: port + 1)");
+  app->add_option("--port", f->port, "HTTP port (default 8470; 0 lets the OS pick)")
+      ->check(CLI::Range(0, 65535));
+  app->add_option("--ws-port", f->ws_port, "live WebSocket port (default: port + 1)")
+      ->check(CLI::Range(0, 65535));
   app->add_option("--host", f->host, "address to listen on (default 127.0.0.1)");
   app->add_option("--web-root",
                   f->web_root,

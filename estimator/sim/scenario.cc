@@ -23,6 +23,8 @@ using ScenarioError = api::YamlError;
 using api::ForEachMap;
 
 constexpr double kKmh = 1.0 / 3.6;
+/// The longest line simulated: the corridor's world is built for the whole alignment.
+constexpr double kMaxLineM = 200000.0;
 
 void Require(bool ok, MapReader& reader, const YAML::Node& at, const std::string& message) {
   if (!ok) reader.Fail(at, message);
@@ -51,7 +53,10 @@ void ParseAlignment(MapReader& root, Scenario* s) {
     }
     r.Read("length_m", &seg.length_m);
     r.Read("gradient_permille", &seg.gradient_permille);
-    Require(seg.length_m > 0.0, r, node, "length_m must be positive");
+    Require(seg.length_m > 0.0 && seg.length_m <= kMaxLineM,
+            r,
+            node,
+            "length_m must be positive and at most 200 km");
     Require(std::fabs(seg.gradient_permille) <= 40.0, r, node, "gradient_permille beyond +-40");
     s->alignment.push_back(seg);
   });
@@ -461,6 +466,10 @@ void Validate(const std::string& source, Scenario* s) {
   double min_s = 0.0, max_s = 0.0;
   SpeedProfile(*s).DistanceRange(&min_s, &max_s);
   const double length = Alignment(*s).length_m();
+  if (length > kMaxLineM)
+    fail("the alignment is " + Metres(length) +
+         " long; a line is at most 200 km (the corridor's "
+         "world is built for its whole length)");
   const double lookahead_m = 150.0;
   if (s->start_m + min_s < 0.0) {
     fail("motion runs back to chainage " + Metres(s->start_m + min_s) +

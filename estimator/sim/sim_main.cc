@@ -11,6 +11,7 @@
 #include <CLI/CLI.hpp>
 
 #include "api/atomic_file.h"
+#include "api/cli_checks.h"
 #include "api/trajectory.h"
 #include "estimator/io/bag_writer.h"
 #include "estimator/sim/scenario.h"
@@ -48,7 +49,7 @@ void AddOptions(CLI::App* app, Options* o) {
   app->add_option("--scenario", o->scenario_name, "Built-in scenario name or scenario YAML file");
   app->add_option("--out", o->out_dir, "Output folder (created if missing)");
   app->add_option("--duration", o->duration_s, "Simulate only the first N seconds")
-      ->check(CLI::PositiveNumber);
+      ->check(raillomer::api::FinitePositive());
   app->add_option("--seed", o->seed, "Noise and vibration seed (the corridor keeps its world_seed)")
       ->check(CLI::Range(int64_t{0}, int64_t{4294967295}));
   app->add_flag("--lz4", o->lz4, "Compress bag chunks with LZ4");

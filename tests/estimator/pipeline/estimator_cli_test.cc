@@ -618,6 +618,15 @@ TEST_F(EstimatorCli, UsageErrorsAreClear) {
                ShellQuote((Dir() / "w").string()));
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("estimator.window_sise"), std::string::npos) << r.err;
+  // Values CLI11's own checks let through: an empty source, a duration that is not a number.
+  for (const char* args : {"--bag ''", "--sim ''", "--sim demo --duration nan"}) {
+    r = Estimate(std::string(args) + " --out " + ShellQuote((Dir() / "e").string()));
+    EXPECT_NE(r.exit_code, 0) << args;
+    EXPECT_NE(r.err.find(std::string(args).find("nan") != std::string::npos ? "finite number"
+                                                                            : "must not be empty"),
+              std::string::npos)
+        << args << ": " << r.err;
+  }
 }
 
 }  // namespace

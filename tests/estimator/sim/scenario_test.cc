@@ -202,6 +202,17 @@ TEST(Scenario, ImpossibleValuesAreRejected) {
                                              "duration_s: 1, lidar: left}]\n"),
                        "'left'"));
   EXPECT_TRUE(Contains(ParseError(""), "empty"));
+  // The corridor's world is built for the whole alignment: a line of 10 000 km would take
+  // gigabytes before the first scan; one segment, or many, beyond 200 km are refused.
+  EXPECT_TRUE(
+      Contains(ParseError(Replace(
+                   kMinimal, "type: straight, length_m: 1000", "type: straight, length_m: 1e7")),
+               "at most 200 km"));
+  EXPECT_TRUE(Contains(ParseError(Replace(kMinimal,
+                                          "  - {type: straight, length_m: 1000}\n",
+                                          "  - {type: straight, length_m: 150000}\n"
+                                          "  - {type: straight, length_m: 150000}\n")),
+                       "at most 200 km"));
 }
 
 TEST(Scenario, AlignmentTooShortForTheMotion) {
