@@ -8,7 +8,8 @@
 #     that as a second run of the line, wait for the server's change detection and list what
 #     changed;
 #  6. leave the server up and print the URLs to open.
-# Usage: bash deploy/demo-run.sh [scenario] [out_dir]
+# Usage: bash deploy/demo-run.sh [scenario] [out_dir]   (default runs/<scenario>; the changed
+# run's simulation goes beside it, to <out_dir>_changed)
 # Environment: RAILLOMER_PORT (default 8470; 0 lets the OS pick), RAILLOMER_SERVER_DATA (default
 # runs/server), RAILLOMER_BIN (default build/bin).
 set -euo pipefail
@@ -134,13 +135,18 @@ for f in c["features"]:
     if p["intrudes_envelope"]:
         envelope = "INTRUDES the structure gauge by %.2f m" % -p["margin_m"]
     elif p["margin_m"] < 0:  # a removed object no longer intrudes
-        envelope = "stood %.2f m inside the structure gauge" % -p["margin_m"]
+        envelope = "gone: it stood %.2f m inside the structure gauge" % -p["margin_m"]
     else:
         envelope = "%.2f m clear of the structure gauge" % p["margin_m"]
     if p.get("earlier_change"):
         envelope += "; found before, first in run %d (%s)" % (p["first_seen_run"], p["status"])
-    print("  km %.3f  %-10s %-6s %5.1f m off the track  %.1f x %.1f x %.1f m  %s" % (
-        p["chainage_m"] / 1000, p["kind"], p["side"], abs(p["offset_m"]), *p["size_m"], envelope))' "$1"
+    side = lambda o: "%.1f m %s" % (abs(o), "left" if o >= 0 else "right")
+    if p["side"] == "across":
+        place = "across the track (%s to %s)" % tuple(side(o) for o in p["offset_range_m"])
+    else:
+        place = "%s of the track" % side(p["offset_m"])
+    print("  km %.3f  %-10s %-45s %.1f x %.1f x %.1f m  %s" % (
+        p["chainage_m"] / 1000, p["kind"], place, *p["size_m"], envelope))' "$1"
 }
 
 start_server

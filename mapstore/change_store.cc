@@ -49,7 +49,8 @@ std::string PropertiesOf(const RunChange& c) {
               {"points", {c.points_reference, c.points_later}},
               {"footprint_utm", footprint},
               {"moved_from_utm", Vec(c.moved_from_utm)},
-              {"moved_m", c.moved_m}}
+              {"moved_m", c.moved_m},
+              {"offset_range_m", {c.offset_from_m, c.offset_to_m}}}
       .dump();
 }
 
@@ -71,6 +72,12 @@ void ReadProperties(const std::string& text, RunChange* c) {
     c->footprint_utm.emplace_back(p.at(0).get<double>(), p.at(1).get<double>());
   c->moved_from_utm = VecOf(j.at("moved_from_utm"));
   c->moved_m = j.at("moved_m");
+  // Changes stored before the range was kept: the size across, around the centre.
+  const json range =
+      j.value("offset_range_m",
+              json::array({c->offset_m - 0.5 * c->size_m.y(), c->offset_m + 0.5 * c->size_m.y()}));
+  c->offset_from_m = range.at(0);
+  c->offset_to_m = range.at(1);
 }
 
 constexpr const char* kChangeColumns =

@@ -490,11 +490,12 @@ Result MapStore::DefineCentrelineLocked(const RunInfo& run) {
 }
 
 Result MapStore::LineLocked(const Database& db, const std::string& name, LineInfo* out) const {
-  Statement q(db,
-              "SELECT l.name, IFNULL(l.reference_run, 0), IFNULL(l.utm_zone, ''), "
-              "l.chainage_offset_m, (SELECT IFNULL(MAX(chainage_m), 0) FROM centreline c WHERE "
-              "c.line = l.name), (SELECT COUNT(*) FROM runs r WHERE r.line = l.name) FROM lines l "
-              "WHERE l.name = ?");
+  Statement q(
+      db,
+      "SELECT l.name, IFNULL(l.reference_run, 0), IFNULL(l.utm_zone, ''), "
+      "l.chainage_offset_m, (SELECT IFNULL(MAX(chainage_m), 0) FROM centreline c WHERE "
+      "c.line = l.name), (SELECT COUNT(*) FROM runs r WHERE r.line = l.name), "
+      "(SELECT COUNT(*) FROM km_posts k WHERE k.line = l.name) FROM lines l WHERE l.name = ?");
   if (!q.ok()) return Fail(Outcome::kError, q.error());
   q.Bind(1, name);
   if (!q.Step()) {
@@ -508,6 +509,7 @@ Result MapStore::LineLocked(const Database& db, const std::string& name, LineInf
   l.chainage_offset_m = q.Double(3);
   l.length_m = q.Double(4);
   l.runs = q.Int(5);
+  l.km_posts = q.Int(6);
   if (out) *out = l;
   return {};
 }

@@ -97,6 +97,7 @@ struct LineInfo {
   double length_m = 0.0;           ///< of the centreline
   double chainage_offset_m = 0.0;  ///< added to the distance along it (km posts set it)
   int64_t runs = 0;
+  int64_t km_posts = 0;  ///< pinned (none: chainage counts from the reference run's start)
 };
 
 /// A stretch of a line by chainage: its centreline with the track geometry, and the reference

@@ -186,6 +186,17 @@ Eigen::Isometry3d PathOffset(const Stretch& stretch, const std::vector<Eigen::Is
   return T;
 }
 
+/// The line's centreline (its reference run's path) moved across and up onto another run's path
+/// there: both trains rode the same track, but each run's map lies where its own GNSS put it,
+/// metres apart. Compared with a run other than the line's reference, offsets and the gauge
+/// are measured from the track in that run's map. Along the track the maps' difference stays
+/// (no path tells it): chainage is the line's to within it.
+void OntoPath(const std::vector<api::StreamPose>& poses, std::vector<TrackSample>* samples) {
+  const Stretch line(*samples);
+  const Eigen::Isometry3d back = PathOffset(line, SensorsIn(poses, line.Box(10.0), line.origin()));
+  for (TrackSample& s : *samples) s.point.p -= back.translation();
+}
+
 /// The rail plane's height below the centreline (the body's path): the rail heads are the
 /// highest points in the strips 0.6-0.85 m either side, a little below the body.
 double RailDrop(const Stretch& stretch, const std::vector<Eigen::Vector3d>& local) {
@@ -450,6 +461,8 @@ RunChange Place(const StretchChange& c,
                              {extent.max().x() + half, extent.max().y() + half},
                              {extent.min().x() - half, extent.max().y() + half}})
     out.footprint_utm.push_back(stretch.ToUtm(at, a, o));
+  out.offset_from_m = extent.min().y() - half;
+  out.offset_to_m = extent.max().y() + half;
   Eigen::AlignedBox3d box = c.box;
   box.min().array() -= half;
   box.max().array() += half;
@@ -656,6 +669,12 @@ std::vector<RunChange> FindChanges(const Stretch& stretch,
 
 }  // namespace
 
+const char* SideOf(const RunChange& c) {
+  constexpr double kRailM = 0.7175;  // a rail's centre from the track's (standard gauge, 1435 mm)
+  if (c.offset_from_m <= -kRailM && c.offset_to_m >= kRailM) return "across";
+  return c.offset_m >= 0.0 ? "left" : "right";
+}
+
 const char* ToString(ChangeKind kind) {
   switch (kind) {
     case ChangeKind::kAdded:
@@ -833,6 +852,7 @@ Result RunComparison::Compare(const StretchRange& range,
     out->skipped = "too short a piece of centreline";
     return {};
   }
+  if (reference_.id != line_.reference_run) OntoPath(reference_poses_, &segment.samples);
   const Stretch stretch(std::move(segment.samples));
   out->origin = stretch.origin();
   StretchParts parts;

@@ -76,6 +76,9 @@ struct RunChange {
   std::vector<Eigen::Vector2d> footprint_utm;
   double chainage_m = 0.0;  ///< the line's chainage (its offset included)
   double offset_m = 0.0;    ///< from the track centre, positive left of increasing chainage
+  /// The footprint's extent across the track: its right and its left edge's offsets (a tree
+  /// lying across the track has them on either side of the centre).
+  double offset_from_m = 0.0, offset_to_m = 0.0;
   Eigen::Vector3d size_m = Eigen::Vector3d::Zero();  ///< along, across, height
   double height_above_rail_min_m = 0.0, height_above_rail_max_m = 0.0;
   double margin_m = 0.0;           ///< against the structure gauge, negative inside
@@ -92,6 +95,10 @@ struct RunChange {
   Eigen::Vector3d moved_from_utm = Eigen::Vector3d::Zero();
   double moved_m = 0.0;
 };
+
+/// Which side of the track a change lies on: "left" or "right" of increasing chainage (its
+/// centre's), or "across" when its footprint reaches over both rails (a tree lying over them).
+const char* SideOf(const RunChange& change);
 
 /// A stretch of the line: the chainage it covers (the line's offset included).
 struct StretchRange {

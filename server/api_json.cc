@@ -135,6 +135,7 @@ json LineJson(const mapstore::LineInfo& l) {
           {"utm_zone", l.utm_zone.empty() ? json(nullptr) : json(l.utm_zone)},
           {"length_m", l.length_m},
           {"chainage_offset_m", l.chainage_offset_m},
+          {"km_posts", l.km_posts},
           {"runs", l.runs}};
 }
 

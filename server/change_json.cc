@@ -45,7 +45,8 @@ json ChangeFeature(const mapstore::StoredChange& s) {
       {"kind", mapstore::ToString(c.kind)},
       {"chainage_m", c.chainage_m},
       {"offset_m", c.offset_m},
-      {"side", c.offset_m >= 0.0 ? "left" : "right"},
+      {"side", mapstore::SideOf(c)},
+      {"offset_range_m", {c.offset_from_m, c.offset_to_m}},
       {"utm", Vec(c.centre_utm)},
       {"utm_zone", c.utm_zone},
       {"wgs84", centre},
@@ -55,7 +56,7 @@ json ChangeFeature(const mapstore::StoredChange& s) {
       {"margin_m", Finite(c.margin_m)},
       {"vegetation_margin_m", Finite(c.vegetation_margin_m)},
       {"breaks_vegetation_rule",
-       c.kind != mapstore::ChangeKind::kRemoved && c.vegetation_margin_m < 0.0},
+       c.kind == mapstore::ChangeKind::kVegetation && c.vegetation_margin_m < 0.0},
       {"reference_run", s.reference_run},
       {"lod_m", c.lod_m},
       {"confidence", c.confidence},
@@ -114,8 +115,9 @@ std::string CsvText(const std::string& text) {
 
 std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
   std::string out =
-      "id,run,reference_run,kind,chainage_m,offset_m,side,easting,northing,height,utm_zone,"
-      "lon,lat,along_m,across_m,height_m,height_above_rail_min_m,height_above_rail_max_m,"
+      "id,run,reference_run,kind,chainage_m,offset_m,side,offset_from_m,offset_to_m,easting,"
+      "northing,elevation,utm_zone,lon,lat,along_m,across_m,height_m,height_above_rail_min_m,"
+      "height_above_rail_max_m,"
       "intrudes_envelope,margin_m,lod_m,confidence,provisional,first_seen_run,earlier_change,"
       "status,note\n";
   for (const mapstore::StoredChange& s : changes) {
@@ -126,7 +128,8 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
     char row[768];
     std::snprintf(row,
                   sizeof(row),
-                  "%lld,%lld,%lld,%s,%.2f,%.2f,%s,%.3f,%.3f,%.3f,%s,%s,%s,%.2f,%.2f,%.2f,%.2f,%.2f,"
+                  "%lld,%lld,%lld,%s,%.2f,%.2f,%s,%.2f,%.2f,%.3f,%.3f,%.3f,%s,%s,%s,%.2f,%.2f,%.2f,"
+                  "%.2f,%.2f,"
                   "%s,%.2f,%.3f,%.2f,%s,%lld,%s,%s,",
                   static_cast<long long>(s.id),
                   static_cast<long long>(s.run_id),
@@ -134,7 +137,9 @@ std::string ChangesCsv(const std::vector<mapstore::StoredChange>& changes) {
                   mapstore::ToString(c.kind),
                   c.chainage_m,
                   c.offset_m,
-                  c.offset_m >= 0.0 ? "left" : "right",
+                  mapstore::SideOf(c),
+                  c.offset_from_m,
+                  c.offset_to_m,
                   c.centre_utm.x(),
                   c.centre_utm.y(),
                   c.centre_utm.z(),

@@ -7,6 +7,7 @@
 #include <map>
 
 #include "api/markup.h"
+#include "server/api_json.h"
 
 namespace raillomer::server {
 namespace {
@@ -54,7 +55,10 @@ th { background: #eee; }
 .intrudes { color: #b00; font-weight: bold; }
 .change { page-break-inside: avoid; border-top: 2px solid #888; margin-top: 1.5em; }
 .change img { max-width: 100%; border: 1px solid #ccc; }
-@media print { a { color: inherit; text-decoration: none; } }
+@media print {
+  a { color: inherit; text-decoration: none; }
+  a.viewer::after { content: " (" attr(href) ")"; font-size: 0.85em; }
+}
 )css";
 
 /// A filter in words: "" for every change.
@@ -73,6 +77,17 @@ std::string FilterText(const mapstore::ChangeFilter& f) {
   return text;
 }
 
+/// How the line's kilometres and sides are counted, so that a reader can find a change on site.
+std::string KilometresText(const mapstore::LineInfo& line) {
+  const std::string basis =
+      line.km_posts > 0
+          ? "from the line's " + std::to_string(line.km_posts) + " pinned km post" +
+                (line.km_posts > 1 ? "s" : "")
+          : "<b>no km post pinned</b>: counted along the reference run from where it started, "
+            "not the line's own kilometres";
+  return basis + ". Left and right as seen facing increasing kilometres.";
+}
+
 std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::StoredChange>& c) {
   std::map<std::string, int> by_kind;
   int intrusions = 0;
@@ -87,10 +102,14 @@ std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::Sto
   };
   row("Line", Escape(in.line.name));
   row("Run",
-      std::to_string(in.run.id) + " (" + Escape(in.run.vehicle) + ", " + When(in.run.start_ns) +
-          ", " + Escape(in.run.status) + ")");
+      std::to_string(in.run.id) + " (" + Escape(in.run.vehicle) + ", streamed from " +
+          When(in.run.start_ns) + ", " + Escape(in.run.status) + ")");
   row("Compared with",
-      d.reference_run ? "run " + std::to_string(d.reference_run) : Escape(in.reason));
+      in.reference.id
+          ? "run " + std::to_string(in.reference.id) + " (" + Escape(in.reference.vehicle) +
+                ", streamed from " + When(in.reference.start_ns) + ")"
+          : Escape(in.reason));
+  row("Kilometres", KilometresText(in.line));
   row("Detection", Escape(d.status) + (d.error.empty() ? "" : ": " + Escape(d.error)));
   row("Covered",
       Fixed(d.km, 2) + " km in " + std::to_string(d.stretches_compared) +
@@ -105,6 +124,7 @@ std::string Summary(const ChangeReportInput& in, const std::vector<mapstore::Sto
   row("Intruding the gauge",
       "<span class=\"" + std::string(intrusions ? "intrudes" : "") + "\">" +
           std::to_string(intrusions) + "</span>");
+  row("Written", When(in.generated_ns));
   return html + "</table>\n";
 }
 
@@ -123,10 +143,10 @@ std::string Overview(const std::vector<mapstore::StoredChange>& c) {
     html += std::string("<tr") + (x.intrudes_envelope ? " class=\"intrudes\"" : "") + ">" +
             "<td><a href=\"#change-" + std::to_string(s.id) + "\">" + std::to_string(s.id) +
             "</a></td><td>" + mapstore::ToString(x.kind) + "</td><td>" + Km(x.chainage_m) +
-            "</td><td>" + (x.offset_m >= 0.0 ? "left" : "right") + "</td><td>" +
-            Fixed(std::abs(x.offset_m), 2) + "</td><td>" + Fixed(x.size_m.x(), 1) + " &times; " +
-            Fixed(x.size_m.y(), 1) + " &times; " + Fixed(x.size_m.z(), 1) + "</td><td>" +
-            Fixed(x.margin_m, 2) + "</td><td>" + StatusText(s) + "</td></tr>\n";
+            "</td><td>" + mapstore::SideOf(x) + "</td><td>" + Fixed(std::abs(x.offset_m), 2) +
+            "</td><td>" + Fixed(x.size_m.x(), 1) + " &times; " + Fixed(x.size_m.y(), 1) +
+            " &times; " + Fixed(x.size_m.z(), 1) + "</td><td>" + Fixed(x.margin_m, 2) +
+            "</td><td>" + StatusText(s) + "</td></tr>\n";
   }
   return html + "</table>\n";
 }
@@ -138,7 +158,7 @@ std::string GaugeText(const mapstore::RunChange& x) {
     return "<span class=\"intrudes\">Intrudes the structure gauge by " + Fixed(-x.margin_m, 2) +
            " m.</span> ";
   if (x.margin_m < 0.0)
-    return "No longer in the structure gauge: it stood " + Fixed(-x.margin_m, 2) + " m inside. ";
+    return "Gone: it stood " + Fixed(-x.margin_m, 2) + " m inside the structure gauge. ";
   return Fixed(x.margin_m, 2) + " m clear of the structure gauge. ";
 }
 
@@ -149,22 +169,43 @@ std::string SeenBeforeText(const mapstore::StoredChange& s) {
          std::to_string(s.first_seen_run) + ". ";
 }
 
+/// Where across the track a change lies: its centre's offset and side, or its extent when it
+/// lies across the track.
+std::string PlaceText(const mapstore::RunChange& x) {
+  const auto side = [](double offset) {
+    return Fixed(std::abs(offset), 2) + " m " + (offset >= 0.0 ? "left" : "right");
+  };
+  if (std::string(mapstore::SideOf(x)) == "across")
+    return "across the track (" + side(x.offset_from_m) + " to " + side(x.offset_to_m) + ")";
+  return side(x.offset_m);
+}
+
+/// The centre in WGS84 for a handheld receiver: " (31.500000 N, 117.200000 E)" ("" if the
+/// zone does not hold it).
+std::string LatLonText(const mapstore::RunChange& x) {
+  nlohmann::json lon_lat_h;
+  if (!Wgs84(x.utm_zone, x.centre_utm, &lon_lat_h)) return "";
+  const double lon = lon_lat_h[0], lat = lon_lat_h[1];
+  return " (" + Fixed(std::abs(lat), 6) + (lat >= 0.0 ? " N, " : " S, ") + Fixed(std::abs(lon), 6) +
+         (lon >= 0.0 ? " E)" : " W)");
+}
+
 std::string Section(const ChangeReportInput& in, const mapstore::StoredChange& s) {
   const mapstore::RunChange& x = s.change;
   std::string html = "<div class=\"change\" id=\"change-" + std::to_string(s.id) + "\">\n";
   html += "<h2>#" + std::to_string(s.id) + " " + mapstore::ToString(x.kind) + ", " +
-          Km(x.chainage_m) + ", " + Fixed(std::abs(x.offset_m), 2) + " m " +
-          (x.offset_m >= 0.0 ? "left" : "right") + "</h2>\n<p>";
+          Km(x.chainage_m) + ", " + PlaceText(x) + "</h2>\n<p>";
   html += GaugeText(x);
   html += "Size " + Fixed(x.size_m.x(), 1) + " &times; " + Fixed(x.size_m.y(), 1) + " &times; " +
           Fixed(x.size_m.z(), 1) + " m (along &times; across &times; height), " +
           Fixed(x.height_above_rail_min_m, 1) + " to " + Fixed(x.height_above_rail_max_m, 1) +
           " m above the rails. UTM " + Escape(x.utm_zone) + " " + Fixed(x.centre_utm.x(), 1) +
-          " E, " + Fixed(x.centre_utm.y(), 1) + " N. Confidence " + Fixed(x.confidence, 2) +
-          ", level of detection " + Fixed(x.lod_m, 2) + " m. Status: " + StatusText(s) +
-          (s.note.empty() ? "" : " (" + Escape(s.note) + ")") + ". " + SeenBeforeText(s) +
-          "<a href=\"" + Escape(in.viewer_url) + "?run=" + std::to_string(s.run_id) +
-          "&amp;change=" + std::to_string(s.id) + "\">Open in the viewer</a></p>\n";
+          " E, " + Fixed(x.centre_utm.y(), 1) + " N" + LatLonText(x) + ". Confidence " +
+          Fixed(x.confidence, 2) + ", level of detection " + Fixed(x.lod_m, 2) +
+          " m. Status: " + StatusText(s) + (s.note.empty() ? "" : " (" + Escape(s.note) + ")") +
+          ". " + SeenBeforeText(s) + "<a class=\"viewer\" href=\"" + Escape(in.viewer_url) +
+          "?run=" + std::to_string(s.run_id) + "&amp;change=" + std::to_string(s.id) +
+          "\">Open in the viewer</a></p>\n";
   const std::string png = in.snapshot ? in.snapshot(s) : "";
   if (!png.empty())
     html += "<img alt=\"snapshot of change " + std::to_string(s.id) +

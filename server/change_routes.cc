@@ -3,6 +3,7 @@
 #include <limits>
 #include <optional>
 
+#include "api/clock.h"
 #include "api/printable.h"
 #include "server/change_json.h"
 #include "server/change_report.h"
@@ -206,7 +207,11 @@ class ChangeApi {
     if (r) r = store_.GetLine(in.run.line, &in.line);
     if (r) r = worker_.State(run, &in.detection, &in.reason);
     if (r) r = changes_.List(run, in.filter, &in.changes);
+    if (r && in.detection.reference_run != 0)
+      r = store_.GetRun(in.detection.reference_run, &in.reference);
     if (!r) return SendResult(res, r);
+    in.viewer_url = ViewerUrl(req);
+    in.generated_ns = api::NowNs();
     in.snapshot = [this](const mapstore::StoredChange& change) {
       std::string png;
       return RenderSnapshot(store_, changes_, change, Clearance(), &png) ? png : std::string();
@@ -215,6 +220,19 @@ class ChangeApi {
   }
 
  private:
+  /// The viewer's address as the client reached this server (its Host header), so that the
+  /// report's links work from a saved file too; "/" when the header is not a plain host[:port].
+  static std::string ViewerUrl(const HttpRequest& req) {
+    const std::string host = req.Header("Host");
+    const bool plain = !host.empty() && host.size() <= 255 &&
+                       host.find_first_not_of(
+                           "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
+                           "0123456789.-:[]") == std::string::npos;
+    if (!plain) return "/";
+    const bool https = EqualsIgnoreCase(req.Header("X-Forwarded-Proto"), "https");
+    return (https ? "https://" : "http://") + host + "/";
+  }
+
   const mapstore::ClearanceOptions& Clearance() const {
     return c_.config->changes.comparison.clearance;
   }

@@ -31,7 +31,8 @@ struct TrackFrame {
   }
 };
 
-/// The track frame from the line's centreline around the change; the rail plane from the
+/// The track frame from the line's centreline around the change, moved across to the track the
+/// change's offset was measured from; the rail plane from the
 /// reference's rail heads (the highest points 0.6-0.85 m either side, below the body's path).
 Result FrameAt(const mapstore::MapStore& store,
                const mapstore::StoredChange& s,
@@ -53,6 +54,10 @@ Result FrameAt(const mapstore::MapStore& store,
   f->left = Eigen::Vector2d(-f->along.y(), f->along.x());
   f->origin = mid->point.p +
               (at - mid->point.chainage_m) * Eigen::Vector3d(f->along.x(), f->along.y(), 0.0);
+  // Across onto the track the change was measured from: a run compared with other than the
+  // line's reference has its own map, off the line's centreline by its GNSS error.
+  const double centre_lateral = f->left.dot((s.change.centre_utm - f->origin).head<2>());
+  f->origin.head<2>() += (centre_lateral - s.change.offset_m) * f->left;
   std::vector<double> heads;
   for (const mapstore::ExportPoint& p : reference) {
     const Eigen::Vector2d q = (p.p - f->origin).head<2>();
@@ -90,13 +95,21 @@ Window Fit(int left, double x_min, double x_max, double y_min, double y_max, boo
   return w;
 }
 
-/// Grid lines every metre (every 5 m darker) over a panel.
+/// Grid lines every metre (every 5 m darker) over a panel; the 5 m lines are numbered in
+/// metres along the panel's bottom and left edges, so that distances can be read off.
 void Grid(Canvas& c, const Window& w) {
   for (int m = -200; m <= 200; ++m) {
     const Rgb colour = m % 5 == 0 ? Rgb{200, 200, 200} : kGrid;
     const int x = w.X(m), y = w.Y(m);
     if (x > w.left && x < w.left + kPanel) c.Line(x, w.top, x, w.top + kPanel, colour);
     if (y > w.top && y < w.top + kPanel) c.Line(w.left, y, w.left + kPanel, y, colour);
+  }
+  for (int m = -200; m <= 200; m += 5) {
+    const std::string label = std::to_string(m);
+    const int x = w.X(m) + 2, y = w.Y(m) - 8;
+    if (x > w.left + 10 && x + Canvas::TextWidth(label) < w.left + kPanel)
+      c.Text(x, w.top + kPanel - 9, label, kInk);
+    if (y > w.top && y < w.top + kPanel - 20) c.Text(w.left + 2, y, label, kInk);
   }
 }
 
@@ -218,15 +231,26 @@ void DrawChange(Canvas& canvas,
               kChange);
 }
 
+/// Where across the track, as the title says it: "2.3 M LEFT", or "ACROSS 5.7 M R - 10.3 M L".
+std::string PlaceWords(const mapstore::RunChange& c) {
+  if (std::string(mapstore::SideOf(c)) == "across")
+    return Format("ACROSS %.1f M ", std::abs(c.offset_from_m)) +
+           (c.offset_from_m >= 0.0 ? "L" : "R") + Format(" - %.1f M ", std::abs(c.offset_to_m)) +
+           (c.offset_to_m >= 0.0 ? "L" : "R");
+  return Format("%.1f M ", std::abs(c.offset_m)) + (c.offset_m >= 0.0 ? "LEFT" : "RIGHT");
+}
+
 /// What and where (the title), the panels' names and the legend.
 void DrawWords(Canvas& canvas, const Window& section, const mapstore::StoredChange& s) {
   const mapstore::RunChange& c = s.change;
   const std::string title =
       std::string(mapstore::ToString(c.kind)) + " #" + std::to_string(s.id) +
-      Format("  KM %.3f  %.1f M ", c.chainage_m / 1000.0, std::abs(c.offset_m)) +
-      (c.offset_m >= 0.0 ? "LEFT" : "RIGHT") + (c.intrudes_envelope ? "  INTRUDES THE GAUGE" : "") +
+      Format("  KM %.3f  ", c.chainage_m / 1000.0) + PlaceWords(c) +
+      (c.intrudes_envelope ? "  INTRUDES THE GAUGE" : "") +
       (std::isfinite(c.margin_m) ? Format("  MARGIN %.2f M", c.margin_m) : "");
-  canvas.Text(10, 8, title, c.intrudes_envelope ? kChange : kInk, 2);
+  // Twice the size where it fits across the picture, else at the legend's size.
+  const int scale = 10 + Canvas::TextWidth(title, 2) <= canvas.width() - 10 ? 2 : 1;
+  canvas.Text(10, scale == 2 ? 8 : 12, title, c.intrudes_envelope ? kChange : kInk, scale);
   canvas.Text(10, 32, "PLAN (ALONG ->, LEFT UP)", kInk);
   canvas.Text(section.left, 32, "SECTION (LOOKING ALONG, HEIGHT ABOVE RAIL)", kInk);
   const int y = kHeader + kPanel + 8;
@@ -236,11 +260,13 @@ void DrawWords(Canvas& canvas, const Window& section, const mapstore::StoredChan
   canvas.Text(186, y, "AFTER: RUN " + std::to_string(s.run_id), kInk);
   canvas.Fill(330, y, 340, y + 7, kGauge);
   canvas.Text(346, y, "GAUGE", kInk);
-  canvas.Text(
-      420,
-      y,
-      Format("GRID 1 M   SIZE %.1f X %.1f X %.1f M", c.size_m.x(), c.size_m.y(), c.size_m.z()),
-      kInk);
+  canvas.Text(420,
+              y,
+              Format("GRID 1 M, NUMBERED IN M   SIZE %.1f X %.1f X %.1f M",
+                     c.size_m.x(),
+                     c.size_m.y(),
+                     c.size_m.z()),
+              kInk);
 }
 
 }  // namespace

@@ -132,6 +132,27 @@ TEST_F(RunComparisonTest, FindsABoxAddedBesideTheTrackOfAShiftedRun) {
       Outcome::kInvalid);
 }
 
+TEST_F(RunComparisonTest, AgainstAnotherRunOffsetsAreFromTheTrackInThatRunsMap) {
+  MapStore* store = store_.get();
+  IngestRun(*store, Eigen::Vector3d::Zero(), {});  // the line's reference: its centreline
+  // The run compared with lies 1.5 m right and 0.2 m up in UTM (its own GNSS error); the later
+  // run has the box 3 m left of the track.
+  const Eigen::Vector3d chosen_shift(0.0, -1.5, 0.2);
+  const int64_t chosen = IngestRun(*store, chosen_shift, {});
+  const int64_t later = IngestRun(*store, Eigen::Vector3d(0.0, 0.4, 0.0), Box(150, 26));
+  std::vector<RunChange> changes;
+  RunComparisonSummary summary;
+  ASSERT_TRUE(CompareRuns(*store, chosen, later, RunComparisonOptions(), &changes, &summary));
+  ASSERT_EQ(changes.size(), 1u) << summary.objects << " objects";
+  const RunChange& c = changes[0];
+  EXPECT_NEAR(c.offset_m, 3.0, 0.3);  // from the track, not from the line's centreline (1.5 m)
+  EXPECT_GT(c.margin_m, 0.0);         // clear of the gauge, as it is
+  EXPECT_NEAR(c.chainage_m, 75.6, 0.6);
+  const Eigen::Vector3d truth =
+      test::CorridorStart() + chosen_shift + Eigen::Vector3d(75.6, 3.0, 0.8);
+  EXPECT_LT((c.centre_utm - truth).head<2>().norm(), 0.3) << (c.centre_utm - truth).transpose();
+}
+
 TEST_F(RunComparisonTest, AnObjectStandingElsewhereHasMoved) {
   MapStore* store = store_.get();
   // A cabinet 65 m along, 3 m left; a week later 5 m further on.

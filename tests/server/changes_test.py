@@ -5,6 +5,7 @@ curl and compared with the simulator's changes.json; the CSV, the snapshot PNG (
 zlib and struct, not our code), the HTML report, status updates and bad requests; and
 raillomer-changes, the same comparison offline on a copy of the store."""
 import json
+import math
 import os
 import shutil
 import signal
@@ -53,6 +54,21 @@ def png_size_and_pixels(data):
     colours = {raw[y * stride + 1 + 3 * x:y * stride + 4 + 3 * x]
                for y in range(0, height, 3) for x in range(0, width, 3)}
     return width, height, len(colours)
+
+
+RAIL_M = 0.7175  # a rail's centre from the track's (standard gauge)
+
+
+def expected_side(truth):
+    """The side a true change lies on: "across" when its box must reach over both rails, left
+    or right when it cannot reach either, None when its orientation decides (the truth's box
+    is in UTM axes)."""
+    half = [e / 2 for e in truth["extent_m"][:2]]
+    if abs(truth["lateral_m"]) + RAIL_M < min(half):
+        return "across"
+    if abs(truth["lateral_m"]) - RAIL_M > math.hypot(*half):
+        return "left" if truth["lateral_m"] >= 0 else "right"
+    return None
 
 
 FIX = {}
@@ -110,7 +126,11 @@ class ChangeDetection(unittest.TestCase):
             self.assertIsNotNone(row["report"], "missed: %s" % json.dumps(t))
             p = row["report"]["properties"]
             self.assertEqual(p["intrudes_envelope"], t["intrudes_clearance"], json.dumps(t))
-            self.assertEqual(p["side"], "left" if t["lateral_m"] >= 0 else "right")
+            side = expected_side(t)
+            if side:
+                self.assertEqual(p["side"], side, json.dumps(t))
+        # The demo's fallen tree lies across the track: said so, with its extent either side.
+        self.assertIn("across", [row["report"]["properties"]["side"] for row in rows])
         self.assertEqual(extra, [], "reported, but no edit there")
 
     def test_changes_are_announced_live_as_the_train_passes(self):
@@ -190,6 +210,14 @@ class ChangeDetection(unittest.TestCase):
             self.assertIsNone(p["earlier_change"])
             self.assertEqual(p["first_seen_run"], 2)
             self.assertEqual(p["intrudes_envelope"], p["margin_m"] < 0 and p["kind"] != "removed")
+            right_edge, left_edge = p["offset_range_m"]
+            self.assertLessEqual(right_edge, p["offset_m"])
+            self.assertLessEqual(p["offset_m"], left_edge)
+            self.assertEqual(p["side"] == "across", right_edge <= -0.7175 and left_edge >= 0.7175)
+            if p["side"] != "across":
+                self.assertEqual(p["side"], "left" if p["offset_m"] >= 0 else "right")
+            # The vegetation rule is vegetation's: a box or a mast does not break it.
+            self.assertFalse(p["breaks_vegetation_rule"] and p["kind"] != "vegetation", p)
 
     def test_filters_and_csv(self):
         everything = self.found["features"]
@@ -245,6 +273,17 @@ class ChangeDetection(unittest.TestCase):
             self.assertIn(gauge_sentence(f["properties"]), html)
         self.assertEqual(html.count("data:image/png;base64,"), len(self.found["features"]))
         self.assertNotIn("<th>Listed</th>", html)
+        # Links a saved report can follow; how kilometres and sides are counted; when written.
+        for f in self.found["features"]:
+            self.assertIn('href="http://127.0.0.1:%d/?run=2&amp;change=%d"'
+                          % (self.server.port, f["properties"]["id"]), html)
+            lon, lat = f["properties"]["wgs84"][:2]
+            self.assertIn("(%.6f N, %.6f E)" % (lat, lon), html)
+        self.assertIn("<b>no km post pinned</b>", html)
+        self.assertIn("Left and right as seen facing increasing kilometres.", html)
+        self.assertIn("<th>Written</th><td>20", html)
+        self.assertRegex(html, r"<h2>#\d+ added, km [0-9.]+, across the track \(\d+\.\d\d m "
+                         r"right to \d+\.\d\d m left\)</h2>")
         # The list's filters apply and are said; nothing is dismissed yet.
         status, html = curl(self.url("/api/v1/runs/2/changes/report?status=dismissed,fixed"))
         self.assertEqual(status, 200)
@@ -314,7 +353,7 @@ def gauge_sentence(p):
     if p["intrudes_envelope"]:
         return "Intrudes the structure gauge by %.2f m." % -p["margin_m"]
     if p["margin_m"] < 0:
-        return "No longer in the structure gauge: it stood %.2f m inside." % -p["margin_m"]
+        return "Gone: it stood %.2f m inside the structure gauge." % -p["margin_m"]
     return "%.2f m clear of the structure gauge." % p["margin_m"]
 
 
@@ -407,10 +446,37 @@ class OfflineComparison(unittest.TestCase):
                             (["--run", "99"], "no run 99"),
                             (["--run", "2", "--reference", "98"], "98"),
                             (["--run", "2", "--json", "/nonexistent/x.json"], "no folder"),
-                            (["--run", "2", "--reference", "2"], "names the run itself")):
+                            (["--run", "2", "--reference", "2"], "names the run itself"),
+                            (["--run", "2", "--json", self.copy], "it is a folder"),
+                            (["--run", "2", "--from-km", "nan"], "--from-km must be a number"),
+                            (["--run", "2", "--to-km", "-inf"], "--to-km must be a number"),
+                            (["--run", "2", "--from-km", "0.2", "--to-km", "0.1"],
+                             "--from-km must be below --to-km"),
+                            (["--run", "2", "--from-km", "5"], "line 'Demo' runs from km 0.000"),
+                            (["--run", "2", "--explain-at", "nan,1"], "two numbers"),
+                            (["--run", "2", "--explain-radius", "-5"], "positive number")):
             done = self.changes(*args)
             self.assertEqual(done.returncode, 2, args)
             self.assertIn(words, done.stderr, args)
+        # Saving a part of the run would withdraw the changes outside it: refused, nothing
+        # stored changes.
+        index = os.path.join(self.copy, "index.sqlite")
+        before = subprocess.run(["sqlite3", index, "SELECT id, status, note FROM changes"],
+                                check=True, stdout=subprocess.PIPE).stdout
+        done = self.changes("--run", "2", "--save", "--from-km", "0.15", "--to-km", "0.2")
+        self.assertEqual(done.returncode, 2)
+        self.assertIn("--save compares and stores the whole run", done.stderr)
+        self.assertEqual(subprocess.run(["sqlite3", index, "SELECT id, status, note FROM changes"],
+                                        check=True, stdout=subprocess.PIPE).stdout, before)
+        # An empty index is not a store, and is left as it is.
+        empty = tempfile.mkdtemp(prefix="empty_", dir=FIX["dir"])
+        open(os.path.join(empty, "index.sqlite"), "w").close()
+        done = subprocess.run([os.path.join(harness.bin_dir(), "raillomer-changes"), "--data",
+                               empty, "--run", "2"], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, timeout=60)
+        self.assertEqual(done.returncode, 2)
+        self.assertIn("is empty: not a store", done.stderr)
+        self.assertEqual(os.path.getsize(os.path.join(empty, "index.sqlite")), 0)
         # A mistyped folder is not made a store; the store the server holds is not opened.
         binary = os.path.join(harness.bin_dir(), "raillomer-changes")
         missing = os.path.join(self.copy, "no-such-store")

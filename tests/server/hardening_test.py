@@ -9,17 +9,21 @@ with: python3 tests/server/hardening_test.py Hardening.test_gzip_body_is_refused
 import http.client
 import json
 import os
+import shutil
 import signal
 import socket
 import stat
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import unittest
 import zlib
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from harness import Server, body_of, pose, raw_exchange, status_of, submap_pcd  # noqa: E402
+from harness import (Server, bin_dir, body_of, pose, raw_exchange, status_of,  # noqa: E402
+                     submap_pcd)
 
 #: No request without a token may grow the server's peak memory by more than this (MB).
 UNAUTHENTICATED_GROWTH_MB = 64.0
@@ -650,12 +654,33 @@ class BadInputs(unittest.TestCase):
             server.cleanup()
 
 
+class CommandLine(unittest.TestCase):
+    """Bad flags and config paths: a message naming them and a non-zero exit, before any store
+    is made."""
+
+    def test_bad_flags_and_config_paths_are_named(self):
+        work = tempfile.mkdtemp(prefix="raillomer_cli_")
+        try:
+            data = os.path.join(work, "data")
+            for extra, words in ((["--config", work], "a folder, not a config file"),
+                                 (["--config", os.path.join(work, "no.yaml")], "no such file"),
+                                 (["--port", "-1"], "not in range 0 to 65535"),
+                                 (["--ws-port", "70000"], "not in range 0 to 65535")):
+                done = subprocess.run(
+                    [os.path.join(bin_dir(), "raillomer-server"), "--data", data] + extra,
+                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=30)
+                self.assertNotEqual(done.returncode, 0, extra)
+                self.assertIn(words, done.stdout + done.stderr, extra)
+                self.assertFalse(os.path.exists(data), extra)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+
+
 class StaticFiles(unittest.TestCase):
     """6. The web root: nothing outside it, no NUL tricks, and the read token when reads need
     one."""
 
     def setUp(self):
-        import tempfile
         self.dir = tempfile.mkdtemp(prefix="raillomer_web_")
         web = os.path.join(self.dir, "web")
         os.makedirs(os.path.join(web, "assets"))
@@ -671,7 +696,6 @@ class StaticFiles(unittest.TestCase):
         self.server = None
 
     def tearDown(self):
-        import shutil
         if self.server:
             self.assertTrue(self.server.alive(), self.server.log_text())
             self.server.cleanup()
@@ -750,7 +774,6 @@ class LostSubmaps(unittest.TestCase):
             self.assertEqual(server.metric("raillomer_submaps_lost"), 0)
         finally:
             server.cleanup()
-            import shutil
             shutil.rmtree(os.path.dirname(data), ignore_errors=True)
 
 

@@ -11,8 +11,17 @@ const KIND_COLORS = { added: 0xff7b72, removed: 0x58a6ff, moved: 0xd2a8ff, veget
 /** The change against the structure gauge, in words (a removed object no longer intrudes). */
 function gaugeText(c) {
   if (c.intrudes_envelope) return `yes, ${fmt(-c.margin_m)} m inside`;
-  if (c.kind === 'removed' && c.margin_m < 0) return `no longer: it stood ${fmt(-c.margin_m)} m inside`;
+  if (c.kind === 'removed' && c.margin_m < 0) return `gone: it stood ${fmt(-c.margin_m)} m inside`;
   return `no, ${fmt(c.margin_m)} m clear`;
+}
+
+/** Where across the track a change lies: "left 2.3 m", or its extent when it lies across. */
+function placeText(c, digits) {
+  const side = (o) => `${fmt(Math.abs(o), digits)} m ${o >= 0 ? 'left' : 'right'}`;
+  if (c.side === 'across' && c.offset_range_m) {
+    return `across, ${side(c.offset_range_m[0])} to ${side(c.offset_range_m[1])}`;
+  }
+  return `${c.side} ${fmt(Math.abs(c.offset_m), digits)} m`;
 }
 
 export class ChangesPanel {
@@ -146,7 +155,7 @@ export class ChangesPanel {
       li.classList.toggle('selected', this.selected?.id === c.id);
       li.innerHTML =
         `<span class="kind ${escapeHtml(c.kind)}">${escapeHtml(c.kind)}</span>` +
-        `${formatKm(c.chainage_m / 1000)} ${escapeHtml(c.side)} ${fmt(Math.abs(c.offset_m), 1)} m` +
+        `${formatKm(c.chainage_m / 1000)} ${escapeHtml(placeText(c, 1))}` +
         ` · ${fmt(Math.max(...c.size_m), 1)} m` +
         (c.intrudes_envelope ? ' · <b>in gauge</b>' : '') +
         ` · <i>${escapeHtml(c.status)}</i>` +
@@ -204,7 +213,7 @@ export class ChangesPanel {
     $('change-detail').hidden = false;
     $('change-title').textContent = `Change ${c.id}: ${c.kind} at ${formatKm(c.chainage_m / 1000)}`;
     const rows = [
-      ['side, offset', `${c.side}, ${fmt(c.offset_m)} m`],
+      ['side, offset', placeText(c, 2)],
       ['size (along, across, height)', c.size_m.map((v) => fmt(v)).join(' × ') + ' m'],
       ['height above rail', `${fmt(c.height_above_rail_m[0])} to ${fmt(c.height_above_rail_m[1])} m`],
       ['in the gauge', gaugeText(c)],
