@@ -272,6 +272,8 @@ void ParseGnssAndVehicle(MapReader& root, RigConfig* rig) {
     MapReader r(root.Node("vehicle"), "vehicle", root.source());
     r.Read("body_above_rail_top_m", &rig->body_above_rail_top_m);
     r.Read("gauge_m", &rig->gauge_m);
+    if (root.Node("vehicle")["gauge_m"] && !(rig->gauge_m > 0.5 && rig->gauge_m < 3.0))
+      r.Fail(root.Node("vehicle")["gauge_m"], "key 'vehicle.gauge_m' must be within (0.5, 3) m");
     r.Finish();
   }
 }

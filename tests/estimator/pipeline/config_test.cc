@@ -154,6 +154,15 @@ TEST(EstimatorConfig, RejectsBadValuesAndTypes) {
         << line;
     EXPECT_NE(error.find(message), std::string::npos) << line << ": " << error;
   }
+  // The track gauge is the vehicle's key, and the message names it there, with its line.
+  std::string rig = DemoRigYaml();
+  const size_t gauge = rig.find("gauge_m: 1.435");
+  ASSERT_NE(gauge, std::string::npos) << rig;
+  rig.replace(gauge, 14, "gauge_m: 0");
+  EXPECT_FALSE(ParseEstimatorConfig(rig, "rig.yaml", &config, &error));
+  EXPECT_NE(error.find("key 'vehicle.gauge_m' must be within (0.5, 3) m"), std::string::npos)
+      << error;
+  EXPECT_NE(error.find("rig.yaml:"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: x\n", "rig.yaml", &config, &error));
   EXPECT_NE(error.find("lidars"), std::string::npos) << error;
   EXPECT_FALSE(ParseEstimatorConfig("rig: [", "rig.yaml", &config, &error));
