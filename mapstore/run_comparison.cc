@@ -669,9 +669,13 @@ std::vector<RunChange> FindChanges(const Stretch& stretch,
 
 }  // namespace
 
-const char* SideOf(const RunChange& c) {
+bool LiesAcross(const RunChange& c) {
   constexpr double kRailM = 0.7175;  // a rail's centre from the track's (standard gauge, 1435 mm)
-  if (c.offset_from_m <= -kRailM && c.offset_to_m >= kRailM) return "across";
+  return c.offset_from_m <= -kRailM && c.offset_to_m >= kRailM;
+}
+
+const char* SideOf(const RunChange& c) {
+  if (LiesAcross(c)) return "across";
   return c.offset_m >= 0.0 ? "left" : "right";
 }
 

@@ -96,8 +96,10 @@ struct RunChange {
   double moved_m = 0.0;
 };
 
+/// Whether a change's footprint reaches over both rails (a tree lying over them).
+bool LiesAcross(const RunChange& change);
 /// Which side of the track a change lies on: "left" or "right" of increasing chainage (its
-/// centre's), or "across" when its footprint reaches over both rails (a tree lying over them).
+/// centre's), or "across" when it lies across.
 const char* SideOf(const RunChange& change);
 
 /// A stretch of the line: the chainage it covers (the line's offset included).

@@ -15,11 +15,15 @@ namespace raillomer::server {
 
 using nlohmann::json;
 
+std::string JsonText(const json& j) {
+  return j.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
 namespace {
 
 /// A key as a message quotes it: JSON-escaped, at most 64 bytes of it.
 std::string QuotedKey(const std::string& key) {
-  std::string quoted = json(key.substr(0, 64)).dump(-1, ' ', false, json::error_handler_t::replace);
+  std::string quoted = JsonText(key.substr(0, 64));
   if (key.size() > 64) quoted.insert(quoted.size() - 1, "...");
   return quoted;
 }

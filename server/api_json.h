@@ -18,6 +18,10 @@ nlohmann::json TileJson(const mapstore::TileInfo& tile);
 nlohmann::json LineJson(const mapstore::LineInfo& line);
 nlohmann::json PoiJson(const mapstore::Poi& poi);
 
+/// `j` as JSON text; bytes of its strings that are not UTF-8 (a client's) are replaced, never
+/// thrown on.
+std::string JsonText(const nlohmann::json& j);
+
 /// `text` as JSON into `out`; what is wrong with it, or "". A member named twice in one object
 /// is wrong: a plain parse keeps the last, so a client's first value would vanish unsaid.
 std::string ParseJson(const std::string& text, nlohmann::json* out);

@@ -175,7 +175,7 @@ std::string PlaceText(const mapstore::RunChange& x) {
   const auto side = [](double offset) {
     return Fixed(std::abs(offset), 2) + " m " + (offset >= 0.0 ? "left" : "right");
   };
-  if (std::string(mapstore::SideOf(x)) == "across")
+  if (mapstore::LiesAcross(x))
     return "across the track (" + side(x.offset_from_m) + " to " + side(x.offset_to_m) + ")";
   return side(x.offset_m);
 }

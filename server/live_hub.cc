@@ -176,7 +176,7 @@ class LiveHub::Impl::WsSession : public std::enable_shared_from_this<WsSession> 
         reply["runs"].push_back(r == 0 ? nlohmann::json("all") : nlohmann::json(r));
     }
     auto m = std::make_shared<Message>();
-    m->text = reply.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+    m->text = JsonText(reply);
     Push(std::move(m));
   }
 
@@ -397,12 +397,8 @@ class LiveHub::Impl::HttpSession : public std::enable_shared_from_this<HttpSessi
     stream_.expires_after(std::chrono::seconds(5));
     auto response = std::make_shared<http::response<http::string_body>>(status, request.version());
     response->set(http::field::content_type, "application/json");
-    response->body() =
-        nlohmann::json{{"error", {{"code", CodeOf(status)}, {"message", message}}}}.dump(
-            -1,
-            ' ',
-            false,
-            nlohmann::json::error_handler_t::replace);  // the target need not be UTF-8
+    // The message may quote a target that is not UTF-8.
+    response->body() = JsonText({{"error", {{"code", CodeOf(status)}, {"message", message}}}});
     response->prepare_payload();
     http::async_write(
         stream_, *response, [self = shared_from_this(), response](beast::error_code, size_t) {

@@ -32,7 +32,7 @@ void SendResult(HttpResponse& res, const mapstore::Result& r) {
 }
 
 void SendJson(HttpResponse& res, const json& j, const char* type) {
-  res.SetContent(j.dump(-1, ' ', false, json::error_handler_t::replace), type);
+  res.SetContent(JsonText(j), type);
 }
 
 /// A JSON body as an object; false (and a 400 set) if it is not one.

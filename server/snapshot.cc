@@ -233,7 +233,7 @@ void DrawChange(Canvas& canvas,
 
 /// Where across the track, as the title says it: "2.3 M LEFT", or "ACROSS 5.7 M R - 10.3 M L".
 std::string PlaceWords(const mapstore::RunChange& c) {
-  if (std::string(mapstore::SideOf(c)) == "across")
+  if (mapstore::LiesAcross(c))
     return Format("ACROSS %.1f M ", std::abs(c.offset_from_m)) +
            (c.offset_from_m >= 0.0 ? "L" : "R") + Format(" - %.1f M ", std::abs(c.offset_to_m)) +
            (c.offset_to_m >= 0.0 ? "L" : "R");

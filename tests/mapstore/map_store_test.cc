@@ -658,21 +658,25 @@ TEST(MapStore, ASubmapWhosePayloadWasLostIsRestoredBySendingItAgain) {
   EXPECT_EQ(store->IngestSubmap(run, payload, nullptr).outcome, Outcome::kDuplicate);
 }
 
+/// An index as schema version `version` wrote it, with `rows` inserted (SQL statements).
+void WriteOldIndex(const std::string& path, int version, const std::string& rows) {
+  std::string error;
+  Database db;
+  ASSERT_TRUE(db.Open(path, true, &error)) << error;
+  ASSERT_TRUE(MigrateSchemaTo(db, version, &error)) << error;
+  ASSERT_TRUE(db.Exec(rows, &error)) << error;
+}
+
 TEST(MapStore, MigratesAnOlderIndexAndRefusesANewerOne) {
   test::ScratchDir dir("raillomer_store_");
   const std::string path = (dir.path() / "index.sqlite").string();
   std::string error;
-  {
-    // An index as the first schema version wrote it, with a run on it.
-    Database db;
-    ASSERT_TRUE(db.Open(path, true, &error)) << error;
-    ASSERT_TRUE(MigrateSchemaTo(db, 1, &error)) << error;
-    ASSERT_TRUE(
-        db.Exec("INSERT INTO runs (line, vehicle, status, start_ns, created_ns) VALUES "
-                "('Old line', 'RLM-0', 'finished', 5, 6)",
-                &error))
-        << error;
-  }
+  // An index as the first schema version wrote it, with a run on it.
+  ASSERT_NO_FATAL_FAILURE(
+      WriteOldIndex(path,
+                    1,
+                    "INSERT INTO runs (line, vehicle, status, start_ns, created_ns) VALUES "
+                    "('Old line', 'RLM-0', 'finished', 5, 6)"));
   {
     auto store = OpenStore(dir.path().string(), &error);
     ASSERT_TRUE(store) << error;
@@ -703,19 +707,13 @@ TEST(MapStore, MigrationEightKeepsTheChangesAndNeverGivesAnIdAgain) {
       "utm_zone, x, y, z, properties, intrudes, size_max_m, created_ns, updated_ns, "
       "first_seen_run) VALUES (7, 1, 0, 'L', 'added', 12.0, -2.0, '50N', 1, 2, 3, '{}', 0, 1.5, "
       "5, 6, 7)";
-  {
-    // Version 7 held change 5, the latest, with a note.
-    Database db;
-    ASSERT_TRUE(db.Open(path, true, &error)) << error;
-    ASSERT_TRUE(MigrateSchemaTo(db, 7, &error)) << error;
-    ASSERT_TRUE(
-        db.Exec("INSERT INTO runs (id, line, vehicle, status, start_ns, created_ns) "
-                "VALUES (7, 'L', 'V', 'finished', 5, 6)",
-                &error))
-        << error;
-    ASSERT_TRUE(db.Exec(change, &error)) << error;
-    ASSERT_TRUE(db.Exec("UPDATE changes SET id = 5, note = 'cut it'", &error)) << error;
-  }
+  // Version 7 held change 5, the latest, with a note.
+  ASSERT_NO_FATAL_FAILURE(WriteOldIndex(path,
+                                        7,
+                                        "INSERT INTO runs (id, line, vehicle, status, start_ns, "
+                                        "created_ns) VALUES (7, 'L', 'V', 'finished', 5, 6); " +
+                                            change +
+                                            "; UPDATE changes SET id = 5, note = 'cut it'"));
   ASSERT_TRUE(OpenStore(dir.path().string(), &error)) << error;  // migrates, then closes
   Database db;
   ASSERT_TRUE(db.Open(path, false, &error)) << error;
@@ -734,20 +732,15 @@ TEST(MapStore, MigrationFourTakesLostSubmapsOutOfTheirRunsCounts) {
   test::ScratchDir dir("raillomer_store_");
   const std::string path = (dir.path() / "index.sqlite").string();
   std::string error;
-  {
-    // Version 3 counted a submap whose payload was lost (tiled = -1) in its run.
-    Database db;
-    ASSERT_TRUE(db.Open(path, true, &error)) << error;
-    ASSERT_TRUE(MigrateSchemaTo(db, 3, &error)) << error;
-    ASSERT_TRUE(db.Exec(
-        "INSERT INTO runs (id, line, vehicle, status, start_ns, created_ns, utm_zone, submaps, "
-        "points) VALUES (7, 'L', 'V', 'finished', 5, 6, '50N', 2, 300);"
-        "INSERT INTO submaps VALUES (7, 0, 0, 1, 2, '50N', 0, 0, 0, 0, 0, 1, 1, 100, 1, 'a', 1, 9);"
-        "INSERT INTO submaps VALUES (7, 1, 1, 3, 4, '50N', 0, 0, 0, 0, 0, 1, 1, 200, 1, 'b', -1, "
-        "9);",
-        &error))
-        << error;
-  }
+  // Version 3 counted a submap whose payload was lost (tiled = -1) in its run.
+  ASSERT_NO_FATAL_FAILURE(WriteOldIndex(
+      path,
+      3,
+      "INSERT INTO runs (id, line, vehicle, status, start_ns, created_ns, utm_zone, submaps, "
+      "points) VALUES (7, 'L', 'V', 'finished', 5, 6, '50N', 2, 300);"
+      "INSERT INTO submaps VALUES (7, 0, 0, 1, 2, '50N', 0, 0, 0, 0, 0, 1, 1, 100, 1, 'a', 1, 9);"
+      "INSERT INTO submaps VALUES (7, 1, 1, 3, 4, '50N', 0, 0, 0, 0, 0, 1, 1, 200, 1, 'b', -1, "
+      "9);"));
   auto store = OpenStore(dir.path().string(), &error);
   ASSERT_TRUE(store) << error;
   RunInfo run;
